@@ -1,0 +1,23 @@
+# modalfem: `make demo` and `make test` set everything up on first use (idempotent).
+VENV ?= .venv
+PY := $(VENV)/bin/python
+OUT ?= out/demo
+
+.PHONY: setup demo test test-fast bench clean
+
+setup:
+	@bash scripts/setup.sh $(VENV)
+
+demo: setup
+	@$(PY) -m modalfem modes box --size 1.0 0.1 0.1 --cells 40 4 4 --material steel --fixed x0 \
+	    -k 8 --degree 2 --out $(OUT) --json $(OUT)/modes.json
+	@echo "demo outputs in $(OUT)/: modes.json (frequencies, labels, certificate), modes.png (mode sheet), modes.xdmf/vtu (ParaView)"
+
+test: setup
+	@$(PY) -m pytest tests -q
+
+bench: setup
+	@$(PY) -m modalfem bench modes --out BENCHMARKS.md
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Idempotent setup for modalfem on Debian 12.
+#   With root (or passwordless sudo): Debian's FEniCSx (dolfinx, petsc4py, slepc4py), OpenBLAS,
+#   the X11/GL libraries the PyPI gmsh wheel needs, then .venv on /usr/bin/python3 with
+#   --system-site-packages, Debian's numpy/scipy pinned by a constraints file.
+#   Without root: a pip-only .venv (scikit-fem backend, SciPy eigensolver).
+# Usage: scripts/setup.sh [VENV_DIR]   (default .venv)   MODALFEM_PIP_ONLY=1 forces the pip-only path.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV="${1:-.venv}"
+APT_PKGS="python3-dolfinx python3-slepc4py python3-petsc4py python3-venv python3-pip libopenblas0-pthread \
+  openmpi-bin libglu1-mesa libxcursor1 libxft2 libxinerama1 libgl1 libxrender1 libxext6"
+
+stamp_input() { cat pyproject.toml scripts/setup.sh; echo "pip_only=${MODALFEM_PIP_ONLY:-0}"; }
+STAMP="$VENV/.modalfem-setup-$(stamp_input | sha256sum | cut -c1-16)"
+if [ -f "$STAMP" ] && "$VENV/bin/python" -c "import modalfem" 2>/dev/null; then
+  echo "setup: $VENV is up to date"
+  exit 0
+fi
+
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+  if command -v sudo >/dev/null 2>&1 && sudo -n true 2>/dev/null; then SUDO="sudo -n"; else SUDO="none"; fi
+fi
+
+PIP_ONLY="${MODALFEM_PIP_ONLY:-0}"
+if [ "$PIP_ONLY" != "1" ] && [ "$SUDO" != "none" ] && command -v apt-get >/dev/null 2>&1; then
+  missing=""
+  for p in $APT_PKGS; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+  done
+  if [ -n "$missing" ]; then
+    echo "setup: installing Debian packages:$missing"
+    export DEBIAN_FRONTEND=noninteractive
+    $SUDO apt-get update -qq
+    $SUDO apt-get install -y -qq --no-install-recommends $missing >/dev/null
+  fi
+  if ! /usr/bin/python3 -c "import dolfinx, petsc4py, slepc4py" 2>/dev/null; then
+    echo "setup: Debian FEniCSx did not import; falling back to the pip-only venv" >&2
+    PIP_ONLY=1
+  fi
+else
+  if [ "$PIP_ONLY" != "1" ]; then
+    echo "setup: no root/sudo: building a pip-only venv (scikit-fem backend, SciPy eigensolver; no FEniCSx/SLEPc)"
+  fi
+  PIP_ONLY=1
+fi
+
+rm -rf "$VENV"
+if [ "$PIP_ONLY" = "1" ]; then
+  PY=python3
+  command -v "$PY" >/dev/null || PY=/usr/bin/python3
+  "$PY" -m venv "$VENV"
+  "$VENV/bin/python" -m pip install -q --upgrade pip
+  "$VENV/bin/python" -m pip install -q -e ".[test]"
+else
+  /usr/bin/python3 -m venv --system-site-packages "$VENV"
+  # petsc4py/dolfinx are built against Debian's numpy/scipy: pip must never replace them.
+  /usr/bin/python3 -c "import numpy, scipy; print(f'numpy=={numpy.__version__}\nscipy=={scipy.__version__}')" \
+    > "$VENV/constraints.txt"
+  "$VENV/bin/python" -m pip install -q -c "$VENV/constraints.txt" -e ".[test]"
+fi
+"$VENV/bin/python" -c "import modalfem, numpy, scipy; print('setup: modalfem ready in $VENV (numpy', numpy.__version__, ', scipy', scipy.__version__, ', fenicsx:', modalfem.have_fenicsx(), ')')"
+touch "$STAMP"
