@@ -1,0 +1,1 @@
+"""Eigen solvers (SLEPc, SciPy), certification, rigid-mode handling and mode labels."""
