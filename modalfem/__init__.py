@@ -10,6 +10,7 @@ Quick start::
 """
 
 from modalfem.backends import have_fenicsx, have_slepc
+from modalfem.constraints import Fix
 from modalfem.errors import (
     BackendUnavailableError,
     ConstraintError,
@@ -21,6 +22,7 @@ from modalfem.errors import (
 )
 from modalfem.material import ALUMINIUM, BRASS, STEEL, Material
 from modalfem.mesh.core import Mesh
+from modalfem.modes import modes  # binds the function over the submodule name
 from modalfem.result import Certificate, ModalResult
 
 __version__ = "0.1.0"
@@ -47,14 +49,3 @@ __all__ = [
     "__version__",
 ]
 
-
-def __getattr__(name: str):
-    if name == "modes":
-        from modalfem.modes import modes
-
-        return modes
-    if name == "Fix":
-        from modalfem.constraints import Fix
-
-        return Fix
-    raise AttributeError(f"module 'modalfem' has no attribute {name!r}")

@@ -33,11 +33,16 @@ Volumes) are read as one body, and other cell types (lines, vertices, quads) are
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import io
 import math
 import os
+import sys
 import tempfile
+import threading
+import types
 from collections import Counter
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +63,32 @@ def _one_line(exc: BaseException) -> str:
     text = str(exc).strip()
     first = text.splitlines()[0] if text else ""
     return f"{type(exc).__name__}: {first}" if first else f"malformed or unsupported file ({type(exc).__name__})"
+
+
+_H5PY_LOCK = threading.Lock()
+
+
+@contextmanager
+def _xdmf_without_h5py():
+    """Let meshio handle XML-only XDMF without importing h5py.
+
+    meshio imports h5py unconditionally in its XDMF reader and writer although XML data never
+    uses it. A pip-installed h5py bundles its own HDF5 and breaks ("Not a datatype") in a process
+    that has loaded dolfinx's system HDF5, so modalfem does not depend on it: when h5py is not
+    installed, a bare placeholder module stands in for the duration of the call (under a lock)
+    and is removed afterwards; HDF5-backed XDMF files then fail with a clear message.
+    """
+    if importlib.util.find_spec("h5py") is not None:
+        yield
+        return
+    with _H5PY_LOCK:
+        stub = types.ModuleType("h5py")
+        sys.modules["h5py"] = stub
+        try:
+            yield
+        finally:
+            if sys.modules.get("h5py") is stub:
+                del sys.modules["h5py"]
 
 
 def _as_path(path, what: str) -> Path:
@@ -92,9 +123,15 @@ def read(path, *, unit_scale: float = 1.0) -> Mesh:
         raise MeshError(f"mesh path is not a file: {p}")
     import meshio
 
+    no_h5py = p.suffix.lower() == ".xdmf" and importlib.util.find_spec("h5py") is None
     try:
-        m = _meshio_read(meshio, p)
+        with _xdmf_without_h5py():
+            m = _meshio_read(meshio, p)
     except Exception as exc:
+        if no_h5py and "h5py" in str(exc):
+            raise MeshError(
+                f"cannot read mesh file {p}: HDF5-backed XDMF needs h5py (pip install h5py); {_one_line(exc)}"
+            ) from exc
         if isinstance(exc, MeshError):
             raise
         raise MeshError(f"cannot read mesh file {p}: {_one_line(exc)}") from exc
@@ -269,7 +306,8 @@ def _write_meshio(mesh: Mesh, tmp: str, fmt: str) -> None:
         cell_data[_TAG_PREFIX + name] = [np.zeros(mesh.cell_count, dtype=np.int64)] + ([pos] if len(tri) else [])
     out = meshio.Mesh(np.asarray(mesh.points), blocks, cell_data=cell_data)
     if fmt == "xdmf":
-        meshio.write(tmp, out, file_format="xdmf", data_format="XML")
+        with _xdmf_without_h5py():
+            meshio.write(tmp, out, file_format="xdmf", data_format="XML")
     else:
         meshio.write(tmp, out, file_format=fmt)
 

@@ -1,0 +1,382 @@
+"""``modes``: the lowest certified vibration modes of a meshed elastic body.
+
+Pipeline: constraints -> assembly (FEniCSx or scikit-fem) -> restriction to free DOFs -> automatic
+negative shift -> eigen solve (SLEPc or SciPy) -> rigid/deformation split -> certificate -> labels.
+
+The shift (no user input): shift-invert at ``shift = -alpha`` with ``alpha = SHIFT_FRACTION * theta``
+where ``theta`` is a Rayleigh-Ritz upper bound of the first deformation eigenvalue, from 30 smooth
+trial fields (each displacement component times 1, x, y, z, x^2, ..., zx, multiplied by the distance to
+the nodes where that component is held, so the fields are admissible). By min-max, Ritz value number
+r (r = surviving rigid modes) is >= lambda_1 of the discrete problem; measured it lies within ~1.1-3x
+of it for beams, plates and cubes, free or clamped. Why about lambda_1:
+
+* the transformed spectrum 1/(lambda - shift) must separate the wanted modes: alpha much larger than
+  lambda_k squeezes them together near 1/alpha (slow Lanczos); alpha much smaller than lambda_1 lets the
+  rigid modes (1/alpha) dominate the operator norm, and ARPACK's Ritz vectors of the deformation modes
+  then carry errors ~ eps * lambda / alpha (measured: residual 1e-7 at alpha = 1e2, 1e-11 at 1e7 on a
+  steel beam with lambda_1 = 1e7);
+* K + alpha M stays positive definite with condition ~ lambda_max / alpha, so rigid modes come out
+  with lambda ~ 0 to roundoff and a Cholesky-type factorisation applies (ENVIRONMENT.md's -1e4
+  rad^2/s^2 for a steel beam is alpha ~ lambda_1 / 25);
+* a floor ``alpha >= 1e-9 * max(K_ii / M_ii)`` (~1e-9 lambda_max) bounds that condition if the trial
+  fields fail.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from dataclasses import replace
+
+import numpy as np
+
+from modalfem.errors import BackendUnavailableError, InputError, ModalfemError, SolverError
+from modalfem.result import ModalResult
+
+__all__ = ["modes", "estimate_shift", "SHIFT_FRACTION", "SOLVERS"]
+
+SOLVERS = ("slepc", "scipy")
+#: alpha = SHIFT_FRACTION * (Ritz upper bound of lambda_1): between lambda_1/6 and lambda_1/2 in practice
+SHIFT_FRACTION = 0.5
+_ALPHA_FLOOR = 1e-9
+
+
+def _trial_fields(mesh, degree: int, fixed: np.ndarray) -> np.ndarray:
+    """30 admissible smooth fields (n_dof, 30): component x (quadratic polynomial) x distance-to-held."""
+    from scipy.spatial import cKDTree
+
+    p = mesh.dof_points(degree)
+    lo, hi = mesh.bounds
+    L = float(np.max(hi - lo))
+    xi = (p - 0.5 * (lo + hi)) / L
+    x, y, z = xi.T
+    poly = np.column_stack([np.ones(len(p)), x, y, z, x * x, y * y, z * z, x * y, y * z, z * x])
+    held = fixed.reshape(-1, 3)
+    B = np.zeros((len(p), 3, 3 * poly.shape[1]))
+    for c in range(3):
+        w = np.ones(len(p))
+        if held[:, c].any():
+            w = cKDTree(p[held[:, c]]).query(p)[0] / L
+        B[:, c, c * poly.shape[1] : (c + 1) * poly.shape[1]] = w[:, None] * poly
+    return B.reshape(3 * len(p), -1)
+
+
+def _ritz_products(B: np.ndarray, K, M, rows, comm):
+    """(B^T K B, B^T M B, max K_ii / M_ii) for scipy matrices, or PETSc ones with ``rows``."""
+    if rows is None:
+        lam_max = float(np.max(K.diagonal() / M.diagonal()))
+        return B.T @ (K @ B), B.T @ (M @ B), lam_max
+    x, y = K.createVecs()
+    Bl = B[rows]
+    KB = np.empty_like(Bl)
+    MB = np.empty_like(Bl)
+    for j in range(B.shape[1]):
+        x.setArray(Bl[:, j])
+        K.mult(x, y)
+        KB[:, j] = y.getArray()
+        M.mult(x, y)
+        MB[:, j] = y.getArray()
+    dk, dm = K.getDiagonal().getArray(), M.getDiagonal().getArray()
+    from mpi4py import MPI
+
+    Kr = comm.allreduce(Bl.T @ KB, op=MPI.SUM)
+    Mr = comm.allreduce(Bl.T @ MB, op=MPI.SUM)
+    lam_max = comm.allreduce(float(np.max(dk / dm)) if len(dk) else 0.0, op=MPI.MAX)
+    return Kr, Mr, lam_max
+
+
+def estimate_shift(mesh, degree: int, fixed: np.ndarray, K_ff, M_ff, *, rigid_count: int, rows=None, comm=None):
+    """Automatic negative shift [rad^2/s^2] for the shift-invert solve (see the module docstring).
+
+    Args:
+        mesh: the ``Mesh``; degree: 1 or 2; fixed: bool mask (N_dof,) of held DOFs.
+        K_ff, M_ff: free-DOF stiffness [N/m] and mass [kg] (scipy sparse, or PETSc with ``rows``).
+        rigid_count: surviving rigid modes r (Ritz value r bounds lambda_1 from above).
+        rows, comm: PETSc row map and communicator for distributed matrices.
+
+    Returns:
+        (shift, theta): shift = -alpha < 0 and theta, the Ritz upper bound of lambda_1 [rad^2/s^2].
+    """
+    B = _trial_fields(mesh, degree, fixed)[~fixed]
+    Kr, Mr, lam_max = _ritz_products(B, K_ff, M_ff, rows, comm)
+    Kr, Mr = 0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T)
+    s, V = np.linalg.eigh(Mr)
+    keep = s > 1e-10 * s.max()
+    T = V[:, keep] / np.sqrt(s[keep])
+    theta = np.linalg.eigvalsh(T.T @ Kr @ T)
+    theta_1 = float(theta[min(rigid_count, len(theta) - 1)])
+    alpha = max(SHIFT_FRACTION * theta_1, _ALPHA_FLOOR * lam_max)
+    if not np.isfinite(alpha) or alpha <= 0:
+        raise SolverError(f"could not choose a shift: Ritz estimate {theta_1!r}, diagonal ratio {lam_max!r}")
+    return -alpha, theta_1
+
+
+def _residual_floor(K_ff, X: np.ndarray, rows, comm) -> np.ndarray:
+    """eps * || |K| |x| || / ||K x|| per column: the roundoff floor of the relative residual."""
+    eps = np.finfo(float).eps
+    if rows is None:
+        K = K_ff.tocsr()
+        absK = K.copy()
+        absK.data = np.abs(absK.data)
+        num, den = absK @ np.abs(X), K @ X
+        return eps * np.linalg.norm(num, axis=0) / np.maximum(np.linalg.norm(den, axis=0), np.finfo(float).tiny)
+    import scipy.sparse as sp
+    from mpi4py import MPI
+
+    all_rows = np.concatenate(comm.allgather(np.asarray(rows)))  # PETSc global index -> canonical free index
+    indptr, indices, data = K_ff.getValuesCSR()
+    Kl = sp.csr_matrix((data, indices, indptr), shape=(len(rows), len(all_rows)))
+    Xg = X[all_rows]
+    num = comm.allreduce(np.sum((abs(Kl) @ np.abs(Xg)) ** 2, axis=0), op=MPI.SUM)
+    den = comm.allreduce(np.sum((Kl @ Xg) ** 2, axis=0), op=MPI.SUM)
+    return eps * np.sqrt(num) / np.maximum(np.sqrt(den), np.finfo(float).tiny)
+
+
+def _versions(backend: str, solver: str) -> dict:
+    import numpy
+    import scipy
+
+    v = {"numpy": numpy.__version__, "scipy": scipy.__version__}
+    for mod, key in (("skfem", "scikit-fem"), ("dolfinx", "dolfinx"), ("petsc4py", "petsc4py"), ("slepc4py", "slepc4py")):
+        if mod in sys.modules:
+            v[key] = getattr(sys.modules[mod], "__version__", "?")
+    return v
+
+
+def _validate(mesh, material, k, degree, tol):
+    from modalfem.material import Material
+    from modalfem.mesh.core import Mesh
+
+    if not isinstance(mesh, Mesh):
+        raise InputError(f"mesh must be a modalfem Mesh, got {type(mesh).__name__}")
+    if not isinstance(material, Material):
+        raise InputError(f"material must be a modalfem Material, got {type(material).__name__}")
+    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
+        raise InputError(f"k must be an integer >= 1 (number of deformation modes), got {k!r}")
+    if isinstance(degree, bool) or degree not in (1, 2):
+        raise InputError(f"degree must be 1 or 2, got {degree!r}")
+    if not (isinstance(tol, (int, float)) and 0 < tol < 1):
+        raise InputError(f"tol must be a relative residual in (0, 1), got {tol!r}")
+
+
+def _pick_solver(solver: str) -> str:
+    from modalfem.backends import have_slepc
+
+    if solver == "auto":
+        return "slepc" if have_slepc() else "scipy"
+    if solver not in SOLVERS:
+        raise InputError(f"unknown solver {solver!r}; choose one of: auto, {', '.join(SOLVERS)}")
+    if solver == "slepc" and not have_slepc():
+        raise BackendUnavailableError(
+            "solver 'slepc' needs Debian's python3-slepc4py and python3-petsc4py seen from a venv built "
+            "with --system-site-packages (run `make setup` as root), or use solver='scipy'"
+        )
+    return solver
+
+
+def _mpi_comm(backend: str, solver: str):
+    """COMM_WORLD when running distributed (size > 1) with FEniCSx + SLEPc, else None."""
+    if backend != "fenicsx" or solver != "slepc":
+        return None
+    from mpi4py import MPI
+
+    return MPI.COMM_WORLD if MPI.COMM_WORLD.size > 1 else None
+
+
+def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say):
+    say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
+    try:
+        if solver == "slepc":
+            from modalfem.eigen.slepc import solve_slepc
+
+            kw = {"rows": rows, "comm": comm} if comm is not None else {}
+            return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, **kw)
+        from modalfem.eigen.scipy_solver import solve_scipy
+
+        return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol)
+    except (ModalfemError, ImportError):
+        raise
+    except Exception as exc:  # never a raw ARPACK/PETSc traceback
+        raise SolverError(f"{solver} eigen solve failed: {type(exc).__name__}: {exc}") from None
+
+
+def _missed(raw, rigid_expected: int, shift: float) -> int:
+    """Eigenvalues the solve missed: Sylvester count minus computed below the inertia shift, or rigid shortfall."""
+    from modalfem.eigen.scipy_solver import ZERO_RTOL
+
+    lam = np.asarray(raw.eigenvalues, dtype=float)
+    below = int(np.sum(lam < raw.inertia_shift))
+    rigid = int(np.sum(np.abs(lam) <= ZERO_RTOL * abs(shift)))
+    return max(int(raw.inertia_count) - below, rigid_expected - rigid, 0)
+
+
+def _labels(points, shapes) -> tuple[str, ...]:
+    try:
+        from modalfem.eigen.labels import label_modes
+    except ImportError:  # labels module not installed/written yet: plain names
+        return tuple(f"mode {i + 1}" for i in range(shapes.shape[1]))
+    try:
+        return tuple(label_modes(points, shapes))
+    except Exception as exc:  # labels are cosmetic: never lose a certified solve over them
+        warnings.warn(f"mode labelling failed ({type(exc).__name__}: {exc}); using 'mode i'", stacklevel=3)
+        return tuple(f"mode {i + 1}" for i in range(shapes.shape[1]))
+
+
+def modes(
+    mesh,
+    material,
+    *,
+    k: int,
+    degree: int = 2,
+    fixed=None,
+    backend: str = "auto",
+    solver: str = "auto",
+    lumped: bool = False,
+    tol: float = 1e-10,
+    progress=None,
+) -> ModalResult:
+    """Lowest ``k`` deformation modes (and all rigid-body modes) of a body, with a certificate.
+
+    Args:
+        mesh: the tetrahedral ``Mesh`` [m].
+        material: isotropic ``Material`` (E [Pa], nu, rho [kg/m^3]).
+        k: number of deformation (non-rigid) modes, >= 1.
+        degree: Lagrange degree, 1 or 2.
+        fixed: held DOFs: None (free body), a tag name, a predicate ``p (n, 3) -> bool (n,)``, a
+            ``Fix(where, components=...)``, or a list of those (see ``modalfem.constraints``).
+        backend: ``"auto"`` (FEniCSx if installed, else scikit-fem), ``"fenicsx"`` or ``"skfem"``.
+        solver: ``"auto"`` (SLEPc if installed, else SciPy), ``"slepc"`` or ``"scipy"``.
+        lumped: use a lumped (diagonal) mass matrix.
+        tol: bound on the relative residuals ||K x - lambda M x|| / ||K x|| for the certificate.
+        progress: optional callable(str), called with a short message at each stage.
+
+    Returns:
+        ``ModalResult`` with omega [rad/s] ascending, mass-normalised shapes over all DOFs (zeros at
+        fixed DOFs), rigid shapes, labels, certificate, timings [s] and provenance ``info``.
+
+    Raises:
+        InputError: bad argument types/values. ConstraintError: bad ``fixed``.
+        SolverError: k exceeds the free DOFs, or the eigen solve failed.
+        BackendUnavailableError: the requested backend/solver is not installed.
+    """
+    from modalfem.backends import get_backend, resolve_backend
+    from modalfem.constraints import fixed_mask
+    from modalfem.eigen.certify import build_certificate
+    from modalfem.eigen.rigid import expected_rigid_count
+    from modalfem.eigen.scipy_solver import ZERO_RTOL
+
+    say = progress if callable(progress) else (lambda msg: None)
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    _validate(mesh, material, k, degree, tol)
+    k = int(k)
+    backend = resolve_backend(backend)
+    solver = _pick_solver(solver)
+
+    say("constraints")
+    t = time.perf_counter()
+    fixed = fixed_mask(mesh, degree, fixed)
+    free = ~fixed
+    n_free = int(free.sum())
+    rigid_expected = expected_rigid_count(mesh, degree, fixed)
+    timings["constraints"] = time.perf_counter() - t
+    if k + rigid_expected > n_free - 1:
+        raise SolverError(
+            f"k={k} (+{rigid_expected} rigid modes) exceeds the {n_free} free DOFs: ask for at most "
+            f"{max(n_free - 1 - rigid_expected, 0)} modes or refine the mesh"
+        )
+    nev = k + rigid_expected
+
+    comm = _mpi_comm(backend, solver)
+    say(f"assembly ({backend}, P{degree}, {3 * mesh.node_count(degree)} DOFs{', distributed' if comm else ''})")
+    t = time.perf_counter()
+    rows = None
+    mod = get_backend(backend)
+    if comm is not None:
+        K_ff, M_ff, rows = mod.assemble_petsc(mesh, material, degree=degree, free=free, lumped=lumped, comm=comm)
+    else:
+        K, M = mod.assemble(mesh, material, degree=degree, lumped=lumped)
+        K_ff = K[free][:, free].tocsr()
+        M_ff = M[free][:, free].tocsr()
+        del K, M
+    timings["assembly"] = time.perf_counter() - t
+
+    say("shift")
+    t = time.perf_counter()
+    shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=rigid_expected, rows=rows, comm=comm)
+    timings["shift"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say)
+    missed = _missed(raw, rigid_expected, shift)
+    if missed > 0 and nev + missed + 4 <= n_free - 1:
+        # a Krylov solver can miss copies of a multiple eigenvalue (12 rigid modes of two free pieces):
+        # the Sylvester count says how many; one retry with a wider search usually recovers them
+        say(f"retry: {missed} eigenvalue(s) missed below the inertia shift")
+        raw = _solve(solver, K_ff, M_ff, nev=nev + missed + 4, shift=shift, tol=tol, rows=rows, comm=comm, say=say)
+    timings["eigen"] = time.perf_counter() - t
+    for key, val in raw.timings.items():
+        timings[f"eigen.{key}"] = float(val)
+
+    say("certificate")
+    t = time.perf_counter()
+    lam = np.asarray(raw.eigenvalues, dtype=float)
+    X = np.asarray(raw.vectors)
+    rigid_found = int(np.sum(np.abs(lam) <= ZERO_RTOL * abs(shift)))
+    if len(lam) < rigid_found + k:
+        raise SolverError(
+            f"found {rigid_found} rigid modes where {rigid_expected} were expected, leaving fewer than k={k} "
+            "deformation modes: the mesh may have a mechanism (pieces joined by a vertex or an edge)"
+        )
+    floor = _residual_floor(K_ff, X, rows, comm)
+    cert = build_certificate(raw, rigid_found, rigid_found + k, tol=tol, keep=k, residual_floor=floor)
+    if rigid_found != rigid_expected:
+        cert = replace(cert, passed=False)
+        warnings.warn(
+            f"found {rigid_found} zero-frequency modes, expected {rigid_expected} from {mesh.piece_count} "
+            "piece(s) and the constraints: mechanism or under-resolved mesh; certificate failed",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    timings["certificate"] = time.perf_counter() - t
+
+    n_dof = fixed.size
+    shapes = np.zeros((n_dof, k))
+    shapes[free] = X[:, rigid_found : rigid_found + k]
+    rigid_shapes = np.zeros((n_dof, rigid_found))
+    rigid_shapes[free] = X[:, :rigid_found]
+    lam_def = lam[rigid_found : rigid_found + k]
+    if np.any(lam_def <= 0):
+        raise SolverError(f"deformation eigenvalue {lam_def.min():.3g} rad^2/s^2 is not positive")
+    points = mesh.dof_points(degree)
+
+    say("labels")
+    t = time.perf_counter()
+    labels = _labels(points, shapes)
+    timings["labels"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+    say(f"done: certificate {'passed' if cert.passed else 'FAILED'}")
+    info = {
+        "shift": float(shift),
+        "shift_ritz_bound": float(theta),
+        "residual_floor": float(np.max(floor[rigid_found : rigid_found + k])),
+        "nev": int(nev),
+        "computed": int(len(lam)),
+        "n_free": n_free,
+        "n_dof": int(n_dof),
+        "rigid_expected": int(rigid_expected),
+        "pieces": int(mesh.piece_count),
+        "backend": backend,
+        "solver": solver,
+        "lumped": bool(lumped),
+        "mpi_size": int(comm.size) if comm is not None else 1,
+        "versions": _versions(backend, solver),
+        "solver_info": dict(raw.info),
+    }
+    return ModalResult(
+        omega=np.sqrt(lam_def), shapes=shapes, rigid_shapes=rigid_shapes, rigid_mode_count=rigid_found,
+        labels=labels, certificate=cert, timings=timings, degree=int(degree), dof_points=points,
+        fixed_dofs=fixed, backend=backend, solver=solver, info=info,
+    )
+

@@ -1,0 +1,115 @@
+"""The public ``modes``: rigid counts found with no user shift, certificate, shapes, validation."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import modalfem
+from modalfem.constraints import Fix
+from modalfem.errors import ConstraintError, InputError, SolverError
+from modalfem.mesh.core import Mesh
+from modalfem.modes import modes
+
+PLATE_Z = [Fix(t, components="z") for t in ("x0", "x1", "y0", "y1")]
+
+
+@pytest.mark.parametrize(
+    "mesh_name, fixed, rigid",
+    [("beam", None, 6), ("beam", "x0", 0), ("plate", PLATE_Z, 3), ("two_cubes", None, 12)],
+)
+@pytest.mark.parametrize("degree", [1, 2])
+def test_rigid_counts_found_and_certified(request, mesh_name, fixed, rigid, degree, steel, assemble_km):
+    mesh = request.getfixturevalue(mesh_name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no rigid-count mismatch warning
+        res = modes(mesh, steel, k=5, degree=degree, fixed=fixed, backend="skfem", solver="scipy")
+    assert res.rigid_mode_count == rigid == res.info["rigid_expected"]
+    assert res.rigid_shapes.shape == (3 * mesh.node_count(degree), rigid)
+    assert res.certificate.passed, res.certificate.to_dict()
+    assert res.info["shift"] < 0
+    assert len(res.omega) == 5 and np.all(np.diff(res.omega) >= 0) and res.omega[0] > 0
+    assert len(res.labels) == 5
+    # shapes over all DOFs: zero on fixed DOFs, mass-normalised with the rigid modes
+    assert np.all(res.shapes[res.fixed_dofs] == 0)
+    K, M = assemble_km(mesh, steel, degree=degree)
+    Phi = np.hstack([res.rigid_shapes, res.shapes])
+    np.testing.assert_allclose(Phi.T @ (M @ Phi), np.eye(rigid + 5), atol=1e-9)
+    np.testing.assert_allclose(np.einsum("ij,ij->j", res.shapes, K @ res.shapes), res.eigenvalues, rtol=1e-9)
+
+
+def test_square_beam_pairs_and_public_entry(beam, steel):
+    calls = []
+    res = modalfem.modes(beam, steel, k=4, fixed="x0", backend="skfem", solver="scipy", progress=calls.append)
+    assert modalfem.modes(beam, steel, k=1, fixed="x0", backend="skfem", solver="scipy").certificate.passed
+    assert res.certificate.pairs == ((0, 1), (2, 3))
+    assert [c.split(" ")[0] for c in calls[:4]] == ["constraints", "assembly", "shift", "eigen"]
+    assert calls[-1].startswith("done")
+    for key in ("assembly", "constraints", "eigen", "certificate", "labels", "total"):
+        assert res.timings[key] >= 0
+    assert {"numpy", "scipy"} <= set(res.info["versions"]) and res.info["n_free"] == int((~res.fixed_dofs).sum())
+
+
+def test_k_too_large(cube, steel):
+    n_free = 3 * cube.node_count(1)
+    with pytest.raises(SolverError, match=rf"k={n_free - 6} .*exceeds the {n_free} free DOFs"):
+        modes(cube, steel, k=n_free - 6, degree=1, backend="skfem", solver="scipy")
+
+
+@pytest.mark.parametrize(
+    "kwargs, err, match",
+    [
+        (dict(k=0), InputError, "k must be"),
+        (dict(k=2.0), InputError, "k must be"),
+        (dict(k=True), InputError, "k must be"),
+        (dict(k=2, degree=3), InputError, "degree"),
+        (dict(k=2, solver="arpack"), InputError, "unknown solver"),
+        (dict(k=2, backend="ansys"), InputError, "unknown backend"),
+        (dict(k=2, tol=0.0), InputError, "tol"),
+        (dict(k=2, fixed="left"), ConstraintError, "unknown tag"),
+        (dict(k=2, fixed=lambda p: p[:, 0] < -1), ConstraintError, "selects no nodes"),
+    ],
+)
+def test_invalid_arguments(cube, steel, kwargs, err, match):
+    kwargs = {"backend": "skfem", "solver": "scipy", **kwargs}
+    with pytest.raises(err, match=match):
+        modes(cube, steel, **kwargs)
+
+
+def test_wrong_types(cube, steel):
+    with pytest.raises(InputError, match="Material"):
+        modes(cube, {"E": 1}, k=2)
+    with pytest.raises(InputError, match="Mesh"):
+        modes("cube.msh", steel, k=2)
+
+
+def test_mechanism_is_not_silently_certified(make_box, steel):
+    # two cubes touching at one vertex: one connected piece (6 rigid modes expected), but the second
+    # cube can rotate about the shared vertex: 3 extra zero modes must fail the certificate loudly
+    a = make_box((0.1, 0.1, 0.1), (1, 1, 1))
+    b = make_box((0.1, 0.1, 0.1), (1, 1, 1), origin=(0.1, 0.1, 0.1))
+    pts = np.vstack([a.points, b.points])
+    _, first, inv = np.unique(np.round(pts, 12), axis=0, return_index=True, return_inverse=True)
+    mesh = Mesh(pts[first], inv.ravel()[np.vstack([a.cells, b.cells + a.point_count])])
+    assert mesh.piece_count == 1
+    with pytest.warns(RuntimeWarning, match="found 9 zero-frequency modes, expected 6"):
+        res = modes(mesh, steel, k=2, degree=1, backend="skfem", solver="scipy")
+    assert not res.certificate.passed and res.rigid_mode_count == 9
+
+
+@pytest.mark.fenicsx
+def test_fenicsx_slepc_agrees_with_skfem_scipy(beam, steel):
+    pytest.importorskip("dolfinx")
+    pytest.importorskip("modalfem.eigen.slepc")
+    a = modes(beam, steel, k=4, fixed="x0", backend="fenicsx", solver="slepc")
+    b = modes(beam, steel, k=4, fixed="x0", backend="skfem", solver="scipy")
+    assert a.certificate.passed and b.certificate.passed
+    np.testing.assert_allclose(a.omega, b.omega, rtol=1e-6)
+
+
+@pytest.mark.fenicsx
+def test_slepc_finds_twelve_rigid_modes_of_two_pieces(two_cubes, steel):
+    pytest.importorskip("dolfinx")
+    pytest.importorskip("modalfem.eigen.slepc")
+    res = modes(two_cubes, steel, k=3, degree=2, backend="fenicsx", solver="slepc")
+    assert res.rigid_mode_count == 12 and res.certificate.passed

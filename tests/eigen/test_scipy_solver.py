@@ -1,0 +1,81 @@
+"""SciPy solver against dense ``scipy.linalg.eigh`` (an independent reference) and its inertia count."""
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+import scipy.sparse as sp
+
+from modalfem.constraints import fixed_mask
+from modalfem.eigen.scipy_solver import inertia_count, solve_scipy
+from modalfem.errors import SolverError
+
+
+@pytest.fixture(scope="module")
+def free_beam_km(beam, steel, assemble_km):
+    K, M = assemble_km(beam, steel, degree=2)  # 1,275 DOFs: ARPACK path, dense reference affordable
+    return K.tocsr(), M.tocsr(), sl.eigh(K.toarray(), M.toarray(), eigvals_only=True)
+
+
+@pytest.fixture(scope="module")
+def cantilever_km(beam, steel, assemble_km):
+    K, M = assemble_km(beam, steel, degree=2)
+    free = ~fixed_mask(beam, 2, "x0")
+    K, M = K[free][:, free].tocsr(), M[free][:, free].tocsr()
+    return K, M, sl.eigh(K.toarray(), M.toarray(), eigvals_only=True)
+
+
+@pytest.mark.parametrize("case", ["free", "clamped"])
+def test_matches_dense_eigh(case, free_beam_km, cantilever_km):
+    K, M, ref = free_beam_km if case == "free" else cantilever_km
+    r = 6 if case == "free" else 0
+    nev = r + 10
+    raw = solve_scipy(K, M, nev=nev, shift=-1e6)
+    assert raw.info["method"] == "arpack shift-invert"
+    lam = raw.eigenvalues
+    assert len(lam) >= nev + 4
+    np.testing.assert_allclose(lam[r:nev], ref[r:nev], rtol=1e-9)
+    assert np.all(np.abs(lam[:r]) < 1e-6 * ref[r])
+    X = raw.vectors
+    np.testing.assert_allclose(X.T @ (M @ X), np.eye(len(lam)), atol=1e-10)
+    assert raw.orthonormality_error < 1e-10
+    assert np.all(raw.residuals[:nev] < 1e-9)
+    # Sylvester count equals the dense count below the chosen shift, which sits in a clear gap
+    assert raw.inertia_count == int(np.sum(ref < raw.inertia_shift))
+    assert lam[nev - 1] < raw.inertia_shift
+
+
+def test_inertia_count_against_dense(cantilever_km):
+    K, M, ref = cantilever_km
+    for sigma in (-1e3, 0.5 * (ref[0] + ref[2]), 0.5 * (ref[10] + ref[11]), 0.5 * (ref[30] + ref[31])):
+        count, used, method = inertia_count(K, M, sigma)
+        assert used == sigma and count == int(np.sum(ref < sigma)), (sigma, method)
+
+
+def test_inertia_dense_fallback_on_zero_diagonal():
+    # [[0, 1], [1, 0]] (+ SPD block) has a zero diagonal: SuperLU must pivot off it -> Bunch-Kaufman path
+    A = sp.block_diag([np.array([[0.0, 1.0], [1.0, 0.0]]), sp.identity(3)]).tocsr()
+    count, _, method = inertia_count(A, sp.identity(5, format="csr"), 0.0)
+    assert (count, method) == (1, "dense-bunch-kaufman")
+
+
+def test_bad_arguments(cantilever_km):
+    K, M, _ = cantilever_km
+    with pytest.raises(SolverError, match="negative shift"):
+        solve_scipy(K, M, nev=3, shift=1.0)
+    with pytest.raises(SolverError, match="nev"):
+        solve_scipy(K, M, nev=K.shape[0], shift=-1.0)
+
+
+def test_indefinite_mass_is_a_solver_error(cantilever_km):
+    K, M, _ = cantilever_km
+    with pytest.raises(SolverError):
+        solve_scipy(K, -M, nev=4, shift=-1e6)
+
+
+def test_tiny_problem_uses_dense_path(cube, steel, assemble_km):
+    K, M = assemble_km(cube, steel, degree=1)
+    raw = solve_scipy(K.tocsr(), M.tocsr(), nev=8, shift=-1e6)
+    ref = sl.eigh(K.toarray(), M.toarray(), eigvals_only=True)
+    assert raw.info["method"] == "dense eigh"
+    np.testing.assert_allclose(raw.eigenvalues[6:8], ref[6:8], rtol=1e-10)
+    assert raw.inertia_count == int(np.sum(ref < raw.inertia_shift))
