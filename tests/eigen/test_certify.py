@@ -55,9 +55,11 @@ def test_certificate_passes_and_matches_dense_count(cantilever_raw):
     assert cert.max_residual < 1e-9 and cert.orthonormality_error < 1e-12
     assert cert.inertia_count == int(np.sum(ref < cert.inertia_shift)) == cert.computed_below_shift
     assert cert.missed_count == 0
-    # the square beam's bending planes (symmetric mesh) pair up (to 1e-10); torsion/axial do not
+    # the square beam's bending planes (symmetric mesh) pair up; torsion/axial do not. The dense
+    # reference resolves a gap only to ~eps * lambda_max (1e-4 rad^2/s^2 here, ~1e-9 relative to
+    # lambda_1), hence 1e-7.
     assert cert.pairs == ((0, 1), (2, 3), (6, 7))
-    assert np.all(np.diff(ref[:8])[[0, 2, 6]] / ref[[1, 3, 7]] < 1e-9)
+    assert np.all(np.diff(ref[:8])[[0, 2, 6]] / ref[[1, 3, 7]] < 1e-7)
     assert np.all(np.diff(ref[:8])[[1, 3, 4, 5]] / ref[[2, 4, 5, 6]] > 1e-2)
 
 

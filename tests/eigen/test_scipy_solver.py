@@ -33,7 +33,8 @@ def test_matches_dense_eigh(case, free_beam_km, cantilever_km):
     assert raw.info["method"] == "arpack shift-invert"
     lam = raw.eigenvalues
     assert len(lam) >= nev + 4
-    np.testing.assert_allclose(lam[r:nev], ref[r:nev], rtol=1e-9)
+    # dense eigh resolves eigenvalues to ~eps * lambda_max (2e-9 relative at lambda_1 here)
+    np.testing.assert_allclose(lam[r:nev], ref[r:nev], rtol=1e-9, atol=1e-13 * ref[-1])
     assert np.all(np.abs(lam[:r]) < 1e-6 * ref[r])
     X = raw.vectors
     np.testing.assert_allclose(X.T @ (M @ X), np.eye(len(lam)), atol=1e-10)
