@@ -1,4 +1,9 @@
-"""SLEPc eigen solver: Krylov-Schur, shift-and-invert at a negative shift, MUMPS LDL^T.
+"""SLEPc eigen solver: Krylov-Schur, shift-and-invert at a negative shift (CHOLMOD or MUMPS).
+
+On one process the SPD operator K - shift M is factorised by CHOLMOD (supernodal Cholesky, the
+better of AMD and METIS orderings: 7.4 s and 0.11 s per solve at 139k DOFs against 9.2 s and 0.19 s
+for MUMPS with PORD, the only nested dissection Debian's MUMPS has); distributed, and for the
+inertia count always, MUMPS LDL^T. See ``SlepcOptions.factor``.
 
 ``solve_slepc`` solves K x = lambda M x on the free DOFs for the lowest ``nev`` eigenpairs (plus a
 few extra so the certificate sees the next eigenvalue) and computes the certificate numbers with
@@ -6,8 +11,8 @@ PETSc, distributed when the matrices are:
 
 * per-pair relative residuals ||K x - lambda M x|| / ||K x|| (``||K||_inf ||x||`` for rigid-like
   pairs, see ``RIGID_KX_RTOL``), M-orthonormality ``max |X^T M X - I|``;
-* the Sylvester inertia count of K - sigma M, sigma from ``certify.choose_inertia_shift``. The
-  certificate REUSES the solve's MUMPS analysis: the shifted operator A = K - shift M that SLEPc
+* the Sylvester inertia count of K - sigma M, sigma from ``certify.choose_inertia_shift``. With MUMPS
+  as the solve factorisation the certificate REUSES the solve's MUMPS analysis: the shifted operator A = K - shift M that SLEPc
   factorised is turned into K - sigma M in place (same nonzero pattern), so the count costs one
   numeric LDL^T factorisation, not a new ordering and symbolic analysis.
 
@@ -52,6 +57,14 @@ class SlepcOptions:
     """Tuning knobs of ``solve_slepc`` (the defaults are the measured fastest robust choice).
 
     Attributes:
+        factor: factorisation of the SPD solve operator K - shift M: ``"cholmod"`` (SuiteSparse
+            supernodal Cholesky with the better of AMD and METIS orderings, serial only),
+            ``"mumps"`` (LDL^T, PORD ordering, serial or distributed), or ``"auto"``: CHOLMOD on one
+            process where PETSc has it, else MUMPS. Measured at 139k DOFs (P2 cantilever, quiet
+            2-core machine): CHOLMOD factor 7.4 s and 0.11 s per solve against MUMPS/PORD 9.2 s and
+            0.19 s (METIS's smaller fill). The inertia count always uses MUMPS LDL^T (CHOLMOD's
+            supernodal factorisation is LL^T and fails on the indefinite K - sigma M); with MUMPS
+            as solve factorisation it reuses the solve's analysis.
         extra: eigenpairs requested beyond ``nev`` in the first round (the certificate needs the
             next eigenvalue). If no computed eigenvalue above the nev-th is separated from its
             predecessor by a relative gap >= ``certify.CLEAR_GAP`` (the nev-th sits in a degenerate
@@ -81,6 +94,7 @@ class SlepcOptions:
             ``{"st_mat_mumps_icntl_35": 1}``; applied under this solve's private prefix.
     """
 
+    factor: str = "auto"
     extra: int = 3
     extra_step: int = 4
     max_rounds: int = 3
@@ -105,6 +119,72 @@ def _import_petsc():
             f"python3-petsc4py); import failed: {exc}"
         ) from exc
     return PETSc, SLEPc
+
+
+_HAVE_CHOLMOD: bool | None = None
+
+
+def _have_cholmod(PETSc) -> bool:
+    """True when this PETSc build can factorise with CHOLMOD (checked once on a 2x2 matrix)."""
+    global _HAVE_CHOLMOD
+    if _HAVE_CHOLMOD is None:
+        A = PETSc.Mat().createAIJ((2, 2), csr=([0, 1, 2], [0, 1], [2.0, 3.0]), comm=PETSc.COMM_SELF)
+        ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+        try:
+            ksp.setOperators(A)
+            ksp.setType(PETSc.KSP.Type.PREONLY)
+            ksp.getPC().setType(PETSc.PC.Type.CHOLESKY)
+            ksp.getPC().setFactorSolverType("cholmod")
+            ksp.setUp()
+            _HAVE_CHOLMOD = True
+        except PETSc.Error:
+            _HAVE_CHOLMOD = False
+        finally:
+            ksp.destroy()
+            A.destroy()
+    return _HAVE_CHOLMOD
+
+
+def _mumps_inertia(K, M, sigma: float, settings: dict, prefix: str, PETSc, mpi_comm):
+    """((negative, zero, positive) pivot counts, MUMPS info) of a fresh MUMPS LDL^T of K - sigma M."""
+    A = K.duplicate(copy=True)
+    ksp = PETSc.KSP().create(K.getComm())
+    db = PETSc.Options()
+    try:
+        same = _same_pattern(K, M, mpi_comm)
+        A.axpy(-sigma, M, PETSc.Mat.Structure.SAME if same else PETSc.Mat.Structure.DIFFERENT)
+        for k, v in settings.items():
+            if k.startswith("st_mat_mumps"):
+                db[prefix + "cert_" + k[len("st_"):]] = v
+        ksp.setOptionsPrefix(prefix + "cert_")
+        ksp.setOperators(A)
+        ksp.setType(PETSc.KSP.Type.PREONLY)
+        pc = ksp.getPC()
+        pc.setType(PETSc.PC.Type.CHOLESKY)
+        pc.setFactorSolverType("mumps")
+        ksp.setFromOptions()
+        pc.setFactorSetUpSolverType()
+        F = pc.getFactorMatrix()
+        F.setMumpsIcntl(24, 1)  # null-pivot detection: PETSc needs it to report zero pivots
+        ksp.setUp()
+        F = pc.getFactorMatrix()
+        return F.getInertia(), _mumps_info(F)
+    finally:
+        for k in list(settings):
+            if k.startswith("st_mat_mumps"):
+                db.delValue(prefix + "cert_" + k[len("st_"):])
+        ksp.destroy()
+        A.destroy()
+
+
+def _mumps_info(F) -> dict:
+    """Ordering, flops, factor entries and memory of a MUMPS factor matrix."""
+    return {
+        "mumps_ordering": _ORDERINGS.get(int(F.getMumpsInfog(7)), str(F.getMumpsInfog(7))),
+        "mumps_factor_flops": float(F.getMumpsRinfog(3)),
+        "mumps_factor_entries": int(F.getMumpsInfog(29)),
+        "mumps_memory_mb": int(F.getMumpsInfog(22)),
+    }
 
 
 def _to_petsc(A, PETSc, comm, name: str):
@@ -233,12 +313,21 @@ def solve_slepc(
     ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
     timings["convert"] = time.perf_counter() - t0
 
+    if opt.factor not in ("auto", "cholmod", "mumps"):
+        raise InputError(f"factor must be 'auto', 'cholmod' or 'mumps', got {opt.factor!r}")
+    factor = opt.factor
+    if factor == "auto":
+        factor = "cholmod" if nproc == 1 and _have_cholmod(PETSc) else "mumps"
+    elif factor == "cholmod" and (nproc > 1 or not _have_cholmod(PETSc)):
+        raise InputError("factor='cholmod' needs one process and a PETSc built with SuiteSparse")
     prefix = f"modalfem_slepc{next(_counter)}_"
     db = PETSc.Options()
     settings = {
         "st_mat_mumps_icntl_7": int(opt.ordering),
         "st_mat_mumps_icntl_14": int(opt.mem_relax),
     }
+    if factor == "cholmod":
+        settings["st_mat_cholmod_nmethods"] = 2  # AMD and METIS, keep the smaller fill
     if nproc > 1:
         settings["st_mat_mumps_icntl_13"] = 1  # inertia is wrong with a ScaLAPACK root (MUMPS doc)
     settings.update({str(k): v for k, v in opt.petsc_options.items()})
@@ -264,9 +353,9 @@ def solve_slepc(
         ksp.setType(PETSc.KSP.Type.PREONLY)
         pc = ksp.getPC()
         pc.setType(PETSc.PC.Type.CHOLESKY)
-        pc.setFactorSolverType("mumps")
+        pc.setFactorSolverType(factor)
         eps.setFromOptions()
-        stage = "factorising K - shift M (MUMPS LDL^T)"
+        stage = f"factorising K - shift M ({'CHOLMOD Cholesky' if factor == 'cholmod' else 'MUMPS LDL^T'})"
         t1, c1 = time.perf_counter(), time.process_time()
         eps.setUp()
         timings["factor"] = time.perf_counter() - t1
@@ -353,17 +442,22 @@ def solve_slepc(
 
             stage = "choosing the inertia shift"
             sigma = choose_inertia_shift(lam, nev)
-            stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, reused analysis)"
             t1, c1 = time.perf_counter(), time.process_time()
-            A.axpy(shift - sigma, M, struct)
-            F.setMumpsIcntl(24, 1)  # null-pivot detection: PETSc needs it to report zero pivots
-            # MatAXPY(SAME) on MPIAIJ does not bump the matrix state in PETSc 3.18, so PCSetUp would skip
-            # the refactorisation (seen: inertia 0 on 2 ranks): bump it by hand. The nonzero state is
-            # unchanged, so PCSetUp does a numeric factorisation only, on the existing analysis.
-            A.stateIncrease()
-            pc.setUp()
-            F = pc.getFactorMatrix()
-            neg, zero, _pos = F.getInertia()
+            if factor == "cholmod":
+                stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T)"
+                (neg, zero, _pos), cert_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
+            else:
+                stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, reused analysis)"
+                A.axpy(shift - sigma, M, struct)
+                F.setMumpsIcntl(24, 1)  # null-pivot detection: PETSc needs it to report zero pivots
+                # MatAXPY(SAME) on MPIAIJ does not bump the matrix state in PETSc 3.18, so PCSetUp would
+                # skip the refactorisation (seen: inertia 0 on 2 ranks): bump it by hand. The nonzero
+                # state is unchanged, so PCSetUp does a numeric factorisation only, on the same analysis.
+                A.stateIncrease()
+                pc.setUp()
+                F = pc.getFactorMatrix()
+                neg, zero, _pos = F.getInertia()
+                cert_info = _mumps_info(F)
             timings["inertia_factor"] += time.perf_counter() - t1
             cpu["inertia_factor"] += time.process_time() - c1
             missing = int(neg) - int(np.sum(lam < sigma))
@@ -372,13 +466,14 @@ def solve_slepc(
             # Krylov-Schur missed `missing` eigenvalues below sigma (a many-fold cluster, e.g. the rigid
             # modes of several pieces): restore K - shift M (numeric refactorisation) and solve again
             # with the pairs found so far as a deflation space.
-            stage = "refactorising K - shift M to search for missed eigenvalues"
-            t1 = time.perf_counter()
-            A.axpy(sigma - shift, M, struct)
-            A.stateIncrease()
-            pc.setUp()
-            F = pc.getFactorMatrix()
-            timings["factor"] += time.perf_counter() - t1
+            if factor == "mumps":
+                stage = "refactorising K - shift M to search for missed eigenvalues"
+                t1 = time.perf_counter()
+                A.axpy(sigma - shift, M, struct)
+                A.stateIncrease()
+                pc.setUp()
+                F = pc.getFactorMatrix()
+                timings["factor"] += time.perf_counter() - t1
             attempts += 1
             prev_lam = lam
             nreq = int(min(missing + max(int(opt.extra), 1), n - 1 - len(X)))
@@ -409,11 +504,9 @@ def solve_slepc(
             "mpd": int(eps.getDimensions()[2]),
             "tol": float(tol),
             "slepc_tol": slepc_tol,
-            "factor": "mumps-ldlt",
-            "mumps_ordering": _ORDERINGS.get(int(F.getMumpsInfog(7)), str(F.getMumpsInfog(7))),
-            "mumps_factor_flops": float(F.getMumpsRinfog(3)),
-            "mumps_factor_entries": int(F.getMumpsInfog(29)),
-            "mumps_memory_mb": int(F.getMumpsInfog(22)),
+            "factor": "cholmod-llt" if factor == "cholmod" else "mumps-ldlt",
+            "inertia_factor": "mumps-ldlt",
+            **cert_info,
             "mumps_options": {k: v for k, v in settings.items()},
             "inertia_zero_pivots": int(zero),
             "nprocs": int(nproc),

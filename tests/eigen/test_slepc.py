@@ -63,7 +63,11 @@ def _check_against_dense(K, M, raw, nev, rtol=1e-9):
     m = len(lam)
     assert m > nev and np.all(np.diff(lam) >= 0)
     scale = max(abs(w[nev]), 1e-300)
-    np.testing.assert_allclose(lam, w[:m], rtol=rtol, atol=rtol * scale)
+    # the certified claim: the pairs below the inertia shift are exactly the lowest ones (pairs above
+    # it may skip members of a cluster, which is why the count is taken there)
+    c = int(np.sum(lam < raw.inertia_shift))
+    assert c >= nev and c == raw.inertia_count
+    np.testing.assert_allclose(lam[:c], w[:c], rtol=rtol, atol=rtol * scale)
     X = raw.vectors
     assert X.shape == (K.shape[0], m)
     G = X.T @ (M @ X)
@@ -142,17 +146,35 @@ def test_petsc_input_with_rows_returns_canonical_order():
         assert min(np.abs(a - b).max(), np.abs(a + b).max()) < 1e-8 * np.abs(b).max()
 
 
-def test_certificate_reuses_the_symbolic_factorisation():
-    """One MUMPS analysis, two numeric factorisations (the solve shift and the inertia shift)."""
+def test_certificate_reuses_the_mumps_analysis():
+    """With MUMPS for the solve: one analysis, two numeric factorisations (solve and inertia shifts)."""
     from petsc4py import PETSc
+
+    from modalfem.eigen.slepc import SlepcOptions
 
     PETSc.Log.begin()
     sym, num = PETSc.Log.Event("MatCholFctrSym"), PETSc.Log.Event("MatCholFctrNum")
     s0, n0 = sym.getPerfInfo()["count"], num.getPerfInfo()["count"]
     K, M = random_pencil(300, seed=4)
-    _solve(K, M, nev=4, shift=-1.0)
+    raw = _solve(K, M, nev=4, shift=-1.0, options=SlepcOptions(factor="mumps"))
+    assert raw.info["factor"] == "mumps-ldlt"
     assert sym.getPerfInfo()["count"] - s0 == 1
     assert num.getPerfInfo()["count"] - n0 == 2
+
+
+@pytest.mark.parametrize("factor", ["cholmod", "mumps"])
+def test_factorisations_agree(factor):
+    """CHOLMOD (serial default) and MUMPS give the same pairs and the same inertia count."""
+    from modalfem.eigen.slepc import SlepcOptions, _have_cholmod
+    from petsc4py import PETSc
+
+    if factor == "cholmod" and not _have_cholmod(PETSc):
+        pytest.skip("this PETSc has no CHOLMOD")
+    K, M = spring_chain(300)
+    raw = _solve(K, M, nev=6, shift=-1e2, options=SlepcOptions(factor=factor))
+    assert raw.info["factor"].startswith(factor) and raw.info["inertia_factor"] == "mumps-ldlt"
+    _check_against_dense(K, M, raw, 6)
+    assert raw.inertia_count == int(np.sum(raw.eigenvalues < raw.inertia_shift))
 
 
 def test_bad_inputs_raise_input_error():
@@ -201,7 +223,7 @@ def test_cluster_at_nev_continues_without_refactoring(assemble_km, make_box, ste
     PETSc.Log.begin()
     sym, num = PETSc.Log.Event("MatCholFctrSym"), PETSc.Log.Event("MatCholFctrNum")
     s0, n0 = sym.getPerfInfo()["count"], num.getPerfInfo()["count"]
-    raw = _solve(K, M, nev=1, shift=-1e4, options=SlepcOptions(extra=1, extra_step=2))
+    raw = _solve(K, M, nev=1, shift=-1e4, options=SlepcOptions(factor="mumps", extra=1, extra_step=2))
     assert raw.info["rounds"] >= 2
     assert sym.getPerfInfo()["count"] - s0 == 1 and num.getPerfInfo()["count"] - n0 == 2
     lam = raw.eigenvalues
@@ -224,17 +246,25 @@ def test_twelve_fold_zero_cluster_is_found(assemble_km, make_box, steel):
     _check_against_dense(K, M, raw, 15)
 
 
-def test_missed_cluster_members_are_recovered_by_deflated_retry():
+@pytest.mark.parametrize("factor", ["mumps", "cholmod"])
+def test_missed_cluster_members_are_recovered_by_deflated_retry(factor):
     """8 identical chains: every eigenvalue is 8-fold. Krylov-Schur misses copies; the Sylvester count
-    sees it and a deflated second search (one refactorisation) finds them."""
+    sees it and a deflated second search finds them. With MUMPS each retry costs one refactorisation
+    (the certificate turned the solve operator into K - sigma M); with CHOLMOD none (the count has its
+    own MUMPS matrix) - one inertia factorisation per search either way."""
     from petsc4py import PETSc
 
+    from modalfem.eigen.slepc import SlepcOptions, _have_cholmod
+
+    if factor == "cholmod" and not _have_cholmod(PETSc):
+        pytest.skip("this PETSc has no CHOLMOD")
     K1, M1 = spring_chain(30)
     K, M = sp.block_diag([K1] * 8, format="csr"), sp.block_diag([M1] * 8, format="csr")
     PETSc.Log.begin()
     num = PETSc.Log.Event("MatCholFctrNum")
     n0 = num.getPerfInfo()["count"]
-    raw = _solve(K, M, nev=10, shift=-1e2)
+    raw = _solve(K, M, nev=10, shift=-1e2, options=SlepcOptions(factor=factor))
     assert raw.info["retries"] >= 1
-    assert num.getPerfInfo()["count"] - n0 == 2 + 2 * raw.info["retries"]
+    per_retry = 2 if factor == "mumps" else 1
+    assert num.getPerfInfo()["count"] - n0 == 2 + per_retry * raw.info["retries"]
     _check_against_dense(K, M, raw, 10)
