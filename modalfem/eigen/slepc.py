@@ -47,6 +47,8 @@ __all__ = ["RIGID_KX_RTOL", "SlepcOptions", "solve_slepc"]
 #: ||K x|| / (||K|| ||x||) ~ 1e-14; the lowest elastic mode of a body is far above 1e-10 unless the
 #: mesh resolves a spectrum spanning 10 decades, so elastic pairs keep the stricter ||K x|| measure.
 RIGID_KX_RTOL = 1e-10
+#: a pair is refined when its residual exceeds max(tol, REFINE_FLOOR_FACTOR * its roundoff floor)
+REFINE_FLOOR_FACTOR = 10.0
 
 _ORDERINGS = {0: "AMD", 1: "user", 2: "AMF", 3: "SCOTCH", 4: "PORD", 5: "METIS", 6: "QAMD", 7: "auto"}
 _counter = itertools.count()
@@ -175,6 +177,88 @@ def _mumps_inertia(K, M, sigma: float, settings: dict, prefix: str, PETSc, mpi_c
                 db.delValue(prefix + "cert_" + k[len("st_"):])
         ksp.destroy()
         A.destroy()
+
+
+def _abs_matrix(K, PETSc):
+    """|K| entrywise, same layout (for the roundoff floor of the residuals)."""
+    indptr, indices, data = K.getValuesCSR()
+    sizes = K.getSizes()
+    A = PETSc.Mat().createAIJ(sizes, csr=(indptr, indices, np.abs(data)), comm=K.getComm())
+    A.assemble()
+    return A
+
+
+def _pair_stats(K, Kabs, X, MX, PETSc):
+    """Rayleigh quotients, relative residuals and their roundoff floors of M-normalised pairs.
+
+    residual_j = ||K x - lambda M x|| / ||K x|| (``||K||_inf ||x||`` for rigid-like pairs);
+    floor_j = eps ||(|K| |x|)|| / (same denominator): what double precision allows for that pair.
+    """
+    m = len(X)
+    lam, res, floor = np.empty(m), np.empty(m), np.empty(m)
+    knorm = K.norm(PETSc.NormType.INFINITY)
+    kx, r, ax, kax = K.createVecLeft(), K.createVecLeft(), K.createVecRight(), K.createVecLeft()
+    eps = np.finfo(float).eps
+    for j, (x, mx) in enumerate(zip(X, MX)):
+        K.mult(x, kx)
+        lam[j] = x.dot(kx)  # Rayleigh quotient (x is M-normalised): second-order accurate
+        kxn = kx.norm()
+        kx.copy(r)
+        r.axpy(-lam[j], mx)
+        xn = x.norm()
+        den = kxn if kxn > RIGID_KX_RTOL * knorm * xn else knorm * xn
+        x.copy(ax)
+        ax.abs()
+        Kabs.mult(ax, kax)
+        res[j] = r.norm() / den if den > 0 else np.inf
+        floor[j] = eps * kax.norm() / den if den > 0 else np.inf
+    for v in (kx, r, ax, kax):
+        v.destroy()
+    return lam, res, floor
+
+
+def _short_of_floor(lam, res, floor, nev: int, tol: float) -> bool:
+    """True if one of the lowest ``nev`` pairs has a residual above max(tol, 10 x its floor)."""
+    low = np.argsort(lam, kind="stable")[:nev]
+    return bool(np.any(res[low] > np.maximum(tol, REFINE_FLOOR_FACTOR * floor[low])))
+
+
+def _refine(ksp, K, M, X, MX):
+    """One block inverse-iteration step Y = (K - shift M)^{-1} M X, then Rayleigh-Ritz on span(Y)."""
+    Y = []
+    for mx in MX:
+        y = mx.duplicate()
+        ksp.solve(mx, y)
+        Y.append(y)
+    m = len(Y)
+    KY = [K.createVecLeft() for _ in range(m)]
+    MY = [K.createVecLeft() for _ in range(m)]
+    for y, ky, my in zip(Y, KY, MY):
+        K.mult(y, ky)
+        M.mult(y, my)
+    Kr, Mr = np.empty((m, m)), np.empty((m, m))
+    for j in range(m):
+        for i in range(j + 1):
+            Kr[i, j] = Kr[j, i] = Y[i].dot(KY[j])
+            Mr[i, j] = Mr[j, i] = Y[i].dot(MY[j])
+    from scipy.linalg import eigh
+
+    _, V = eigh(Kr, Mr)
+    Xn, MXn = [], []
+    for j in range(m):
+        x, mx = Y[0].duplicate(), Y[0].duplicate()
+        x.zeroEntries()
+        mx.zeroEntries()
+        x.maxpy(V[:, j], Y)
+        mx.maxpy(V[:, j], MY)
+        s = x.dot(mx)
+        x.scale(1.0 / np.sqrt(s))
+        mx.scale(1.0 / np.sqrt(s))
+        Xn.append(x)
+        MXn.append(mx)
+    for v in Y + KY + MY:
+        v.destroy()
+    return Xn, MXn
 
 
 def _mumps_info(F) -> dict:
@@ -334,6 +418,7 @@ def solve_slepc(
     for k, v in settings.items():
         db[prefix + k] = v
     eps = SLEPc.EPS()
+    Kabs = None
     stage = "setting up the eigensolver"
     try:
         eps.create(pcomm)
@@ -367,7 +452,9 @@ def solve_slepc(
 
         timings["solve"] = timings["extract"] = timings["residuals"] = timings["inertia_factor"] = 0.0
         cpu["solve"] = cpu["inertia_factor"] = 0.0
-        rounds, its, attempts = 0, 0, 0
+        rounds, its, attempts, refinements = 0, 0, 0, 0
+        Kabs = None
+        factor_is_solve_operator = True  # False once MUMPS's A holds K - sigma M (until refactorised)
         prev_lam = np.empty(0)  # eigenvalues found by earlier attempts
         X, MX = [], []  # eigenvectors found so far (M-normalised) and M times them
         while True:
@@ -418,21 +505,25 @@ def solve_slepc(
 
             stage = "computing residuals and M-orthonormality"
             t1 = time.perf_counter()
+            if Kabs is None:
+                Kabs = _abs_matrix(K, PETSc)
+            lam, res, floor = _pair_stats(K, Kabs, X, MX, PETSc)
+            timings["residuals"] += time.perf_counter() - t1
+            while _short_of_floor(lam, res, floor, nev, tol) and factor_is_solve_operator and refinements < 2:
+                # one of the lowest nev pairs stopped short of what double precision allows (SLEPc's
+                # criterion is on the shift-inverted problem): one block inverse-iteration step with
+                # the factorisation in hand, then Rayleigh-Ritz over all pairs (keeps M-orthonormality)
+                stage = "refining the eigenpairs (one inverse-iteration + Rayleigh-Ritz step)"
+                t1 = time.perf_counter()
+                X, MX = _refine(st.getKSP(), K, M, X, MX)
+                lam, res, floor = _pair_stats(K, Kabs, X, MX, PETSc)
+                refinements += 1
+                timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t1
+            t1 = time.perf_counter()
             m = len(X)
-            lam, res = np.empty(m), np.empty(m)
-            knorm = K.norm(PETSc.NormType.INFINITY)
-            kx, r = K.createVecLeft(), K.createVecLeft()
-            for j, (x, mx) in enumerate(zip(X, MX)):
-                K.mult(x, kx)
-                lam[j] = x.dot(kx)  # Rayleigh quotient (x is M-normalised): second-order accurate
-                kxn = kx.norm()
-                kx.copy(r)
-                r.axpy(-lam[j], mx)
-                xn = x.norm()
-                den = kxn if kxn > RIGID_KX_RTOL * knorm * xn else knorm * xn
-                res[j] = r.norm() / den if den > 0 else np.inf
             perm = np.argsort(lam, kind="stable")
-            lam, res, X, MX = lam[perm], res[perm], [X[i] for i in perm], [MX[i] for i in perm]
+            lam, res, floor = lam[perm], res[perm], floor[perm]
+            X, MX = [X[i] for i in perm], [MX[i] for i in perm]
             G = np.empty((m, m))
             for j, mx in enumerate(MX):
                 for i in range(j + 1):
@@ -455,6 +546,7 @@ def solve_slepc(
                 # state is unchanged, so PCSetUp does a numeric factorisation only, on the same analysis.
                 A.stateIncrease()
                 pc.setUp()
+                factor_is_solve_operator = False
                 F = pc.getFactorMatrix()
                 neg, zero, _pos = F.getInertia()
                 cert_info = _mumps_info(F)
@@ -472,6 +564,7 @@ def solve_slepc(
                 A.axpy(sigma - shift, M, struct)
                 A.stateIncrease()
                 pc.setUp()
+                factor_is_solve_operator = True
                 F = pc.getFactorMatrix()
                 timings["factor"] += time.perf_counter() - t1
             attempts += 1
@@ -498,6 +591,8 @@ def solve_slepc(
             "nev_requested": nreq,
             "nconv": len(X),
             "retries": int(attempts),
+            "refinements": int(refinements),
+            "residual_floor": [float(f) for f in floor],
             "iterations": int(its),
             "rounds": int(rounds) + 1,
             "ncv": int(eps.getDimensions()[1]),
@@ -520,6 +615,8 @@ def solve_slepc(
         for k in settings:
             db.delValue(prefix + k)
         try:  # after a failed stage SLEPc's internal state may refuse a clean destroy
+            if Kabs is not None:
+                Kabs.destroy()
             eps.destroy()
             if not is_mat:
                 K.destroy()

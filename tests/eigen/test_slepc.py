@@ -268,3 +268,43 @@ def test_missed_cluster_members_are_recovered_by_deflated_retry(factor):
     per_retry = 2 if factor == "mumps" else 1
     assert num.getPerfInfo()["count"] - n0 == 2 + per_retry * raw.info["retries"]
     _check_against_dense(K, M, raw, 10)
+
+
+def test_refinement_step_brings_perturbed_pairs_to_the_roundoff_floor(assemble_km, make_box, steel):
+    """Pairs perturbed by noise of relative size 1e-12 (residuals ~1e-7: the noise excites the stiffest
+    modes, which K amplifies): one inverse-iteration + Rayleigh-Ritz step with the factorisation of
+    K - shift M brings the lowest ones back within 10x of their roundoff floor, M-orthonormal."""
+    from petsc4py import PETSc
+
+    from modalfem.eigen.slepc import REFINE_FLOOR_FACTOR, _abs_matrix, _pair_stats, _refine, _short_of_floor
+
+    K, M = _clamped_beam(assemble_km, make_box, steel)
+    ref = _solve(K, M, nev=6, shift=-1e4)
+    shift = -1e4
+    Kp = PETSc.Mat().createAIJ(K.shape, csr=(K.indptr, K.indices, K.data), comm=PETSc.COMM_SELF)
+    Mp = PETSc.Mat().createAIJ(M.shape, csr=(M.indptr, M.indices, M.data), comm=PETSc.COMM_SELF)
+    A = (K - shift * M).tocsr()
+    Ap = PETSc.Mat().createAIJ(A.shape, csr=(A.indptr, A.indices, A.data), comm=PETSc.COMM_SELF)
+    ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+    ksp.setOperators(Ap)
+    ksp.setType("preonly")
+    ksp.getPC().setType("cholesky")
+    ksp.getPC().setFactorSolverType("mumps")
+    rng = np.random.default_rng(3)
+    X, MX = [], []
+    for j in range(ref.vectors.shape[1]):
+        v = ref.vectors[:, j] + 1e-12 * rng.standard_normal(K.shape[0]) * np.abs(ref.vectors[:, j]).max()
+        v /= np.sqrt(v @ (M @ v))
+        X.append(PETSc.Vec().createWithArray(v.copy(), comm=PETSc.COMM_SELF))
+        MX.append(PETSc.Vec().createWithArray(M @ v, comm=PETSc.COMM_SELF))
+    Kabs = _abs_matrix(Kp, PETSc)
+    lam, res, floor = _pair_stats(Kp, Kabs, X, MX, PETSc)
+    assert _short_of_floor(lam, res, floor, 6, 1e-10)
+    X2, MX2 = _refine(ksp, Kp, Mp, X, MX)
+    lam2, res2, floor2 = _pair_stats(Kp, Kabs, X2, MX2, PETSc)
+    low = np.argsort(lam2)[:6]
+    assert np.all(res2[low] <= np.maximum(1e-10, REFINE_FLOOR_FACTOR * floor2[low])), res2[low]
+    np.testing.assert_allclose(np.sort(lam2)[:6], ref.eigenvalues[:6], rtol=1e-9)
+    G = np.array([[a.dot(b) for b in MX2] for a in X2])
+    assert np.max(np.abs(G - np.eye(len(X2)))) < 1e-10
+    assert ref.info["refinements"] == 0  # a converged solve does not pay for refinement
