@@ -10,7 +10,7 @@ setup:
 
 demo: setup
 	@$(PY) -m modalfem modes box --size 1.0 0.1 0.1 --cells 40 4 4 --material steel --fixed x0 \
-	    -k 8 --degree 2 --out $(OUT) --json $(OUT)/modes.json
+	    -k 8 --degree 2 --out $(OUT)
 	@echo "demo outputs in $(OUT)/: modes.json (frequencies, labels, certificate), modes.png (mode sheet), modes.xdmf/vtu (ParaView)"
 
 test: setup

@@ -1,0 +1,7 @@
+"""``python -m modalfem``: the modalfem command line."""
+
+import sys
+
+from modalfem.cli import main
+
+sys.exit(main())
