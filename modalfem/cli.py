@@ -182,7 +182,9 @@ def _run_modes(args, argv) -> int:
         with staged_dir(args.out) as tmp:
             write_modes(tmp / "modes.vtu", mesh, res)
             write_modes(tmp / "modes.xdmf", mesh, res)
-            title = f"{source.get('generator') or Path(str(source.get('file'))).name}, {material.name or 'custom'}"
+            held = ", ".join([f"fixed {t}" for t in args.fixed] + [f"roller {r}" for r in args.roller]) or "free"
+            body = source.get("generator") or Path(str(source.get("file"))).name
+            title = f"{body}, {material.name or 'custom'}, {held}, P{args.degree}"
             plot_mode_sheet(tmp / "modes.png", mesh, res, count=min(args.sheet_modes, len(res.omega)), title=title)
             data["timings"]["output"] = time.perf_counter() - t
             (tmp / "modes.json").write_text(summary_json(data), encoding="utf-8")
