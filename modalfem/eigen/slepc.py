@@ -1,9 +1,7 @@
 """SLEPc eigen solver: Krylov-Schur, shift-and-invert at a negative shift (CHOLMOD or MUMPS).
 
-On one process the SPD operator K - shift M is factorised by CHOLMOD (supernodal Cholesky, the
-better of AMD and METIS orderings: 7.4 s and 0.11 s per solve at 139k DOFs against 9.2 s and 0.19 s
-for MUMPS with PORD, the only nested dissection Debian's MUMPS has); distributed, and for the
-inertia count always, MUMPS LDL^T. See ``SlepcOptions.factor``.
+K - shift M is factorised by MUMPS LDL^T (PORD ordering), serial or distributed; CHOLMOD (METIS) is
+an option for one process. See ``SlepcOptions.factor`` for the measured trade-off.
 
 ``solve_slepc`` solves K x = lambda M x on the free DOFs for the lowest ``nev`` eigenpairs (plus a
 few extra so the certificate sees the next eigenvalue) and computes the certificate numbers with
@@ -59,14 +57,16 @@ class SlepcOptions:
     """Tuning knobs of ``solve_slepc`` (the defaults are the measured fastest robust choice).
 
     Attributes:
-        factor: factorisation of the SPD solve operator K - shift M: ``"cholmod"`` (SuiteSparse
-            supernodal Cholesky with the better of AMD and METIS orderings, serial only),
-            ``"mumps"`` (LDL^T, PORD ordering, serial or distributed), or ``"auto"``: CHOLMOD on one
-            process where PETSc has it, else MUMPS. Measured at 139k DOFs (P2 cantilever, quiet
-            2-core machine): CHOLMOD factor 7.4 s and 0.11 s per solve against MUMPS/PORD 9.2 s and
-            0.19 s (METIS's smaller fill). The inertia count always uses MUMPS LDL^T (CHOLMOD's
-            supernodal factorisation is LL^T and fails on the indefinite K - sigma M); with MUMPS
-            as solve factorisation it reuses the solve's analysis.
+        factor: factorisation of the SPD solve operator K - shift M: ``"mumps"`` (LDL^T, PORD
+            ordering, serial or distributed; the default, also for ``"auto"``) or ``"cholmod"``
+            (SuiteSparse supernodal Cholesky with the better of AMD and METIS orderings, serial
+            only). The inertia count always uses MUMPS LDL^T (CHOLMOD's supernodal factorisation is
+            LL^T and fails on the indefinite K - sigma M). Measured at 139k DOFs (P2 cantilever,
+            2-core machine, paired runs): alone, CHOLMOD factors in 7.4-8.0 s against 9.2-10.0 s
+            for MUMPS/PORD and solves in 0.11 s against 0.19 s (METIS's smaller fill), but inside
+            SLEPc the whole solve took 31-32 s with CHOLMOD against 25-29 s with MUMPS, whose
+            certificate reuses the solve's analysis (6.1 s numeric LDL^T against 9.6-13 s for a
+            fresh MUMPS analysis + factorisation).
         extra: eigenpairs requested beyond ``nev`` in the first round (the certificate needs the
             next eigenvalue). If no computed eigenvalue above the nev-th is separated from its
             predecessor by a relative gap >= ``certify.CLEAR_GAP`` (the nev-th sits in a degenerate
@@ -179,6 +179,20 @@ def _mumps_inertia(K, M, sigma: float, settings: dict, prefix: str, PETSc, mpi_c
         A.destroy()
 
 
+def _max_row_nnz(K) -> int:
+    """Most stored entries in a row of the PETSc matrix K (over all ranks)."""
+    indptr = K.getValuesCSR()[0]
+    local = int(np.max(np.diff(indptr))) if len(indptr) > 1 else 0
+    comm = K.getComm().tompi4py()
+    return int(comm.allreduce(local, op=_mpi_max())) if comm.Get_size() > 1 else local
+
+
+def _mpi_max():
+    from mpi4py import MPI
+
+    return MPI.MAX
+
+
 def _abs_matrix(K, PETSc):
     """|K| entrywise, same layout (for the roundoff floor of the residuals)."""
     indptr, indices, data = K.getValuesCSR()
@@ -192,13 +206,15 @@ def _pair_stats(K, Kabs, X, MX, PETSc):
     """Rayleigh quotients, relative residuals and their roundoff floors of M-normalised pairs.
 
     residual_j = ||K x - lambda M x|| / ||K x|| (``||K||_inf ||x||`` for rigid-like pairs);
-    floor_j = eps ||(|K| |x|)|| / (same denominator): what double precision allows for that pair.
+    floor_j = sqrt(r) eps ||(|K| |x|)|| / (same denominator), r the most nonzeros in a row of K: the
+    probabilistic bound on the roundoff of computing K x (Higham and Mary 2019: sqrt(r) u |K| |x|
+    per row), i.e. what double precision allows for that pair.
     """
     m = len(X)
     lam, res, floor = np.empty(m), np.empty(m), np.empty(m)
     knorm = K.norm(PETSc.NormType.INFINITY)
     kx, r, ax, kax = K.createVecLeft(), K.createVecLeft(), K.createVecRight(), K.createVecLeft()
-    eps = np.finfo(float).eps
+    eps = np.finfo(float).eps * np.sqrt(_max_row_nnz(K))
     for j, (x, mx) in enumerate(zip(X, MX)):
         K.mult(x, kx)
         lam[j] = x.dot(kx)  # Rayleigh quotient (x is M-normalised): second-order accurate
@@ -401,7 +417,7 @@ def solve_slepc(
         raise InputError(f"factor must be 'auto', 'cholmod' or 'mumps', got {opt.factor!r}")
     factor = opt.factor
     if factor == "auto":
-        factor = "cholmod" if nproc == 1 and _have_cholmod(PETSc) else "mumps"
+        factor = "mumps"
     elif factor == "cholmod" and (nproc > 1 or not _have_cholmod(PETSc)):
         raise InputError("factor='cholmod' needs one process and a PETSc built with SuiteSparse")
     prefix = f"modalfem_slepc{next(_counter)}_"
