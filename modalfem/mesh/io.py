@@ -35,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import importlib.util
 import io
-import math
 import os
 import sys
 import tempfile
@@ -157,13 +156,9 @@ def _meshio_read(meshio, p: Path):
 
 
 def _check_unit_scale(unit_scale) -> float:
-    try:
-        s = float(unit_scale)
-    except (TypeError, ValueError):
-        raise InputError(f"unit_scale must be a number (metres per file unit), got {unit_scale!r}") from None
-    if isinstance(unit_scale, bool) or not math.isfinite(s) or s <= 0:
-        raise InputError(f"unit_scale must be finite and > 0 (metres per file unit), got {unit_scale!r}")
-    return s
+    from modalfem.mesh.generators import _positive
+
+    return _positive("unit_scale", unit_scale, unit="metres per file unit")
 
 
 def _from_meshio(m, scale: float, p: Path) -> Mesh:
