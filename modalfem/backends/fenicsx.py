@@ -112,6 +112,21 @@ def _compile(forms):
     return [dolfinx.fem.form(f) for f in forms]
 
 
+def _assemble_stiffness_mass(V_k, V_m, material, *, lumped: bool):
+    """Assembled PETSc stiffness on ``V_k`` [N/m] and (lumped or consistent) mass on ``V_m`` [kg]."""
+    import dolfinx.fem.petsc
+
+    from modalfem.forms import ufl_elasticity as forms
+
+    mass = forms.lumped_mass_form if lumped else forms.mass_form
+    a_k, a_m = _compile([forms.stiffness_form(V_k, material), mass(V_m, material)])
+    K = dolfinx.fem.petsc.assemble_matrix(a_k)
+    K.assemble()
+    M = dolfinx.fem.petsc.assemble_matrix(a_m)
+    M.assemble()
+    return K, M
+
+
 def _petsc_to_csr(A, perm: np.ndarray) -> sp.csr_matrix:
     """Serial PETSc AIJ -> scipy CSR with row/column ``i`` moved to ``perm[i]``."""
     indptr, indices, data = A.getValuesCSR()
@@ -153,18 +168,12 @@ def assemble(mesh, material, *, degree: int = 2, lumped: bool = False):
     import dolfinx.fem.petsc
     from mpi4py import MPI
 
-    from modalfem.forms import ufl_elasticity as forms
 
     degree = _check_degree(degree)
     V, nodes = create_function_space(mesh, degree=degree, comm=MPI.COMM_SELF)
     Vs = dolfinx.fem.FunctionSpace(V.mesh, ("Lagrange", degree))
     nodes_s = node_of_block(Vs, mesh)
-    mass = forms.lumped_mass_form if lumped else forms.mass_form
-    a_k, a_m = _compile([forms.stiffness_form(V, material), mass(Vs, material)])
-    K = dolfinx.fem.petsc.assemble_matrix(a_k)
-    K.assemble()
-    Ms = dolfinx.fem.petsc.assemble_matrix(a_m)
-    Ms.assemble()
+    K, Ms = _assemble_stiffness_mass(V, Vs, material, lumped=lumped)
     Kc = _petsc_to_csr(K, canonical_dofs(nodes))
     if lumped:
         d = np.empty(len(nodes_s))
@@ -200,11 +209,8 @@ def assemble_petsc(mesh, material, *, degree: int = 2, free=None, lumped: bool =
     Raises:
         InputError: degree is not 1 or 2, or ``free`` has the wrong shape.
     """
-    import dolfinx.fem
-    import dolfinx.fem.petsc
     from petsc4py import PETSc
 
-    from modalfem.forms import ufl_elasticity as forms
 
     degree = _check_degree(degree)
     comm = _comm(comm)
@@ -217,12 +223,7 @@ def assemble_petsc(mesh, material, *, degree: int = 2, free=None, lumped: bool =
             f"free must be a bool mask of shape ({n_dofs},) for degree {degree}, got {free.dtype} {free.shape}"
         )
     V, nodes = create_function_space(mesh, degree=degree, comm=comm)
-    mass = forms.lumped_mass_form if lumped else forms.mass_form
-    a_k, a_m = _compile([forms.stiffness_form(V, material), mass(V, material)])
-    K = dolfinx.fem.petsc.assemble_matrix(a_k)
-    K.assemble()
-    M = dolfinx.fem.petsc.assemble_matrix(a_m)
-    M.assemble()
+    K, M = _assemble_stiffness_mass(V, V, material, lumped=lumped)
     if lumped:
         d = M.getDiagonal()
         M.destroy()

@@ -469,7 +469,6 @@ def solve_slepc(
         timings["solve"] = timings["extract"] = timings["residuals"] = timings["inertia_factor"] = 0.0
         cpu["solve"] = cpu["inertia_factor"] = 0.0
         rounds, its, attempts, refinements = 0, 0, 0, 0
-        Kabs = None
         factor_is_solve_operator = True  # False once MUMPS's A holds K - sigma M (until refactorised)
         prev_lam = np.empty(0)  # eigenvalues found by earlier attempts
         X, MX = [], []  # eigenvectors found so far (M-normalised) and M times them
