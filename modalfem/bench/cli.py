@@ -20,7 +20,7 @@ import time
 
 from modalfem.bench import modes_bench as mb
 
-__all__ = ["SECTION", "main", "refine_reference", "replace_section"]
+__all__ = ["SECTION", "available", "main", "refine_reference", "replace_section", "update_section", "write_atomic"]
 
 SECTION = "## Modes: cantilever ladder"
 GOAL_DOFS = 130_000  # "140k-DOF P2" goal rung: the largest P2 rung with at least this many DOFs
@@ -254,10 +254,14 @@ SIZE_L = mb.SIZE[0]
 
 
 def replace_section(text: str, section: str) -> str:
-    """``text`` with the section starting at the ``SECTION`` heading replaced by ``section`` (appended
-    if absent); the section ends at the next level-1/level-2 heading (``# `` or ``## ``)."""
+    """``text`` with the section whose heading is the first line of ``section`` (a ``## `` heading)
+    replaced by ``section`` (appended if absent); a section ends at the next level-1/level-2 heading
+    (``# `` or ``## ``). Every benchmark command owns one section of ``BENCHMARKS.md`` this way."""
+    heading = section.strip().splitlines()[0].strip()
+    if not heading.startswith("## "):
+        raise ValueError(f"a benchmark section must start with a '## ' heading, got {heading!r}")
     lines = text.splitlines()
-    start = next((i for i, ln in enumerate(lines) if ln.strip() == SECTION), None)
+    start = next((i for i, ln in enumerate(lines) if ln.strip() == heading), None)
     new = section.rstrip("\n").splitlines()
     if start is None:
         body = text.rstrip("\n")
@@ -268,6 +272,15 @@ def replace_section(text: str, section: str) -> str:
                 if lines[j].startswith("## ") or lines[j].startswith("# ")), len(lines))
     out = lines[:start] + new + ([""] if end < len(lines) else []) + lines[end:]
     return "\n".join(out).rstrip("\n") + "\n"
+
+
+def update_section(path: str, section: str) -> None:
+    """Replace (or append) ``section`` in the markdown file ``path`` atomically, keeping the others."""
+    old = ""
+    if os.path.exists(path):
+        with open(path) as f:
+            old = f.read()
+    write_atomic(path, replace_section(old, section))
 
 
 def write_atomic(path: str, text: str) -> None:
@@ -360,29 +373,44 @@ def _finish(a, command, date, machine, versions, rungs, results, t_start) -> int
     section = render(results, rungs, versions, command=command, date=date, machine=machine,
                      peer_timeout=a.peer_timeout,
                      f_timo=mb.timoshenko_cantilever_hz(), f_eb=mb.euler_bernoulli_cantilever_hz())
-    old = ""
-    if os.path.exists(a.out):
-        with open(a.out) as f:
-            old = f.read()
-    write_atomic(a.out, replace_section(old, section))
+    update_section(a.out, section)
     print(section)
     _log(f"[bench modes] wrote {a.out} ({time.perf_counter() - t_start:.0f} s)")
     return 0
 
 
+def available() -> list[str]:
+    """Benchmark names: ``modes`` plus every module ``modalfem/bench/<name>_bench.py`` that defines
+    ``command(argv: list[str]) -> int`` (a benchmark is added by adding its module, nothing else)."""
+    import pkgutil
+
+    import modalfem.bench as pkg
+
+    names = {"modes"}
+    for info in pkgutil.iter_modules(pkg.__path__):
+        if info.name.endswith("_bench") and info.name != "modes_bench":
+            names.add(info.name[: -len("_bench")])
+    return sorted(names)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``modalfem bench``: ``argv`` starts with the benchmark name (``modes``)."""
+    """Entry point of ``modalfem bench``: ``argv`` starts with the benchmark name (see ``available``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] == "bench":  # tolerate callers that pass the subcommand name too
         argv = argv[1:]
+    names = available()
     if not argv or argv[0] in ("-h", "--help"):
-        print("usage: modalfem bench modes [--out BENCHMARKS.md] [--max-dofs N] [--peer-timeout S] [--quick]")
+        print(f"usage: modalfem bench {{{','.join(names)}}} [options]   (modalfem bench NAME -h for options)")
         return 0 if argv else 2
     name, rest = argv[0], argv[1:]
     if name == "modes":
         return _modes(rest)
-    print(f"modalfem: error: unknown benchmark {name!r}; available: modes", file=sys.stderr)
-    return 2
+    if name not in names:
+        print(f"modalfem: error: unknown benchmark {name!r}; available: {', '.join(names)}", file=sys.stderr)
+        return 2
+    import importlib
+
+    return int(importlib.import_module(f"modalfem.bench.{name}_bench").command(rest))
 
 
 if __name__ == "__main__":

@@ -131,3 +131,17 @@ def test_bench_modes_quick_writes_a_wellformed_section(tmp_path):
         if have_fenicsx():
             assert _num(r["peer-A / ours-fenicsx"]) > 0
         assert _num(r["peer-B / ours-skfem"]) > 0
+
+
+def test_bench_discovers_benchmark_modules_and_rejects_unknown(capsys):
+    names = bench_cli.available()
+    assert "modes" in names and "modes_bench" not in names
+    assert bench_cli.main(["no-such-benchmark"]) == 2
+    assert "available: " in capsys.readouterr().err
+
+
+def test_replace_section_requires_a_heading():
+    import pytest
+
+    with pytest.raises(ValueError, match="## "):
+        bench_cli.replace_section("# Benchmarks\n", "no heading here\n")
