@@ -1,0 +1,1 @@
+"""Cloth: membrane and bending energies, wind, implicit steps, and the collision pipeline driver."""

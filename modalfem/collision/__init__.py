@@ -1,0 +1,1 @@
+"""Collision: broad phase (BVH, normal cones), distances, continuous collision detection, impact zones."""

@@ -1,0 +1,1 @@
+"""Reduced bases: Rayleigh-Ritz (affine, affine + quadratic), coarse-to-fine embedding, boundary-only restriction."""

@@ -1,0 +1,1 @@
+"""Large-deformation tetrahedral bodies: corotational / invertible FEM, volume springs, implicit steps."""
