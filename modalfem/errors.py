@@ -14,6 +14,9 @@ __all__ = [
     "SolverError",
     "BackendUnavailableError",
     "InputError",
+    "ModelFileError",
+    "SimulationError",
+    "SceneError",
 ]
 
 
@@ -43,3 +46,15 @@ class BackendUnavailableError(ModalfemError):
 
 class InputError(ModalfemError):
     """Any other invalid argument (negative k, unknown option value, bad file name)."""
+
+
+class ModelFileError(ModalfemError):
+    """A model file is unreadable, truncated, edited (checksum mismatch), or from a newer schema."""
+
+
+class SimulationError(ModalfemError):
+    """A time-stepping input is invalid (dt <= 0, non-finite state or impulse, point off the surface)."""
+
+
+class SceneError(ModalfemError):
+    """A scene (cloth, obstacles, effects) is malformed or starts in an invalid state."""
