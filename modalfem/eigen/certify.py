@@ -25,13 +25,13 @@ from modalfem.errors import SolverError
 from modalfem.result import Certificate
 
 __all__ = [
-    "PAIR_RTOL",
     "CLEAR_GAP",
+    "FLOOR_FACTOR",
     "ORTHONORMALITY_TOL",
+    "PAIR_RTOL",
+    "build_certificate",
     "choose_inertia_shift",
     "degenerate_pairs",
-    "build_certificate",
-    "FLOOR_FACTOR",
 ]
 
 PAIR_RTOL = 1e-5

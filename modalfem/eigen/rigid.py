@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["node_pieces", "rigid_fields", "expected_rigid_count", "rigid_basis", "RANK_RTOL"]
+__all__ = ["RANK_RTOL", "expected_rigid_count", "node_pieces", "rigid_basis", "rigid_fields"]
 
 #: singular values of the fixed rows below RANK_RTOL * sqrt(nodes in the piece) count as zero. The
 #: columns are scaled to norm ~sqrt(nodes), so this is a relative test far above roundoff (1e-16) and

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from modalfem.eigen.base import RawModes
+from modalfem.eigen.pardiso import PardisoLDLT, have_pardiso
 from modalfem.errors import BackendUnavailableError, InputError, SolverError
 
 __all__ = ["RIGID_KX_RTOL", "SlepcOptions", "solve_slepc"]
@@ -108,6 +109,7 @@ class SlepcOptions:
     max_it: int = 200
     purify: bool = False
     tol_factor: float = 1e-2
+    pardiso_ordering: str = "metis"
     petsc_options: dict = field(default_factory=dict)
 
 
@@ -124,6 +126,35 @@ def _import_petsc():
 
 
 _HAVE_CHOLMOD: bool | None = None
+_FACTOR_NAMES = {"mumps": "MUMPS LDL^T", "cholmod": "CHOLMOD Cholesky", "pardiso": "PARDISO LDL^T"}
+
+
+class _PardisoPC:
+    """petsc4py python-PC context: applies (the PC operator)^-1 with a ``PardisoLDLT`` (serial).
+
+    ``setUp`` is called by PETSc whenever the operator changed (new shift, or K - sigma M for the
+    inertia): the first call orders and analyses the pattern, later ones refactorise numerically.
+    """
+
+    def __init__(self, ordering: str) -> None:
+        self.ordering = ordering
+        self.factor: PardisoLDLT | None = None
+
+    def setUp(self, pc) -> None:
+        import scipy.sparse as sp
+
+        A = pc.getOperators()[1]
+        indptr, indices, data = A.getValuesCSR()
+        if self.factor is None:
+            self.factor = PardisoLDLT(sp.csr_matrix((data, indices, indptr), shape=A.getSize()), ordering=self.ordering)
+        self.factor.refactor(data)
+
+    def apply(self, pc, x, y) -> None:
+        y.setArray(self.factor.solve(x.getArray(readonly=True)))
+
+    def close(self) -> None:
+        if self.factor is not None:
+            self.factor.close()
 
 
 def _have_cholmod(PETSc) -> bool:
@@ -413,13 +444,15 @@ def solve_slepc(
     ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
     timings["convert"] = time.perf_counter() - t0
 
-    if opt.factor not in ("auto", "cholmod", "mumps"):
-        raise InputError(f"factor must be 'auto', 'cholmod' or 'mumps', got {opt.factor!r}")
+    if opt.factor not in ("auto", "pardiso", "cholmod", "mumps"):
+        raise InputError(f"factor must be 'auto', 'pardiso', 'cholmod' or 'mumps', got {opt.factor!r}")
     factor = opt.factor
     if factor == "auto":
-        factor = "mumps"
+        factor = "pardiso" if nproc == 1 and have_pardiso() else "mumps"
     elif factor == "cholmod" and (nproc > 1 or not _have_cholmod(PETSc)):
         raise InputError("factor='cholmod' needs one process and a PETSc built with SuiteSparse")
+    elif factor == "pardiso" and (nproc > 1 or not have_pardiso()):
+        raise InputError("factor='pardiso' needs one process and MKL PARDISO (pip install mkl)")
     prefix = f"modalfem_slepc{next(_counter)}_"
     db = PETSc.Options()
     settings = {
@@ -435,6 +468,7 @@ def solve_slepc(
         db[prefix + k] = v
     eps = SLEPc.EPS()
     Kabs = None
+    pardiso = _PardisoPC(opt.pardiso_ordering) if factor == "pardiso" else None
     stage = "setting up the eigensolver"
     try:
         eps.create(pcomm)
@@ -453,15 +487,19 @@ def solve_slepc(
         ksp = st.getKSP()
         ksp.setType(PETSc.KSP.Type.PREONLY)
         pc = ksp.getPC()
-        pc.setType(PETSc.PC.Type.CHOLESKY)
-        pc.setFactorSolverType(factor)
+        if pardiso is not None:
+            pc.setType(PETSc.PC.Type.PYTHON)
+            pc.setPythonContext(pardiso)
+        else:
+            pc.setType(PETSc.PC.Type.CHOLESKY)
+            pc.setFactorSolverType(factor)
         eps.setFromOptions()
-        stage = f"factorising K - shift M ({'CHOLMOD Cholesky' if factor == 'cholmod' else 'MUMPS LDL^T'})"
+        stage = f"factorising K - shift M ({_FACTOR_NAMES[factor]})"
         t1, c1 = time.perf_counter(), time.process_time()
         eps.setUp()
         timings["factor"] = time.perf_counter() - t1
         cpu["factor"] = time.process_time() - c1
-        F = pc.getFactorMatrix()
+        F = pc.getFactorMatrix() if pardiso is None else None
         A = ksp.getOperators()[1]  # SLEPc's K - shift M, factorised above
         struct = PETSc.Mat.Structure.SAME if _same_pattern(A, M, mpi_comm) else PETSc.Mat.Structure.SUBSET
         from modalfem.eigen.certify import choose_inertia_shift
@@ -552,6 +590,19 @@ def solve_slepc(
             if factor == "cholmod":
                 stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T)"
                 (neg, zero, _pos), cert_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
+            elif pardiso is not None:
+                stage = "factorising K - sigma M for the inertia count (PARDISO LDL^T, reused analysis)"
+                A.axpy(shift - sigma, M, struct)
+                A.stateIncrease()
+                pc.setUp()
+                factor_is_solve_operator = False
+                neg, zero, _pos = pardiso.factor.inertia
+                cert_info = {**pardiso.factor.info(), "inertia_factor": "pardiso-ldlt"}
+                if pardiso.factor.perturbed_pivots:
+                    # a perturbed pivot makes the count unproven: redo it with MUMPS (threshold pivoting)
+                    stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, PARDISO perturbed pivots)"
+                    (neg, zero, _pos), mumps_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
+                    cert_info.update(mumps_info, inertia_factor="mumps-ldlt")
             else:
                 stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, reused analysis)"
                 A.axpy(shift - sigma, M, struct)
@@ -573,14 +624,14 @@ def solve_slepc(
             # Krylov-Schur missed `missing` eigenvalues below sigma (a many-fold cluster, e.g. the rigid
             # modes of several pieces): restore K - shift M (numeric refactorisation) and solve again
             # with the pairs found so far as a deflation space.
-            if factor == "mumps":
+            if factor in ("mumps", "pardiso"):
                 stage = "refactorising K - shift M to search for missed eigenvalues"
                 t1 = time.perf_counter()
                 A.axpy(sigma - shift, M, struct)
                 A.stateIncrease()
                 pc.setUp()
                 factor_is_solve_operator = True
-                F = pc.getFactorMatrix()
+                F = pc.getFactorMatrix() if pardiso is None else None
                 timings["factor"] += time.perf_counter() - t1
             attempts += 1
             prev_lam = lam
@@ -614,7 +665,7 @@ def solve_slepc(
             "mpd": int(eps.getDimensions()[2]),
             "tol": float(tol),
             "slepc_tol": slepc_tol,
-            "factor": "cholmod-llt" if factor == "cholmod" else "mumps-ldlt",
+            "factor": {"cholmod": "cholmod-llt", "pardiso": "pardiso-ldlt"}.get(factor, "mumps-ldlt"),
             "inertia_factor": "mumps-ldlt",
             **cert_info,
             "mumps_options": {k: v for k, v in settings.items()},
@@ -633,6 +684,8 @@ def solve_slepc(
             if Kabs is not None:
                 Kabs.destroy()
             eps.destroy()
+            if pardiso is not None:
+                pardiso.close()
             if not is_mat:
                 K.destroy()
                 M.destroy()

@@ -6,6 +6,7 @@ import scipy.linalg as sl
 import scipy.sparse as sp
 
 from modalfem.constraints import fixed_mask
+from modalfem.eigen.pardiso import have_pardiso
 from modalfem.eigen.scipy_solver import inertia_count, solve_scipy
 from modalfem.errors import SolverError
 
@@ -24,13 +25,19 @@ def cantilever_km(beam, steel, assemble_km):
     return K, M, sl.eigh(K.toarray(), M.toarray(), eigvals_only=True)
 
 
+FACTORS = ["superlu", pytest.param("pardiso", marks=pytest.mark.skipif(not have_pardiso(), reason="no MKL PARDISO"))]
+
+
+@pytest.mark.parametrize("factor", FACTORS)
 @pytest.mark.parametrize("case", ["free", "clamped"])
-def test_matches_dense_eigh(case, free_beam_km, cantilever_km):
+def test_matches_dense_eigh(case, factor, free_beam_km, cantilever_km):
     K, M, ref = free_beam_km if case == "free" else cantilever_km
     r = 6 if case == "free" else 0
     nev = r + 10
-    raw = solve_scipy(K, M, nev=nev, shift=-1e6)
+    raw = solve_scipy(K, M, nev=nev, shift=-1e6, factor=factor)
     assert raw.info["method"] == "arpack shift-invert"
+    assert raw.info["factor"].startswith(factor)
+    assert raw.info["inertia_method"] == ("pardiso-ldlt" if factor == "pardiso" else "superlu-ldlt")
     lam = raw.eigenvalues
     assert len(lam) >= nev + 4
     # dense eigh resolves eigenvalues to ~eps * lambda_max (2e-9 relative at lambda_1 here)
@@ -67,10 +74,17 @@ def test_bad_arguments(cantilever_km):
         solve_scipy(K, M, nev=K.shape[0], shift=-1.0)
 
 
-def test_indefinite_mass_is_a_solver_error(cantilever_km):
+@pytest.mark.parametrize("factor", FACTORS)
+def test_indefinite_mass_is_a_solver_error(cantilever_km, factor):
     K, M, _ = cantilever_km
     with pytest.raises(SolverError):
-        solve_scipy(K, -M, nev=4, shift=-1e6)
+        solve_scipy(K, -M, nev=4, shift=-1e6, factor=factor)
+
+
+def test_unknown_factor_is_a_solver_error(cantilever_km):
+    K, M, _ = cantilever_km
+    with pytest.raises(SolverError, match="factor must be"):
+        solve_scipy(K, M, nev=4, shift=-1e6, factor="lu")
 
 
 def test_tiny_problem_uses_dense_path(cube, steel, assemble_km):

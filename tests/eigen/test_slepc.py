@@ -98,7 +98,7 @@ def test_spring_chain_matches_dense():
         assert raw.timings[key] >= 0
     info = raw.info
     assert info["solver"] == "slepc" and info["nconv"] >= 9 and info["iterations"] >= 1
-    assert info["mumps_ordering"] and info["petsc_version"].startswith("3.")
+    assert (info.get("mumps_ordering") or info.get("pardiso_ordering")) and info["petsc_version"].startswith("3.")
 
 
 def test_random_pencil_matches_dense():
@@ -162,17 +162,28 @@ def test_certificate_reuses_the_mumps_analysis():
     assert num.getPerfInfo()["count"] - n0 == 2
 
 
-@pytest.mark.parametrize("factor", ["cholmod", "mumps"])
-def test_factorisations_agree(factor):
-    """CHOLMOD (serial default) and MUMPS give the same pairs and the same inertia count."""
-    from modalfem.eigen.slepc import SlepcOptions, _have_cholmod
+def _skip_unavailable(factor):
     from petsc4py import PETSc
+
+    from modalfem.eigen.pardiso import have_pardiso
+    from modalfem.eigen.slepc import _have_cholmod
 
     if factor == "cholmod" and not _have_cholmod(PETSc):
         pytest.skip("this PETSc has no CHOLMOD")
+    if factor == "pardiso" and not have_pardiso():
+        pytest.skip("no MKL PARDISO")
+
+
+@pytest.mark.parametrize("factor", ["cholmod", "mumps", "pardiso"])
+def test_factorisations_agree(factor):
+    """PARDISO (serial default), CHOLMOD and MUMPS give the same pairs and the same inertia count."""
+    from modalfem.eigen.slepc import SlepcOptions
+
+    _skip_unavailable(factor)
     K, M = spring_chain(300)
     raw = _solve(K, M, nev=6, shift=-1e2, options=SlepcOptions(factor=factor))
-    assert raw.info["factor"].startswith(factor) and raw.info["inertia_factor"] == "mumps-ldlt"
+    inertia = "pardiso-ldlt" if factor == "pardiso" else "mumps-ldlt"
+    assert raw.info["factor"].startswith(factor) and raw.info["inertia_factor"] == inertia
     _check_against_dense(K, M, raw, 6)
     assert raw.inertia_count == int(np.sum(raw.eigenvalues < raw.inertia_shift))
 
@@ -246,7 +257,7 @@ def test_twelve_fold_zero_cluster_is_found(assemble_km, make_box, steel):
     _check_against_dense(K, M, raw, 15)
 
 
-@pytest.mark.parametrize("factor", ["mumps", "cholmod"])
+@pytest.mark.parametrize("factor", ["mumps", "cholmod", "pardiso"])
 def test_missed_cluster_members_are_recovered_by_deflated_retry(factor):
     """8 identical chains: every eigenvalue is 8-fold. Krylov-Schur misses copies; the Sylvester count
     sees it and a deflated second search finds them. With MUMPS each retry costs one refactorisation
@@ -254,10 +265,9 @@ def test_missed_cluster_members_are_recovered_by_deflated_retry(factor):
     own MUMPS matrix) - one inertia factorisation per search either way."""
     from petsc4py import PETSc
 
-    from modalfem.eigen.slepc import SlepcOptions, _have_cholmod
+    from modalfem.eigen.slepc import SlepcOptions
 
-    if factor == "cholmod" and not _have_cholmod(PETSc):
-        pytest.skip("this PETSc has no CHOLMOD")
+    _skip_unavailable(factor)
     K1, M1 = spring_chain(30)
     K, M = sp.block_diag([K1] * 8, format="csr"), sp.block_diag([M1] * 8, format="csr")
     PETSc.Log.begin()
@@ -265,8 +275,9 @@ def test_missed_cluster_members_are_recovered_by_deflated_retry(factor):
     n0 = num.getPerfInfo()["count"]
     raw = _solve(K, M, nev=10, shift=-1e2, options=SlepcOptions(factor=factor))
     assert raw.info["retries"] >= 1
-    per_retry = 2 if factor == "mumps" else 1
-    assert num.getPerfInfo()["count"] - n0 == 2 + per_retry * raw.info["retries"]
+    if factor != "pardiso":  # PARDISO's factorisations are not PETSc events
+        per_retry = 2 if factor == "mumps" else 1
+        assert num.getPerfInfo()["count"] - n0 == 2 + per_retry * raw.info["retries"]
     _check_against_dense(K, M, raw, 10)
 
 

@@ -1,0 +1,251 @@
+"""Intel MKL PARDISO (through ctypes): symmetric indefinite LDL^T, its inertia, multi-RHS solves.
+
+PARDISO is the factorisation that makes the shift-and-invert solves fast on one machine: measured at
+138,720 free DOFs (P2 cantilever, 2-core AVX-512 Xeon), the numeric LDL^T of K - shift M takes
+about 2 s (95 GFlop with METIS ordering, ~50 GFlop/s from MKL's kernels) against 6-10 s for
+Debian's MUMPS (PORD ordering, OpenBLAS), and a solve takes 0.07 s against 0.19 s. The backward
+error of a solve is ~4e-16 (no iterative refinement needed).
+
+The library comes from the ``mkl`` wheel on PyPI (a modalfem dependency on x86-64), found as
+``libmkl_rt`` next to the interpreter (``sys.prefix/lib``), by the dynamic loader, or at the path in
+``MODALFEM_MKL_RT``. ``have_pardiso()`` says whether it loads; callers fall back to MUMPS or SuperLU.
+
+The factorisation is Bunch-Kaufman LDL^T (matrix type -2, real symmetric indefinite) of the upper
+triangle, so the same handle serves the positive definite solve operator K - shift M (shift below
+the spectrum) and the indefinite K - sigma M of the certificate: the ordering and symbolic analysis
+are done once per pattern, each new shift costs one numeric factorisation. Sylvester's law gives the
+number of eigenvalues below sigma as the count of negative pivots, valid when no pivot was perturbed
+(``perturbed_pivots == 0``; PARDISO replaces tiny pivots by +-1e-8 ||A|| otherwise, and the count
+is then not a proof: callers check it).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import glob
+import os
+import sys
+
+import numpy as np
+
+from modalfem.errors import SolverError
+
+__all__ = ["PardisoLDLT", "have_pardiso"]
+
+_LIB = None
+_LOAD_ERROR: str | None = None
+
+_ERRORS = {
+    -1: "input inconsistent",
+    -2: "not enough memory",
+    -3: "reordering problem",
+    -4: "zero pivot, numerical factorisation or iterative refinement problem",
+    -5: "unclassified (internal) error",
+    -6: "reordering failed",
+    -7: "diagonal matrix is singular",
+    -8: "32-bit integer overflow problem",
+    -9: "not enough memory for out-of-core",
+    -10: "error opening out-of-core files",
+    -11: "read/write error with out-of-core files",
+}
+_MTYPE_SYM_INDEF = -2
+_ORDERINGS = {"amd": 0, "metis": 2, "metis-parallel": 3}
+#: matrices with fewer rows are ordered and factorised on one thread (see ``PardisoLDLT._call``)
+SERIAL_BELOW = 20_000
+
+
+def _candidates() -> list[str]:
+    env = os.environ.get("MODALFEM_MKL_RT")
+    if env:
+        return [env]
+    found = []
+    for prefix in dict.fromkeys((sys.prefix, sys.base_prefix)):
+        found += sorted(glob.glob(os.path.join(prefix, "lib", "libmkl_rt.so*")), key=len)
+        found += sorted(glob.glob(os.path.join(prefix, "Library", "bin", "mkl_rt*.dll")), key=len)
+    name = ctypes.util.find_library("mkl_rt")
+    if name:
+        found.append(name)
+    return found
+
+
+def _library():
+    """The loaded ``libmkl_rt`` with ``pardiso`` typed, or None (reason in ``_LOAD_ERROR``)."""
+    global _LIB, _LOAD_ERROR
+    if _LIB is not None or _LOAD_ERROR is not None:
+        return _LIB
+    for path in _candidates():
+        try:
+            lib = ctypes.CDLL(path)
+            fn = lib.pardiso
+        except (OSError, AttributeError) as exc:
+            _LOAD_ERROR = f"{path}: {exc}"
+            continue
+        p, i32 = ctypes.POINTER, ctypes.c_int32
+        lib.MKL_Set_Num_Threads_Local.restype = ctypes.c_int
+        lib.MKL_Set_Num_Threads_Local.argtypes = [ctypes.c_int]
+        fn.restype = None
+        fn.argtypes = [p(ctypes.c_int64), p(i32), p(i32), p(i32), p(i32), p(i32), ctypes.c_void_p, p(i32), p(i32),
+                       p(i32), p(i32), p(i32), p(i32), ctypes.c_void_p, ctypes.c_void_p, p(i32)]
+        _LIB, _LOAD_ERROR = lib, None
+        return _LIB
+    if _LOAD_ERROR is None:
+        _LOAD_ERROR = "libmkl_rt not found (pip install mkl, or set MODALFEM_MKL_RT)"
+    return None
+
+
+def have_pardiso() -> bool:
+    """True when MKL PARDISO can be loaded in this process."""
+    return _library() is not None
+
+
+class PardisoLDLT:
+    """LDL^T factorisation of a real symmetric sparse matrix with MKL PARDISO.
+
+    Args:
+        A: symmetric scipy.sparse matrix (n, n); only its upper triangle is read. Its sparsity
+            pattern is fixed for the life of the object (``refactor`` takes new values).
+        ordering: fill-reducing ordering, ``"metis"`` (default), ``"metis-parallel"`` or ``"amd"``.
+
+    Raises:
+        SolverError: PARDISO is not available, or a phase failed (named, with PARDISO's reason).
+    """
+
+    def __init__(self, A, *, ordering: str = "metis") -> None:
+        import scipy.sparse as sp
+
+        lib = _library()
+        if lib is None:
+            raise SolverError(f"MKL PARDISO is not available: {_LOAD_ERROR}")
+        if ordering not in _ORDERINGS:
+            raise SolverError(f"unknown PARDISO ordering {ordering!r}; use one of {sorted(_ORDERINGS)}")
+        A = sp.csr_matrix(A)
+        if A.shape[0] != A.shape[1]:
+            raise SolverError(f"PARDISO needs a square matrix, got shape {A.shape}")
+        A.sum_duplicates()
+        A.sort_indices()
+        self.n = int(A.shape[0])
+        rows = np.repeat(np.arange(self.n), np.diff(A.indptr))
+        self._upper = np.flatnonzero(A.indices >= rows)  # positions of the upper triangle in A.data
+        counts = np.bincount(rows[self._upper], minlength=self.n)
+        if np.any(counts == 0):
+            raise SolverError(f"PARDISO: row {int(np.argmin(counts))} has no diagonal or upper entry (singular)")
+        self._ia = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        self._ja = np.ascontiguousarray(A.indices[self._upper], dtype=np.int32)
+        self._nnz_full = int(A.nnz)
+        self._indptr, self._indices = A.indptr, A.indices
+        self._a = np.ascontiguousarray(A.data[self._upper], dtype=np.float64)
+        self._lib = lib
+        #: MKL threads for every phase of this handle (0 = MKL's default, all cores)
+        self.threads = 1 if self.n < SERIAL_BELOW else 0
+        self._pt = np.zeros(64, dtype=np.int64)
+        ip = self._iparm = np.zeros(64, dtype=np.int32)
+        ip[0] = 1  # user-set parameters
+        ip[1] = _ORDERINGS[ordering]
+        ip[9] = 8  # pivot perturbation 1e-8 (reported in iparm[13])
+        ip[10] = ip[12] = 0  # no scaling / weighted matching: keeps the inertia of A itself
+        ip[17] = ip[18] = -1  # report factor nonzeros and MFlop
+        ip[20] = 1  # Bunch-Kaufman 1x1 and 2x2 pivoting
+        ip[34] = 1  # zero-based indexing
+        self._alive = True
+        self._call(11)  # ordering and symbolic factorisation
+        self.factored = False
+
+    # -------------------------------------------------------------------------------- phases
+    def _call(self, phase: int, b: np.ndarray | None = None) -> np.ndarray | None:
+        p, i32 = ctypes.POINTER, ctypes.c_int32
+        err = i32(0)
+        if b is None:
+            nrhs, bb, x = 1, None, None
+        else:
+            bb = np.asfortranarray(b, dtype=np.float64)
+            x = np.zeros_like(bb)
+            nrhs = 1 if bb.ndim == 1 else bb.shape[1]
+        # One thread count for every phase of a handle (PARDISO sizes its workspace for the threads of
+        # the analysis; a numeric phase with more threads than an earlier one crashed, seen with MKL
+        # 2026). Small problems run on one thread: on a busy machine MKL's OpenMP threads cost more
+        # than they give there (measured: 50 ms instead of 3 ms per solve at 3k DOFs, 2 cores).
+        previous = self._lib.MKL_Set_Num_Threads_Local(self.threads)
+        self._lib.pardiso(
+            self._pt.ctypes.data_as(p(ctypes.c_int64)), ctypes.byref(i32(1)), ctypes.byref(i32(1)),
+            ctypes.byref(i32(_MTYPE_SYM_INDEF)), ctypes.byref(i32(phase)), ctypes.byref(i32(self.n)),
+            self._a.ctypes.data, self._ia.ctypes.data_as(p(i32)), self._ja.ctypes.data_as(p(i32)), None,
+            ctypes.byref(i32(nrhs)), self._iparm.ctypes.data_as(p(i32)), ctypes.byref(i32(0)),
+            None if bb is None else bb.ctypes.data, None if x is None else x.ctypes.data, ctypes.byref(err),
+        )
+        self._lib.MKL_Set_Num_Threads_Local(previous)
+        if err.value != 0:
+            what = {11: "analysis", 22: "numeric factorisation", 33: "solve", -1: "release"}.get(phase, str(phase))
+            raise SolverError(f"PARDISO {what} failed: error {err.value} ({_ERRORS.get(err.value, 'unknown')})")
+        return x
+
+    def same_pattern(self, A) -> bool:
+        """True if the CSR matrix ``A`` (sorted indices) has the sparsity pattern this handle analysed."""
+        return (A.shape == (self.n, self.n) and A.nnz == self._nnz_full
+                and np.array_equal(A.indptr, self._indptr) and np.array_equal(A.indices, self._indices))
+
+    def refactor(self, data: np.ndarray | None = None) -> PardisoLDLT:
+        """Numeric LDL^T with the values ``data`` of the full matrix (same pattern, CSR order as given
+        to the constructor after sorting), or with the constructor's values when None."""
+        if not self._alive:
+            raise SolverError("PARDISO factorisation used after close()")
+        if data is not None:
+            data = np.asarray(data, dtype=np.float64)
+            if data.shape != (self._nnz_full,):
+                raise SolverError(f"PARDISO refactor: expected {self._nnz_full} values, got {data.shape}")
+            self._a = np.ascontiguousarray(data[self._upper])
+        self._call(22)
+        self.factored = True
+        return self
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        """x with A x = b for b of shape (n,) or (n, m) (several right-hand sides in one pass)."""
+        if not self.factored:
+            self.refactor()
+        b = np.asarray(b, dtype=np.float64)
+        if b.shape[0] != self.n:
+            raise SolverError(f"PARDISO solve: right-hand side has {b.shape[0]} rows, matrix has {self.n}")
+        return np.ascontiguousarray(self._call(33, b))
+
+    # -------------------------------------------------------------------------------- results
+    @property
+    def inertia(self) -> tuple[int, int, int]:
+        """(negative, zero, positive) pivot counts of the last numeric factorisation."""
+        if not self.factored:
+            raise SolverError("PARDISO inertia asked before a numeric factorisation")
+        pos, neg = int(self._iparm[21]), int(self._iparm[22])
+        return neg, self.n - pos - neg, pos
+
+    @property
+    def perturbed_pivots(self) -> int:
+        """Pivots PARDISO perturbed in the last factorisation (0: the LDL^T is of A itself)."""
+        return int(self._iparm[13])
+
+    def info(self) -> dict:
+        """Ordering, factor entries and flops of the analysis (for provenance and benchmarks)."""
+        code = int(self._iparm[1])
+        return {
+            "pardiso_ordering": {v: k for k, v in _ORDERINGS.items()}.get(code, str(code)),
+            "pardiso_factor_entries": int(self._iparm[17]),
+            "pardiso_factor_flops": float(self._iparm[18]) * 1e6,
+            "pardiso_perturbed_pivots": self.perturbed_pivots,
+        }
+
+    def close(self) -> None:
+        """Release PARDISO's memory (idempotent)."""
+        if self._alive:
+            self._alive = False
+            try:
+                self._call(-1)
+            except SolverError:  # pragma: no cover - release errors leave nothing to do
+                pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # pragma: no cover - garbage-collection timing
+        if getattr(self, "_alive", False):
+            self.close()
