@@ -3,7 +3,8 @@
 Subcommands:
   * ``modalfem modes MESH_OR_GENERATOR ...``: lowest modes of a mesh file (.msh, .vtu, .xdmf, ...)
     or a generated body (box, plate, rod, tuning_fork, bell); writes a JSON summary and, with
-    ``--out DIR``, mode shapes for ParaView (modes.vtu, modes.xdmf) and a PNG sheet (modes.png).
+    ``--out DIR``, mode shapes for ParaView (modes.vtu, modes.xdmf) and a PNG sheet (modes.png);
+    with ``--save MODEL.npz``, a ``ModalModel`` file for the numpy-only runtime (``modalfem.model``).
   * ``modalfem bench modes ...``: the cantilever-ladder benchmark (``modalfem.bench.cli``).
 
 Every ``ModalfemError`` (bad material, unknown tag, malformed mesh, k too large, ...) becomes one
@@ -14,11 +15,13 @@ run succeeded (outputs are staged in a temporary directory and moved into place 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
 import time
 from pathlib import Path
 
-__all__ = ["main", "build_parser"]
+__all__ = ["build_parser", "main"]
 
 GENERATOR_NAMES = ("box", "plate", "rod", "tuning_fork", "bell")
 
@@ -69,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     o = m.add_argument_group("outputs")
     o.add_argument("--json", type=Path, help="JSON summary file")
     o.add_argument("--out", type=Path, help="directory for modes.png, modes.vtu, modes.xdmf, modes.json")
+    o.add_argument("--save", type=Path, metavar="MODEL",
+                   help="write a ModalModel file (.npz) for the runtime: boundary surface, boundary-only "
+                        "deformation modes, mass properties, material, damping defaults, provenance")
     o.add_argument("--sheet-modes", type=int, default=8, help="modes drawn in modes.png (default 8)")
     o.add_argument("--quiet", action="store_true", help="no progress lines")
     o.add_argument("--debug", action="store_true", help="show tracebacks of unexpected errors")
@@ -144,11 +150,40 @@ def _constraints(args):
     return (fixed or None), {"fixed": list(args.fixed), "roller": list(args.roller)}
 
 
+def _stage_model(model, target: Path) -> Path:
+    """Save ``model`` under a hidden temporary name next to ``target`` (moved into place at the end)."""
+    import tempfile
+
+    from modalfem.errors import InputError
+
+    target = Path(target)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    except OSError as exc:
+        raise InputError(f"cannot write {str(target)!r}: {exc.strerror or exc}") from None
+    os.close(fd)
+    try:
+        model.save(tmp)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    return Path(tmp)
+
+
 def _run_modes(args, argv) -> int:
     import modalfem
     from modalfem.errors import InputError
-    from modalfem.output import check_targets, plot_mode_sheet, staged_dir, summary, summary_json, write_modes
-    from modalfem.output import write_text_atomic
+    from modalfem.output import (
+        check_targets,
+        plot_mode_sheet,
+        staged_dir,
+        summary,
+        summary_json,
+        write_modes,
+        write_text_atomic,
+    )
 
     t0 = time.perf_counter()
 
@@ -160,7 +195,7 @@ def _run_modes(args, argv) -> int:
         raise InputError(f"-k must be an integer >= 1, got {args.k}")
     if args.sheet_modes < 1:
         raise InputError(f"--sheet-modes must be >= 1, got {args.sheet_modes}")
-    check_targets(out_dir=args.out, files=tuple(p for p in (args.json,) if p is not None))
+    check_targets(out_dir=args.out, files=tuple(p for p in (args.json, args.save) if p is not None))
     material = _material(args)
     fixed, constraints = _constraints(args)
     say(f"mesh: {args.mesh}")
@@ -174,23 +209,44 @@ def _run_modes(args, argv) -> int:
     if args.out is not None:
         outputs = {"sheet": "modes.png", "paraview_vtu": "modes.vtu", "paraview_xdmf": "modes.xdmf",
                    "summary": "modes.json"}
+    held = ", ".join([f"fixed {t}" for t in args.fixed] + [f"roller {r}" for r in args.roller]) or "free"
+    model = None
+    if args.save is not None:  # built (and validated) before anything is written
+        from modalfem.model import ModalModel
+
+        model = ModalModel.from_modes(res, mesh, material, provenance={
+            "fixed": None if held == "free" else held, "source": source, "command": ["modalfem", *argv]})
+        outputs["model"] = str(args.save)
     t = time.perf_counter()
     data = summary(res, mesh=mesh, material=material, source=source, constraints=constraints,
                    timings={"mesh": t_mesh}, outputs=outputs, command=["modalfem", *argv])
-    if args.out is not None:
-        say(f"writing {args.out}/")
-        with staged_dir(args.out) as tmp:
-            write_modes(tmp / "modes.vtu", mesh, res)
-            write_modes(tmp / "modes.xdmf", mesh, res)
-            held = ", ".join([f"fixed {t}" for t in args.fixed] + [f"roller {r}" for r in args.roller]) or "free"
-            body = source.get("generator") or Path(str(source.get("file"))).name
-            title = f"{body}, {material.name or 'custom'}, {held}, P{args.degree}"
-            plot_mode_sheet(tmp / "modes.png", mesh, res, count=min(args.sheet_modes, len(res.omega)), title=title)
+    staged_model = _stage_model(model, args.save) if model is not None else None
+    try:
+        if args.out is not None:
+            say(f"writing {args.out}/")
+            with staged_dir(args.out) as tmp:
+                write_modes(tmp / "modes.vtu", mesh, res)
+                write_modes(tmp / "modes.xdmf", mesh, res)
+                body = source.get("generator") or Path(str(source.get("file"))).name
+                title = f"{body}, {material.name or 'custom'}, {held}, P{args.degree}"
+                plot_mode_sheet(tmp / "modes.png", mesh, res, count=min(args.sheet_modes, len(res.omega)),
+                                title=title)
+                data["timings"]["output"] = time.perf_counter() - t
+                (tmp / "modes.json").write_text(summary_json(data), encoding="utf-8")
+        if args.json is not None:
             data["timings"]["output"] = time.perf_counter() - t
-            (tmp / "modes.json").write_text(summary_json(data), encoding="utf-8")
-    if args.json is not None:
-        data["timings"]["output"] = time.perf_counter() - t
-        write_text_atomic(args.json, summary_json(data))
+            write_text_atomic(args.json, summary_json(data))
+        if staged_model is not None:
+            say(f"writing {args.save}")
+            try:
+                os.replace(staged_model, args.save)
+            except OSError as exc:
+                raise InputError(f"cannot write {str(args.save)!r}: {exc.strerror or exc}") from None
+            staged_model = None
+    finally:
+        if staged_model is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(staged_model)
     cert = res.certificate
     print(f"{'mode':>4}  {'frequency [Hz]':>15}  {'residual':>9}  label")
     for i, (f, lab) in enumerate(zip(res.frequencies_hz, res.labels)):
@@ -200,7 +256,7 @@ def _run_modes(args, argv) -> int:
           f"(inertia {cert.inertia_count} below {cert.inertia_shift:.4g} rad^2/s^2, "
           f"orthonormality {cert.orthonormality_error:.1e}); {res.backend} + {res.solver}, "
           f"{res.timings['total']:.2f} s")
-    for what, path in (("json", args.json), ("outputs", args.out)):
+    for what, path in (("json", args.json), ("outputs", args.out), ("model", args.save)):
         if path is not None:
             print(f"{what}: {path}")
     return 0 if cert.passed else 1
@@ -236,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("modalfem: interrupted", file=sys.stderr)
         return 130
-    except Exception as exc:  # noqa: BLE001 - one line for users, traceback with --debug
+    except Exception as exc:
         if debug:
             raise
         print(f"modalfem: error: unexpected {type(exc).__name__}: {exc} (rerun with --debug for the traceback)",

@@ -89,7 +89,7 @@ def test_malformed_mesh_file(tmp_path, capsys):
 
 
 def test_failure_after_the_solve_leaves_no_partial_directory(tmp_path, capsys, monkeypatch):
-    import modalfem.output.sheet as sheet
+    from modalfem.output import sheet
 
     def boom(*a, **k):
         raise OSError(28, "No space left on device")
@@ -107,10 +107,79 @@ def test_python_dash_m_and_progress(tmp_path):
     r = subprocess.run(
         [sys.executable, "-m", "modalfem", "modes", "box", "--cells", "6", "1", "1", "-k", "2", "--fixed", "x0",
          "--json", str(tmp_path / "s.json"), *PIP_PATH],
-        capture_output=True, text=True, timeout=300,
+        capture_output=True, text=True, timeout=300, check=False,
     )
     assert r.returncode == 0, r.stderr
     assert "assembly" in r.stderr and "eigen" in r.stderr  # progress lines with elapsed seconds
     assert json.loads((tmp_path / "s.json").read_text())["certificate"]["passed"]
-    r = subprocess.run([sys.executable, "-m", "modalfem", "modes"], capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-m", "modalfem", "modes"], capture_output=True, text=True, timeout=120,
+                       check=False)
     assert r.returncode == 2 and r.stderr.startswith("modalfem: error:")
+
+
+# ---------------------------------------------------------------- --save MODEL (ModalModel file)
+
+
+def test_save_writes_a_loadable_model(tmp_path, capsys):
+    from modalfem.model import ModalModel
+
+    path = tmp_path / "models" / "box.npz"  # missing parent directories are created
+    code, stdout, _ = _run(["modes", "box", "--size", "0.2", "0.05", "0.05", "--cells", "4", "1", "1", "-k", "3",
+                            "--save", str(path), "--json", str(tmp_path / "s.json"), "--quiet", *PIP_PATH], capsys)
+    assert code == 0 and f"model: {path}" in stdout
+    m = ModalModel.load(path)
+    data = json.loads((tmp_path / "s.json").read_text())
+    assert np.allclose(m.frequencies_hz, data["frequencies_hz"], rtol=1e-12)
+    assert m.mode_count == 3 and m.provenance["fixed"] is None and m.provenance["rigid_mode_count"] == 6
+    assert m.provenance["source"]["generator"] == "box" and m.material["name"] == "steel"
+    assert data["outputs"]["model"] == str(path)
+    assert sorted(p.name for p in path.parent.iterdir()) == ["box.npz"]  # no temporary files left
+    code, _, _ = _run(["modes", "box", "--cells", "4", "1", "1", "-k", "2", "--fixed", "x0", "--save", str(path),
+                       "--quiet", *PIP_PATH], capsys)
+    assert code == 0 and ModalModel.load(path).provenance["fixed"] == "fixed x0"  # replaced in place
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["box", "-k", "0"], "-k must be"),
+    (["box", "--material", "unobtainium"], "unknown material"),
+])
+def test_save_with_bad_input_writes_nothing(argv, needle, tmp_path, capsys):
+    code, _, err = _run(["modes", *argv, "--save", str(tmp_path / "m.npz"), "--quiet", *PIP_PATH], capsys)
+    assert code == 2 and err.count("\n") == 1 and needle in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_onto_a_directory_is_bad_input(tmp_path, capsys):
+    code, _, err = _run(["modes", "box", "--cells", "2", "1", "1", "-k", "1", "--save", str(tmp_path), "--quiet",
+                         *PIP_PATH], capsys)
+    assert code == 2 and err.count("\n") == 1 and "existing directory" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failure_after_the_solve_leaves_an_existing_model_unchanged(tmp_path, capsys, monkeypatch):
+    from modalfem.output import sheet
+
+    model = tmp_path / "m.npz"
+    model.write_bytes(b"old model")
+
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("modalfem.output.plot_mode_sheet", boom)
+    monkeypatch.setattr(sheet, "plot_mode_sheet", boom)
+    code, _, err = _run(["modes", "box", "--cells", "4", "1", "1", "-k", "2", "--fixed", "x0", "--out",
+                         str(tmp_path / "o"), "--save", str(model), "--quiet", *PIP_PATH], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert model.read_bytes() == b"old model" and [p.name for p in tmp_path.iterdir()] == ["m.npz"]
+
+
+def test_failure_while_saving_the_model_writes_nothing(tmp_path, capsys, monkeypatch):
+    def boom(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", boom)
+    code, _, err = _run(["modes", "box", "--cells", "4", "1", "1", "-k", "2", "--fixed", "x0", "--out",
+                         str(tmp_path / "o"), "--json", str(tmp_path / "s.json"), "--save", str(tmp_path / "m.npz"),
+                         "--quiet", *PIP_PATH], capsys)
+    assert code == 2 and err.count("\n") == 1 and "No space left" in err
+    assert list(tmp_path.iterdir()) == []
