@@ -31,10 +31,15 @@ from dataclasses import replace
 
 import numpy as np
 
-from modalfem.errors import BackendUnavailableError, InputError, ModalfemError, SolverError
+from modalfem.errors import (
+    BackendUnavailableError,
+    InputError,
+    ModalfemError,
+    SolverError,
+)
 from modalfem.result import ModalResult
 
-__all__ = ["modes", "estimate_shift", "SHIFT_FRACTION", "SOLVERS"]
+__all__ = ["SHIFT_FRACTION", "SOLVERS", "estimate_shift", "modes"]
 
 SOLVERS = ("slepc", "scipy")
 #: alpha = SHIFT_FRACTION * (Ritz upper bound of lambda_1): between lambda_1/6 and lambda_1/2 in practice
@@ -190,13 +195,70 @@ def _mpi_comm(backend: str, solver: str):
     return MPI.COMM_WORLD if MPI.COMM_WORLD.size > 1 else None
 
 
-def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say):
+#: the interior shift sits in the first gap of the P1 bounds above the nev-th that is this wide (relative)
+INTERIOR_GAP = 0.02
+
+
+def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped: bool, backend_module):
+    """sigma [rad^2/s^2] above the nev-th P2 eigenvalue, from P1 eigenvalues on the same mesh, or None.
+
+    The P1 space is a subspace of the P2 space on the same mesh (same constraints), so by min-max the
+    i-th P1 eigenvalue mu_i bounds the i-th P2 eigenvalue from above: sigma in the first clear gap of
+    the mu above mu_nev has at least nev P2 eigenvalues below it (the P2 solve counts them exactly by
+    Sylvester's law, so nothing here needs to be exact). The P1 problem has ~8x fewer DOFs than P2
+    (a ~20k-DOF solve at 140k P2 DOFs, about 0.5 s).
+    """
+    from scipy.sparse.linalg import (
+        ArpackError,
+        ArpackNoConvergence,
+        LinearOperator,
+        eigsh,
+    )
+
+    from modalfem.constraints import fixed_mask
+    from modalfem.eigen.pardiso import PardisoLDLT, have_pardiso
+
+    free1 = ~fixed_mask(mesh, 1, fixed_spec)
+    m = nev + max(4, nev // 2)
+    if int(free1.sum()) < max(3 * m, 200):
+        return None
+    K1, M1 = backend_module.assemble(mesh, material, degree=1, lumped=lumped)
+    K1, M1 = K1[free1][:, free1].tocsr(), M1[free1][:, free1].tocsr()
+    A = (K1 - shift * M1).tocsr()
+    A.sort_indices()
+    try:
+        if have_pardiso():
+            f = PardisoLDLT(A).refactor()
+            solve = f.solve
+        else:
+            from scipy.sparse.linalg import splu
+
+            solve = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A").solve
+        op = LinearOperator(A.shape, matvec=solve, dtype=np.float64)
+        mu = np.sort(eigsh(K1, k=m, M=M1, sigma=shift, OPinv=op, which="LM", tol=1e-8,
+                           v0=np.random.default_rng(0).standard_normal(A.shape[0]), return_eigenvectors=False))
+    except (ArpackError, ArpackNoConvergence, RuntimeError, ValueError, SolverError):
+        return None
+    gaps = np.diff(mu[nev - 1 :]) / np.abs(mu[nev:])
+    wide = np.flatnonzero(gaps >= INTERIOR_GAP)
+    if not len(wide) or mu[nev - 1] <= 0:
+        return None
+    j = nev - 1 + int(wide[0])
+    return float(0.5 * (mu[j] + mu[j + 1]))
+
+
+def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None):
     say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
     try:
         if solver == "slepc":
-            from modalfem.eigen.slepc import solve_slepc
+            from modalfem.eigen.slepc import InteriorShiftUnusable, solve_slepc
 
             kw = {"rows": rows, "comm": comm} if comm is not None else {}
+            if interior is not None:
+                try:
+                    return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior, **kw)
+                except InteriorShiftUnusable as why:
+                    say(f"interior shift not usable ({why}); solving at the negative shift")
             return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, **kw)
         from modalfem.eigen.scipy_solver import solve_scipy
 
@@ -282,6 +344,7 @@ def modes(
 
     say("constraints")
     t = time.perf_counter()
+    fixed_spec = fixed
     fixed = fixed_mask(mesh, degree, fixed)
     free = ~fixed
     n_free = int(free.sum())
@@ -313,8 +376,15 @@ def modes(
     shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=rigid_expected, rows=rows, comm=comm)
     timings["shift"] = time.perf_counter() - t
 
+    interior = None
+    if degree == 2 and comm is None and solver == "slepc":
+        say("interior shift from P1 bounds")
+        t = time.perf_counter()
+        interior = interior_shift(mesh, material, fixed_spec, nev=nev, shift=shift, lumped=lumped, backend_module=mod)
+        timings["interior_shift"] = time.perf_counter() - t
+
     t = time.perf_counter()
-    raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say)
+    raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say, interior=interior)
     missed = _missed(raw, rigid_expected, shift)
     if missed > 0 and nev + missed + 4 <= n_free - 1:
         # a Krylov solver can miss copies of a multiple eigenvalue (12 rigid modes of two free pieces):
@@ -371,7 +441,7 @@ def modes(
         "shift_ritz_bound": float(theta),
         "residual_floor": float(np.max(floor[rigid_found : rigid_found + k])),
         "nev": int(nev),
-        "computed": int(len(lam)),
+        "computed": len(lam),
         "n_free": n_free,
         "n_dof": int(n_dof),
         "rigid_expected": int(rigid_expected),

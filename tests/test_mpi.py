@@ -99,7 +99,9 @@ def test_two_ranks_match_one_process(tmp_path):
     assert serial["size"] == 1 and par["size"] == 2
     np.testing.assert_allclose(par["f"], serial["f"], rtol=1e-8)
     assert serial["passed"] and par["passed"], (serial, par)
-    assert par["inertia"] == par["below"] == serial["inertia"]
+    # each run proves its own count (one process counts at an interior shift from P1 bounds, two ranks
+    # at the shift above the k-th eigenvalue, so the counts may differ): both complete
+    assert par["inertia"] == par["below"] and serial["inertia"] == serial["below"]
 
 
 def test_solve_slepc_split_scipy_pencil_on_two_ranks(tmp_path):

@@ -41,7 +41,7 @@ from modalfem.eigen.base import RawModes
 from modalfem.eigen.pardiso import PardisoLDLT, have_pardiso
 from modalfem.errors import BackendUnavailableError, InputError, SolverError
 
-__all__ = ["RIGID_KX_RTOL", "SlepcOptions", "solve_slepc"]
+__all__ = ["RIGID_KX_RTOL", "InteriorShiftUnusable", "SlepcOptions", "solve_slepc"]
 
 #: A pair is "rigid-like" (its residual is divided by ||K||_inf ||x|| instead of ||K x||) when
 #: ||K x|| <= RIGID_KX_RTOL * ||K||_inf * ||x||. Rigid modes found at a negative shift have
@@ -132,6 +132,16 @@ def _import_petsc():
 
 
 _HAVE_CHOLMOD: bool | None = None
+
+
+class InteriorShiftUnusable(SolverError):
+    """The interior shift does not give a proven count of at least nev eigenvalues below it."""
+
+
+def _ascending(a, b, *_args) -> int:
+    """SLEPc user comparison: the smaller (back-transformed) eigenvalue comes first."""
+    return -1 if a.real < b.real else (1 if a.real > b.real else 0)
+
 _FACTOR_NAMES = {"mumps": "MUMPS LDL^T", "cholmod": "CHOLMOD Cholesky", "pardiso": "PARDISO LDL^T"}
 
 
@@ -375,6 +385,7 @@ def solve_slepc(
     comm=None,
     tol: float = 1e-10,
     options: SlepcOptions | None = None,
+    interior: float | None = None,
 ) -> RawModes:
     """Lowest ``nev`` eigenpairs of K x = lambda M x with SLEPc, and the certificate numbers.
 
@@ -390,6 +401,14 @@ def solve_slepc(
             ignored for PETSc Mats, which carry their own.
         tol: wanted bound on the relative residuals; SLEPc runs at ``tol * options.tol_factor``.
         options: ``SlepcOptions`` tuning knobs (defaults are the measured fastest robust choice).
+        interior: optional sigma [rad^2/s^2] above the nev-th eigenvalue (e.g. the midpoint of a gap of
+            upper bounds from a coarser space). Then ONE factorisation serves everything: K - sigma M
+            is factorised (LDL^T), its inertia c (eigenvalues below sigma) is read at once, and
+            Krylov-Schur on (K - sigma M)^-1 M keeps the Ritz values with the smallest lambda, which
+            are exactly the c negative ones of the transformed operator (an end of its spectrum, so
+            they converge like the usual ones), until all c are found. The count at sigma is then
+            the certificate's inertia count: no second factorisation. Raises ``InteriorShiftUnusable``
+            (nothing computed) when c < nev, a pivot is zero or perturbed: call again without it.
 
     Returns:
         ``RawModes`` with nev + extra (or every converged, if SLEPc returns more) eigenpairs in
@@ -412,6 +431,8 @@ def solve_slepc(
         raise InputError(f"shift must be negative and finite (K - shift M positive definite), got {shift!r}")
     if not (np.isfinite(tol) and 0 < tol < 1):
         raise InputError(f"tol must be in (0, 1), got {tol!r}")
+    if interior is not None and not (np.isfinite(interior) and interior > shift):
+        raise InputError(f"interior shift must be finite and above the shift {shift!r}, got {interior!r}")
 
     t0 = time.perf_counter()
     is_mat = isinstance(K_ff, PETSc.Mat)
@@ -459,6 +480,8 @@ def solve_slepc(
         raise InputError("factor='cholmod' needs one process and a PETSc built with SuiteSparse")
     elif factor == "pardiso" and (nproc > 1 or not have_pardiso()):
         raise InputError("factor='pardiso' needs one process and MKL PARDISO (pip install mkl)")
+    if interior is not None and factor == "cholmod":
+        raise InteriorShiftUnusable("CHOLMOD (LL^T) cannot factorise the indefinite K - sigma M")
     prefix = f"modalfem_slepc{next(_counter)}_"
     db = PETSc.Options()
     settings = {
@@ -469,6 +492,8 @@ def solve_slepc(
         settings["st_mat_cholmod_nmethods"] = 2  # AMD and METIS, keep the smaller fill
     if nproc > 1:
         settings["st_mat_mumps_icntl_13"] = 1  # inertia is wrong with a ScaLAPACK root (MUMPS doc)
+    if interior is not None:
+        settings["st_mat_mumps_icntl_24"] = 1  # null-pivot detection: the solve's factor gives the inertia
     settings.update({str(k): v for k, v in opt.petsc_options.items()})
     for k, v in settings.items():
         db[prefix + k] = v
@@ -484,12 +509,16 @@ def solve_slepc(
         eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
         eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
         eps.setTolerances(slepc_tol, int(opt.max_it))
-        eps.setTarget(shift)
-        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
+        target = shift if interior is None else float(interior)
+        eps.setTarget(target)
+        if interior is None:
+            eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
+        else:  # smallest lambda first: the negative end of 1 / (lambda - sigma)
+            eps.setEigenvalueComparison(_ascending)
         eps.setPurify(bool(opt.purify))
         st = eps.getST()
         st.setType(SLEPc.ST.Type.SINVERT)
-        st.setShift(shift)
+        st.setShift(target)
         ksp = st.getKSP()
         ksp.setType(PETSc.KSP.Type.PREONLY)
         pc = ksp.getPC()
@@ -500,17 +529,36 @@ def solve_slepc(
             pc.setType(PETSc.PC.Type.CHOLESKY)
             pc.setFactorSolverType(factor)
         eps.setFromOptions()
-        stage = f"factorising K - shift M ({_FACTOR_NAMES[factor]})"
+        stage = f"factorising K - {'sigma' if interior is not None else 'shift'} M ({_FACTOR_NAMES[factor]})"
         t1, c1 = time.perf_counter(), time.process_time()
         eps.setUp()
         timings["factor"] = time.perf_counter() - t1
         cpu["factor"] = time.process_time() - c1
+        factorisations = 1  # numeric factorisations of a shifted K (solve and inertia), for provenance
         F = pc.getFactorMatrix() if pardiso is None else None
-        A = ksp.getOperators()[1]  # SLEPc's K - shift M, factorised above
+        A = ksp.getOperators()[1]
+        timings["inertia_factor"] = 0.0
+        if interior is not None:
+            if pardiso is not None:
+                neg, zero, _pos = pardiso.factor.inertia
+                cert_info = {**pardiso.factor.info(), "inertia_factor": "pardiso-ldlt"}
+                unproven = pardiso.factor.perturbed_pivots > 0
+            else:
+                neg, zero, _pos = F.getInertia()
+                cert_info = {**_mumps_info(F), "inertia_factor": "mumps-ldlt"} if factor == "mumps" else {}
+                unproven = factor != "mumps"
+            if unproven or zero or neg < nev or neg >= n - 1:
+                raise InteriorShiftUnusable(
+                    f"{neg} eigenvalues below sigma = {interior:.6g} (nev = {nev}, zero pivots {zero}, "
+                    f"{'unproven count' if unproven else 'proven count'})"
+                )
+            nreq = int(neg)
+            ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
+            eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)  # SLEPc's K - shift M, factorised above
         struct = PETSc.Mat.Structure.SAME if _same_pattern(A, M, mpi_comm) else PETSc.Mat.Structure.SUBSET
         from modalfem.eigen.certify import choose_inertia_shift
 
-        timings["solve"] = timings["extract"] = timings["residuals"] = timings["inertia_factor"] = 0.0
+        timings["solve"] = timings["extract"] = timings["residuals"] = 0.0
         cpu["solve"] = cpu["inertia_factor"] = 0.0
         rounds, its, attempts, refinements = 0, 0, 0, 0
         factor_is_solve_operator = True  # False once MUMPS's A holds K - sigma M (until refactorised)
@@ -531,7 +579,9 @@ def solve_slepc(
                     )
                 lam_new = [eps.getEigenvalue(i).real for i in range(nconv)]
                 lam_all = np.sort(np.concatenate([prev_lam, lam_new]))
-                if _clear_gap_above(lam_all, nev) or rounds >= opt.max_rounds or nreq + len(X) >= n - 1:
+                done = (_clear_gap_above(lam_all, nev) if interior is None
+                        else int(np.sum(lam_all < interior)) >= int(neg))
+                if done or rounds >= opt.max_rounds or nreq + len(X) >= n - 1:
                     break
                 # the eigenvalues above the nev-th form a cluster: continue with more, from the current
                 # Ritz vectors (the factorisation is kept: same operators)
@@ -568,7 +618,10 @@ def solve_slepc(
                 Kabs = _abs_matrix(K, PETSc)
             lam, res, floor = _pair_stats(K, Kabs, X, MX, PETSc)
             timings["residuals"] += time.perf_counter() - t1
-            while _short_of_floor(lam, res, floor, nev, tol) and factor_is_solve_operator and refinements < 2:
+            # (not in interior mode: inverse iteration at an interior sigma amplifies the modes just
+            # above sigma over the lowest ones, so it would not refine them)
+            while (_short_of_floor(lam, res, floor, nev, tol) and factor_is_solve_operator and refinements < 2
+                   and interior is None):
                 # one of the lowest nev pairs stopped short of what double precision allows (SLEPc's
                 # criterion is on the shift-inverted problem): one block inverse-iteration step with
                 # the factorisation in hand, then Rayleigh-Ritz over all pairs (keeps M-orthonormality)
@@ -591,9 +644,12 @@ def solve_slepc(
             timings["residuals"] += time.perf_counter() - t1
 
             stage = "choosing the inertia shift"
-            sigma = choose_inertia_shift(lam, nev)
+            sigma = choose_inertia_shift(lam, nev) if interior is None else float(interior)
             t1, c1 = time.perf_counter(), time.process_time()
-            if factor == "cholmod":
+            factorisations += 0 if interior is not None else 1  # interior: the solve's factor gave the count
+            if interior is not None:
+                pass
+            elif factor == "cholmod":
                 stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T)"
                 (neg, zero, _pos), cert_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
             elif pardiso is not None:
@@ -609,6 +665,7 @@ def solve_slepc(
                     stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, PARDISO perturbed pivots)"
                     (neg, zero, _pos), mumps_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
                     cert_info.update(mumps_info, inertia_factor="mumps-ldlt")
+                    factorisations += 1
             else:
                 stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, reused analysis)"
                 A.axpy(shift - sigma, M, struct)
@@ -630,12 +687,13 @@ def solve_slepc(
             # Krylov-Schur missed `missing` eigenvalues below sigma (a many-fold cluster, e.g. the rigid
             # modes of several pieces): restore K - shift M (numeric refactorisation) and solve again
             # with the pairs found so far as a deflation space.
-            if factor in ("mumps", "pardiso"):
+            if factor in ("mumps", "pardiso") and interior is None:
                 stage = "refactorising K - shift M to search for missed eigenvalues"
                 t1 = time.perf_counter()
                 A.axpy(sigma - shift, M, struct)
                 A.stateIncrease()
                 pc.setUp()
+                factorisations += 1
                 factor_is_solve_operator = True
                 F = pc.getFactorMatrix() if pardiso is None else None
                 timings["factor"] += time.perf_counter() - t1
@@ -657,12 +715,14 @@ def solve_slepc(
             "solver": "slepc",
             "eps_type": "krylovschur",
             "st": "sinvert",
-            "which": "target_magnitude",
+            "which": "target_magnitude" if interior is None else "smallest_real",
+            "interior_shift": None if interior is None else float(interior),
             "shift": float(shift),
             "nev": int(nev),
             "nev_requested": nreq,
             "nconv": len(X),
             "retries": int(attempts),
+            "factorisations": int(factorisations),
             "refinements": int(refinements),
             "residual_floor": [float(f) for f in floor],
             "iterations": int(its),

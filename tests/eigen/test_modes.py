@@ -113,3 +113,36 @@ def test_slepc_finds_twelve_rigid_modes_of_two_pieces(two_cubes, steel):
     pytest.importorskip("modalfem.eigen.slepc")
     res = modes(two_cubes, steel, k=3, degree=2, backend="fenicsx", solver="slepc")
     assert res.rigid_mode_count == 12 and res.certificate.passed
+
+
+@pytest.mark.parametrize("fixed", ["x0", None, Fix("z0", components="z")])
+def test_interior_shift_from_p1_bounds_lies_above_the_wanted_p2_eigenvalues(make_box, steel, assemble_km, fixed):
+    """P1 eigenvalues on the same mesh bound the P2 ones from above (nested spaces): the interior shift
+    has at least nev P2 eigenvalues below it (dense P2 reference), and sits in a clear gap of the P1 ones."""
+    import scipy.linalg as sla
+
+    from modalfem.backends import skfem as skfem_backend
+    from modalfem.constraints import fixed_mask
+    from modalfem.eigen.rigid import expected_rigid_count
+    from modalfem.modes import INTERIOR_GAP, interior_shift
+
+    mesh = make_box((1.0, 0.1, 0.1), (10, 2, 2))
+    mask = fixed_mask(mesh, 2, fixed)
+    nev = 8 + expected_rigid_count(mesh, 2, mask)
+    sigma = interior_shift(mesh, steel, fixed, nev=nev, shift=-1e4, lumped=False, backend_module=skfem_backend)
+    assert sigma is not None
+    K, M = assemble_km(mesh, steel, degree=2)
+    free = ~mask
+    w = sla.eigh(K[free][:, free].toarray(), M[free][:, free].toarray(), eigvals_only=True)
+    assert int(np.sum(w < sigma)) >= nev
+    assert np.min(np.abs(w - sigma)) > 1e-6 * sigma  # not on an eigenvalue
+    assert INTERIOR_GAP > 0
+
+
+def test_serial_slepc_p2_uses_one_factorisation_at_the_interior_shift(beam, steel):
+    pytest.importorskip("slepc4py")
+    res = modes(beam, steel, k=8, fixed="x0", solver="slepc")
+    si = res.info["solver_info"]
+    assert si["which"] == "smallest_real" and si["interior_shift"] == res.certificate.inertia_shift
+    assert res.certificate.passed and res.certificate.inertia_count == res.certificate.computed_below_shift
+    assert si["factorisations"] == 1  # the solve's LDL^T gave the count: no second factorisation

@@ -287,7 +287,13 @@ def test_refinement_step_brings_perturbed_pairs_to_the_roundoff_floor(assemble_k
     K - shift M brings the lowest ones back within 10x of their roundoff floor, M-orthonormal."""
     from petsc4py import PETSc
 
-    from modalfem.eigen.slepc import REFINE_FLOOR_FACTOR, _abs_matrix, _pair_stats, _refine, _short_of_floor
+    from modalfem.eigen.slepc import (
+        REFINE_FLOOR_FACTOR,
+        _abs_matrix,
+        _pair_stats,
+        _refine,
+        _short_of_floor,
+    )
 
     K, M = _clamped_beam(assemble_km, make_box, steel)
     ref = _solve(K, M, nev=6, shift=-1e4)
@@ -319,3 +325,53 @@ def test_refinement_step_brings_perturbed_pairs_to_the_roundoff_floor(assemble_k
     G = np.array([[a.dot(b) for b in MX2] for a in X2])
     assert np.max(np.abs(G - np.eye(len(X2)))) < 1e-10
     assert ref.info["refinements"] == 0  # a converged solve does not pay for refinement
+
+
+@pytest.mark.parametrize("factor", ["mumps", "pardiso"])
+def test_interior_shift_finds_every_eigenvalue_below_it_with_one_factorisation(factor, monkeypatch):
+    """Interior mode: K - sigma M factorised once; its inertia is the certificate's count, and the
+    Krylov search returns exactly the eigenvalues below sigma (dense reference), a degenerate-free
+    spring chain and an 8-fold clustered one (deflated retry on the same factorisation)."""
+    from petsc4py import PETSc
+
+    from modalfem.eigen import pardiso as pardiso_mod
+    from modalfem.eigen.slepc import SlepcOptions
+
+    _skip_unavailable(factor)
+    calls = {"numeric": 0}
+    original = pardiso_mod.PardisoLDLT.refactor
+
+    def counting(self, *a, **kw):
+        calls["numeric"] += 1
+        return original(self, *a, **kw)
+
+    monkeypatch.setattr(pardiso_mod.PardisoLDLT, "refactor", counting)
+    K1, M1 = spring_chain(40)
+    for K, M in ((spring_chain(300)), (sp.block_diag([K1] * 8, format="csr"), sp.block_diag([M1] * 8, format="csr"))):
+        w = sla.eigh(K.toarray(), M.toarray(), eigvals_only=True)
+        nev = 10
+        sigma = 0.5 * (w[13] + w[14]) if w[14] - w[13] > 1e-6 * w[14] else 0.5 * (w[15] + w[16])
+        PETSc.Log.begin()
+        num = PETSc.Log.Event("MatCholFctrNum")
+        n0, calls["numeric"] = num.getPerfInfo()["count"], 0
+        raw = _solve(K, M, nev=nev, shift=-1e2, interior=sigma, options=SlepcOptions(factor=factor))
+        expected = int(np.sum(w < sigma))
+        assert raw.info["which"] == "smallest_real" and raw.inertia_shift == sigma
+        assert raw.inertia_count == expected == int(np.sum(raw.eigenvalues < sigma))
+        np.testing.assert_allclose(raw.eigenvalues[:expected], w[:expected], rtol=1e-9)
+        assert np.all(raw.residuals[:expected] < 1e-8)
+        factorisations = calls["numeric"] if factor == "pardiso" else num.getPerfInfo()["count"] - n0
+        assert factorisations == 1
+
+
+@pytest.mark.parametrize("factor", ["mumps", "pardiso"])
+def test_interior_shift_below_the_wanted_eigenvalues_is_refused(factor):
+    from modalfem.eigen.slepc import InteriorShiftUnusable, SlepcOptions
+
+    _skip_unavailable(factor)
+    K, M = spring_chain(200)
+    w = sla.eigh(K.toarray(), M.toarray(), eigvals_only=True)
+    with pytest.raises(InteriorShiftUnusable, match="below sigma"):
+        _solve(K, M, nev=10, shift=-1e2, interior=0.5 * (w[4] + w[5]), options=SlepcOptions(factor=factor))
+    with pytest.raises(InputError, match="interior"):
+        _solve(K, M, nev=10, shift=-1e2, interior=-1e3)
