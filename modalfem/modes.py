@@ -248,10 +248,12 @@ def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped
 
 
 def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None):
+    from modalfem.eigen.base import InteriorShiftUnusable
+
     say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
     try:
         if solver == "slepc":
-            from modalfem.eigen.slepc import InteriorShiftUnusable, solve_slepc
+            from modalfem.eigen.slepc import solve_slepc
 
             kw = {"rows": rows, "comm": comm} if comm is not None else {}
             if interior is not None:
@@ -262,11 +264,22 @@ def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=Non
             return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, **kw)
         from modalfem.eigen.scipy_solver import solve_scipy
 
+        if interior is not None:
+            try:
+                return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior)
+            except InteriorShiftUnusable as why:
+                say(f"interior shift not usable ({why}); solving at the negative shift")
         return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol)
     except (ModalfemError, ImportError):
         raise
     except Exception as exc:  # never a raw ARPACK/PETSc traceback
         raise SolverError(f"{solver} eigen solve failed: {type(exc).__name__}: {exc}") from None
+
+
+def _have_pardiso() -> bool:
+    from modalfem.eigen.pardiso import have_pardiso
+
+    return have_pardiso()
 
 
 def _missed(raw, rigid_expected: int, shift: float) -> int:
@@ -377,7 +390,7 @@ def modes(
     timings["shift"] = time.perf_counter() - t
 
     interior = None
-    if degree == 2 and comm is None and solver == "slepc":
+    if degree == 2 and comm is None and (solver == "slepc" or _have_pardiso()):
         say("interior shift from P1 bounds")
         t = time.perf_counter()
         interior = interior_shift(mesh, material, fixed_spec, nev=nev, shift=shift, lumped=lumped, backend_module=mod)

@@ -14,7 +14,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RawModes"]
+from modalfem.errors import SolverError
+
+__all__ = ["InteriorShiftUnusable", "RawModes"]
+
+
+class InteriorShiftUnusable(SolverError):
+    """An interior shift does not give a proven count of at least nev eigenvalues below it (the
+    solver computed nothing; solve again at the negative shift)."""
 
 
 @dataclass

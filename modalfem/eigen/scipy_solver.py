@@ -27,7 +27,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from modalfem.eigen.base import RawModes
+from modalfem.eigen.base import InteriorShiftUnusable, RawModes
 from modalfem.errors import SolverError
 
 __all__ = ["ZERO_RTOL", "extra_count", "inertia_count", "residuals", "solve_scipy"]
@@ -196,7 +196,7 @@ def _use_pardiso(factor: str) -> bool:
 
 
 def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: int | None = None,
-                factor: str = "auto") -> RawModes:
+                factor: str = "auto", interior: float | None = None) -> RawModes:
     """Lowest ``nev`` (+ a few) eigenpairs of K x = lam M x by shift-invert ARPACK at a negative shift.
 
     Args:
@@ -207,6 +207,10 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         tol: target relative residual; ARPACK is run to machine precision (tol=0) when tol < 1e-8.
         ncv: Lanczos basis size (default max(2 m + 1, 20) for m computed pairs).
         factor: ``"pardiso"`` (MKL), ``"superlu"``, or ``"auto"`` (PARDISO where it loads).
+        interior: optional sigma [rad^2/s^2] above the nev-th eigenvalue (PARDISO only, ignored
+            otherwise): K - sigma M is factorised once, its inertia c is the certificate's count, and
+            ARPACK returns the c most negative 1 / (lambda - sigma), i.e. every eigenvalue below sigma.
+            Raises ``InteriorShiftUnusable`` (nothing computed) when c < nev or the count is unproven.
 
     Returns:
         RawModes with m = nev + ``extra_count(nev)`` eigenpairs (fewer if n is tiny: then a dense
@@ -238,19 +242,31 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
     pardiso = None
     if n <= max(200, 3 * m):  # ARPACK needs ncv < n; tiny problems are solved densely
         lam, X = _dense_solve(K, M, m)
-        lu = None
+        lu, interior = None, None
         info["method"] = "dense eigh"
         timings["factor"] = 0.0
         timings["solve"] = time.perf_counter() - t0
     elif _use_pardiso(factor):
         from modalfem.eigen.pardiso import PardisoLDLT
 
-        A = (K - shift * M).tocsr()
+        at = shift if interior is None else float(interior)
+        A = (K - at * M).tocsr()
         A.sort_indices()
         pardiso = lu = PardisoLDLT(A).refactor()
         timings["factor"] = time.perf_counter() - t0
         info.update(factor="pardiso-ldlt", **pardiso.info())
+        if interior is not None:
+            neg, zero, _ = pardiso.inertia
+            if pardiso.perturbed_pivots or zero or not nev <= neg < n - 1:
+                pardiso.close()
+                raise InteriorShiftUnusable(
+                    f"{neg} eigenvalues below sigma = {interior:.6g} (nev = {nev}, zero pivots {zero}, "
+                    f"perturbed pivots {pardiso.perturbed_pivots})"
+                )
+            m = int(neg)
+            info.update(computed=m, interior_shift=float(interior))
     else:
+        interior = None  # the interior mode needs PARDISO's inertia
         # K - shift M is SPD: diagonal pivots (a Cholesky-like LDL^T) are stable and keep the MMD
         # ordering's sparsity; measured 5x faster with half the fill of the pivoting default (19,683 DOFs).
         A = (K - shift * M).tocsc()
@@ -266,8 +282,11 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         t1 = time.perf_counter()
         rng = np.random.default_rng(12345)
         try:
+            # interior: the most negative 1 / (lambda - sigma) are the eigenvalues just below sigma down
+            # to the lowest, exactly m = inertia of them
             mu, X = eigsh(
-                K, k=m, M=M, sigma=shift, which="LM", OPinv=op, ncv=ncv,
+                K, k=m, M=M, sigma=shift if interior is None else interior,
+                which="LM" if interior is None else "SA", OPinv=op, ncv=ncv,
                 tol=0.0 if tol < 1e-8 else tol * 1e-2, v0=rng.standard_normal(n), maxiter=max(1000, 50 * m),
             )
         except ArpackNoConvergence as exc:
@@ -286,7 +305,8 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
     refinements = 0
     # ARPACK's Ritz vectors carry errors ~ eps * lam / |shift|; one subspace-iteration step with the
     # same factor plus Rayleigh-Ritz (m solves) removes them (measured: 3e-9 -> 8e-12 at shift -1e4).
-    while lu is not None and refinements < 2 and np.max(res[:nev]) > 0.1 * tol:
+    # (not at an interior shift: inverse iteration there would amplify the modes just above sigma)
+    while lu is not None and interior is None and refinements < 2 and np.max(res[:nev]) > 0.1 * tol:
         lam, X = _rayleigh_ritz(K, M, lu.solve(np.asarray(M @ X)))
         res = residuals(K, M, X, lam, shift=shift)
         refinements += 1
@@ -295,10 +315,14 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
     orth = float(np.max(np.abs(G - np.eye(len(lam)))))
     timings["residuals"] = time.perf_counter() - t2
     t3 = time.perf_counter()
-    sigma = choose_inertia_shift(lam, nev, floor=ZERO_RTOL * abs(shift))
-    j = int(np.searchsorted(lam, sigma))
     count = None
-    if pardiso is not None:
+    if interior is not None:
+        sigma, count, method = float(interior), int(m), "pardiso-ldlt"
+        pardiso.close()
+    else:
+        sigma = choose_inertia_shift(lam, nev, floor=ZERO_RTOL * abs(shift))
+        j = int(np.searchsorted(lam, sigma))
+    if pardiso is not None and count is None:
         try:
             count, method = _pardiso_inertia(pardiso, K, M, sigma), "pardiso-ldlt"
         finally:

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from modalfem.eigen.base import RawModes
+from modalfem.eigen.base import InteriorShiftUnusable, RawModes
 from modalfem.eigen.pardiso import PardisoLDLT, have_pardiso
 from modalfem.errors import BackendUnavailableError, InputError, SolverError
 
@@ -132,10 +132,6 @@ def _import_petsc():
 
 
 _HAVE_CHOLMOD: bool | None = None
-
-
-class InteriorShiftUnusable(SolverError):
-    """The interior shift does not give a proven count of at least nev eigenvalues below it."""
 
 
 def _ascending(a, b, *_args) -> int:

@@ -43,7 +43,9 @@ def test_square_beam_pairs_and_public_entry(beam, steel):
     res = modalfem.modes(beam, steel, k=4, fixed="x0", backend="skfem", solver="scipy", progress=calls.append)
     assert modalfem.modes(beam, steel, k=1, fixed="x0", backend="skfem", solver="scipy").certificate.passed
     assert res.certificate.pairs == ((0, 1), (2, 3))
-    assert [c.split(" ")[0] for c in calls[:4]] == ["constraints", "assembly", "shift", "eigen"]
+    stages = [c.split(" ")[0] for c in calls]
+    assert stages[:3] == ["constraints", "assembly", "shift"] and "eigen" in stages
+    assert stages.index("eigen") <= 4  # after the optional "interior" shift stage
     assert calls[-1].startswith("done")
     for key in ("assembly", "constraints", "eigen", "certificate", "labels", "total"):
         assert res.timings[key] >= 0
