@@ -1,0 +1,319 @@
+"""``modalfem bench runtime``: cost of one modal step + surface reconstruction, against its floors.
+
+For r modes x nv surface vertices the runtime step (``ModalSolver.step`` with no effects: exact modal
+update + free rigid update) and the reconstruction ``ModalBody.positions`` (one (3 nv x r)
+matrix-vector product plus O(nv)) are timed, side by side in the same child process with:
+
+* the memory-bandwidth floor: a plain copy of the same mode matrix (``np.copyto``);
+* the vector-matrix product alone, and the matrix in other layouts (vertex-major (3 nv, r) in C and
+  Fortran order, float32);
+* one implicit full-FEM step of a real body (P1 linear elasticity, scikit-fem assembly, backward
+  Euler ``(M + dt^2 K) v1 = M v0 - dt K u0`` with a SuperLU factorisation made beforehand), against
+  the modal step + reconstruction of the same body's surface.
+
+Every case runs in a fresh child process with ``OPENBLAS_NUM_THREADS=OMP_NUM_THREADS=MKL_NUM_THREADS=1``
+(one core). Mode shapes are random (the cost does not depend on their values) on a grid-ordered
+closed torus surface of nv vertices and 2 nv triangles. Times are medians of
+5 repeats, each long enough (>= 0.05 s) to be above the timer resolution.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import os
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+__all__ = ["SECTION", "command", "measure_case", "measure_fem", "render"]
+
+SECTION = "## Runtime: modal step + reconstruction"
+VERTICES = (10_000, 50_000, 200_000)
+MODES = (10, 30, 60)
+GOAL = (50_000, 30)  # (vertices, modes) of the goals
+GOAL_STEPS_PER_S = 1000.0
+GOAL_FLOOR_RATIO = 2.0
+FEM_SIZE = (0.4, 0.1, 0.1)  # [m] steel box of the full-FEM comparison
+FEM_CELLS = (40, 10, 10)
+DT = 1e-3  # [s]
+_ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def _timeit(fn, *, repeats: int = 5, min_time: float = 0.05) -> float:
+    """Median seconds per call of ``fn()`` over ``repeats`` timed loops of >= ``min_time`` each."""
+    fn()
+    t0 = time.perf_counter()
+    fn()
+    one = max(time.perf_counter() - t0, 1e-7)
+    n = max(1, int(min_time / one))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        times.append((time.perf_counter() - t0) / n)
+    return float(np.median(times))
+
+
+def _synthetic_body(vertices: np.ndarray, triangles: np.ndarray, r: int, *, order: str = "C", dtype=np.float64):
+    from types import SimpleNamespace
+
+    from modalfem.runtime import ModalBody
+
+    rng = np.random.default_rng(0)
+    nv = len(vertices)
+    model = SimpleNamespace(vertices=vertices, triangles=triangles,
+                            shapes=rng.standard_normal((3 * nv, r)) * 1e-3, omega=np.linspace(1e3, 1e5, r),
+                            mass=1.0, center_of_mass=vertices.mean(axis=0), inertia=np.diag([1.0, 1.2, 1.4]),
+                            damping=(0.0, 1e-7))
+    return ModalBody(model, dtype=dtype)
+
+
+def _torus_surface(nv: int):
+    """Closed triangulated torus (major radius 0.1 m, minor 0.03 m) of nv vertices (n1 x n2 grid), grid-ordered
+    like a real surface mesh (neighbouring vertices close in memory), 2 triangles per vertex."""
+    divisors = [d for d in range(3, nv // 3 + 1) if nv % d == 0] or [max(3, round(np.sqrt(nv * 3.0)))]
+    n1 = min(divisors, key=lambda d: abs(d - np.sqrt(nv * 3.0)))  # n1 x n2 = nv exactly when possible
+    n2 = max(3, nv // n1)
+    a, b = np.meshgrid(np.linspace(0, 2 * np.pi, n1, endpoint=False), np.linspace(0, 2 * np.pi, n2, endpoint=False),
+                       indexing="ij")
+    x = np.stack([(0.1 + 0.03 * np.cos(b)) * np.cos(a), (0.1 + 0.03 * np.cos(b)) * np.sin(a), 0.03 * np.sin(b)],
+                 axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n1), np.arange(n2), indexing="ij")
+    v00, v10 = i * n2 + j, ((i + 1) % n1) * n2 + j
+    v01, v11 = i * n2 + (j + 1) % n2, ((i + 1) % n1) * n2 + (j + 1) % n2
+    tris = np.concatenate([np.stack([v00, v10, v11], -1).reshape(-1, 3), np.stack([v00, v11, v01], -1).reshape(-1, 3)])
+    return x, tris
+
+
+def _step_and_recon(body):
+    from modalfem.runtime import ModalSolver
+
+    solver = ModalSolver(body)
+    st = solver.state(angular_velocity=(1.0, 2.0, 3.0))
+    st.qdot[:] = 1e-3
+    buf = np.empty((body.vertex_count, 3), dtype=body.shapes_t.dtype)
+
+    def step():
+        solver.step(st, st, None, None, DT)
+
+    def recon():
+        body.positions(st, out=buf)
+
+    def both():
+        solver.step(st, st, None, None, DT)
+        body.positions(st, out=buf)
+
+    return st, step, recon, both, buf
+
+
+def measure_case(nv: int, r: int, *, layouts: bool = False) -> dict:
+    """Seconds per call of the runtime pieces and their floors for one (vertices, modes) case."""
+    verts, tris = _torus_surface(nv)
+    nv = len(verts)
+    body = _synthetic_body(verts, tris, r)
+    st, step, recon, both, buf = _step_and_recon(body)
+    Phi = body.shapes_t  # the layout the runtime uses: modes-major (r, 3 nv)
+    dst = np.empty_like(Phi)
+    u = np.empty(3 * nv)
+    out = {"nv": nv, "r": r, "phi_mb": Phi.nbytes / 2**20,
+           "step": _timeit(step), "recon": _timeit(recon), "both": _timeit(both),
+           "copy": _timeit(lambda: np.copyto(dst, Phi)),
+           "gemv": _timeit(lambda: np.dot(st.q, Phi, out=u)),
+           "normals": _timeit(lambda: body.normals(buf), repeats=3)}
+    if layouts:
+        PhiC = np.ascontiguousarray(Phi.T)  # vertex-major (3 nv, r), C order
+        out["gemv_vertex_major"] = _timeit(lambda: np.matmul(PhiC, st.q, out=u))
+        PhiF = np.asfortranarray(PhiC)
+        out["gemv_fortran"] = _timeit(lambda: np.matmul(PhiF, st.q, out=u))
+        del PhiF, PhiC
+        b32 = _synthetic_body(verts, tris, r, dtype=np.float32)
+        _, _, recon32, both32, _ = _step_and_recon(b32)
+        out["recon_f32"] = _timeit(recon32)
+        out["both_f32"] = _timeit(both32)
+    return out
+
+
+def measure_fem(cells, *, r: int = 30) -> dict:
+    """One implicit full-FEM step of a steel box vs the modal step + reconstruction of its surface."""
+    import scipy.sparse.linalg as spla
+
+    from modalfem.backends.skfem import assemble
+    from modalfem.material import STEEL
+    from modalfem.mesh import box
+
+    mesh = box(size=FEM_SIZE, cells=tuple(cells))
+    K, M = assemble(mesh, STEEL, degree=1)
+    n = K.shape[0]
+    A = (M + DT * DT * K).tocsc()
+    t0 = time.perf_counter()
+    lu = spla.splu(A)
+    factor = time.perf_counter() - t0
+    rng = np.random.default_rng(2)
+    u0, v0 = rng.standard_normal(n) * 1e-6, rng.standard_normal(n) * 1e-3
+
+    def implicit_step():
+        v1 = lu.solve(M @ v0 - DT * (K @ u0))
+        return u0 + DT * v1
+
+    t_fem = _timeit(implicit_step, repeats=3)
+    surf = np.unique(mesh.boundary_facets)
+    remap = np.full(mesh.point_count, -1)
+    remap[surf] = np.arange(len(surf))
+    body = _synthetic_body(mesh.points[surf], remap[mesh.boundary_facets], r)
+    _, _, _, both, _ = _step_and_recon(body)
+    return {"cells": list(cells), "dofs": int(n), "nv": len(surf), "r": r, "factor": factor,
+            "fem_step": t_fem, "modal": _timeit(both), "nnz_lu": int(lu.L.nnz + lu.U.nnz)}
+
+
+# ------------------------------------------------------------------------------ child process
+def _child(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--case", choices=["runtime", "fem", "info"], required=True)
+    ap.add_argument("--nv", type=int)
+    ap.add_argument("--r", type=int)
+    ap.add_argument("--cells", type=int, nargs=3)
+    ap.add_argument("--layouts", action="store_true")
+    ap.add_argument("--json-out", required=True)
+    a = ap.parse_args(argv)
+    if a.case == "runtime":
+        res = measure_case(a.nv, a.r, layouts=a.layouts)
+    elif a.case == "fem":
+        res = measure_fem(a.cells)
+    else:
+        import platform
+
+        import scipy
+
+        res = {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
+               "threads": ", ".join(f"{k}={os.environ.get(k, '-')}" for k in sorted(_ONE_THREAD))}
+    with open(a.json_out, "w") as f:
+        json.dump(res, f)
+    return 0
+
+
+def _spawn(args: list[str], timeout: float = 900.0) -> dict:
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "out.json")
+        env = {**os.environ, **_ONE_THREAD}
+        try:
+            p = subprocess.run([sys.executable, "-m", "modalfem.bench.runtime_bench", "--child", *args,
+                                "--json-out", path], env=env, capture_output=True, text=True, timeout=timeout,
+                               check=False)
+        except subprocess.TimeoutExpired:
+            return {"error": f"timeout after {timeout:.0f} s"}
+        if p.returncode != 0 or not os.path.exists(path):
+            return {"error": (p.stderr.strip().splitlines() or ["failed"])[-1]}
+        with open(path) as f:
+            return json.load(f)
+
+
+# ------------------------------------------------------------------------------ report
+def _ms(s: float) -> str:
+    return f"{1e3 * s:.3f}"
+
+
+def render(cases: list[dict], fem: list[dict], info: dict, *, command: str, date: str, machine: str) -> str:
+    """The markdown section (starts with ``SECTION``)."""
+    intro = ("One step of `ModalSolver.step` with no effects (exact modal update of r modes + free rigid "
+             "update) and the reconstruction `ModalBody.positions` (world surface vertices, one (3 nv x r) "
+             "matrix-vector product + O(nv)), float64, mode matrix modes-major (r, 3 nv), C-ordered. The memory-bandwidth "
+             "floor is a plain copy of the same mode matrix (`np.copyto`), timed in the same process. "
+             "Each case in a fresh child process on one thread (OMP/OpenBLAS/MKL_NUM_THREADS=1); medians of 5 "
+             "timed loops. Shapes are random (the cost does not depend on their values) on a grid-ordered "
+             "closed torus surface (about nv vertices, 2 nv triangles; normals = area-weighted vertex normals).")
+    machine_line = (f"- Machine: {machine} (shared with other jobs while measured: compare the ratios, "
+                    "measured side by side in one process, more than the absolute times)")
+    versions = (f"- Versions: Python {info.get('python', '?')}, numpy {info.get('numpy', '?')}, "
+                f"scipy {info.get('scipy', '?')} (offline side only); threads {info.get('threads', '?')}")
+    header = ("| surface vertices | modes | Phi MB | step us | positions ms | step + positions ms | steps/s | "
+              "q @ Phi_t ms | copy of Phi ms | (step + positions) / copy | normals ms |")
+    L = [SECTION, "", intro, "", f"- Date: {date}", f"- Command: `{command}`", machine_line, versions, "",
+         header, "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for c in cases:
+        if "error" in c:
+            L.append(f"| {c['nv']} | {c['r']} | error: {c['error']} |||||||||")
+            continue
+        L.append(f"| {c['nv']} | {c['r']} | {c['phi_mb']:.1f} | {1e6 * c['step']:.1f} | {_ms(c['recon'])} | "
+                 f"{_ms(c['both'])} | {1 / c['both']:.0f} | {_ms(c['gemv'])} | {_ms(c['copy'])} | "
+                 f"{c['both'] / c['copy']:.2f} | {_ms(c['normals'])} |")
+    goal = next((c for c in cases if (c.get("nv"), c.get("r")) == GOAL and "error" not in c), None)
+    L += ["", (f"Goals at {GOAL[0]} vertices x {GOAL[1]} modes: >= {GOAL_STEPS_PER_S:.0f} steps/s (step + "
+               f"positions) on one core, and within {GOAL_FLOOR_RATIO:.0f}x of the copy floor."), ""]
+    if goal is None:
+        L.append("- Not measured in this run (run without `--quick`).")
+    else:
+        sps = 1 / goal["both"]
+        ratio = goal["both"] / goal["copy"]
+        L.append(f"- Steps/s: {sps:.0f} -> **{'met' if sps >= GOAL_STEPS_PER_S else 'NOT met'}** "
+                 f"(the mode matrix alone is {goal['phi_mb']:.0f} MB per step: 1000 steps/s needs "
+                 f"{goal['phi_mb'] * 1000 / 1024:.1f} GB/s of memory bandwidth from one core; this core copies "
+                 f"it at {2 * goal['phi_mb'] / goal['copy'] / 1024:.1f} GB/s read + write)")
+        L.append(f"- Floor: (step + positions) / copy = {ratio:.2f} -> "
+                 f"**{'met' if ratio <= GOAL_FLOOR_RATIO else 'NOT met'}**")
+        if "gemv_fortran" in goal:
+            L += ["", (f"Layouts of the mode matrix at {GOAL[0]} x {GOAL[1]} (same process): modes-major "
+                       f"(r, 3 nv) `q @ Phi_t` (the runtime's) {_ms(goal['gemv'])} ms; vertex-major (3 nv, r) "
+                       f"C-ordered `Phi @ q` {_ms(goal['gemv_vertex_major'])} ms; the same Fortran-ordered "
+                       f"{_ms(goal['gemv_fortran'])} ms. float32 copy of the shapes "
+                       f"(`ModalBody(model, dtype=np.float32)`, ~1e-7 relative): positions "
+                       f"{_ms(goal['recon_f32'])} ms, step + positions {_ms(goal['both_f32'])} ms = "
+                       f"{1 / goal['both_f32']:.0f} steps/s, {goal['both_f32'] / goal['copy']:.2f}x the float64 "
+                       "copy floor.")]
+    fem_intro = ("Versus one implicit full-FEM step of the same body (steel box "
+                 f"{FEM_SIZE[0]} x {FEM_SIZE[1]} x {FEM_SIZE[2]} m, P1 linear elasticity assembled by scikit-fem, "
+                 "backward Euler `(M + dt^2 K) v1 = M v0 - dt K u0`, SuperLU factorisation done once beforehand "
+                 "and not counted in the step): modal = step + positions of that body's surface with 30 modes.")
+    fem_header = ("| cells | DOFs | surface vertices | factorisation s | LU nnz | implicit FEM step ms | "
+                  "modal step + positions ms | FEM / modal |")
+    L += ["", fem_intro, "", fem_header, "|---|---|---|---|---|---|---|---|"]
+    for f in fem:
+        if "error" in f:
+            L.append(f"| {'x'.join(map(str, f.get('cells', [])))} | error: {f['error']} |||||||")
+            continue
+        L.append(f"| {'x'.join(map(str, f['cells']))} | {f['dofs']} | {f['nv']} | {f['factor']:.2f} | "
+                 f"{f['nnz_lu']} | {_ms(f['fem_step'])} | {_ms(f['modal'])} | {f['fem_step'] / f['modal']:.0f}x |")
+    return "\n".join(L) + "\n"
+
+
+def command(argv: list[str]) -> int:
+    """``modalfem bench runtime [--out BENCHMARKS.md] [--quick]``: measure and write the section."""
+    ap = argparse.ArgumentParser(prog="modalfem bench runtime",
+                                 description="Modal step + reconstruction vs the copy floor and a full-FEM step.")
+    ap.add_argument("--out", default="BENCHMARKS.md", help="markdown file whose runtime section is replaced")
+    ap.add_argument("--quick", action="store_true", help="tiny sizes (smoke test)")
+    a = ap.parse_args(argv)
+    vertices, modes = ((2000, 5000), (5, 10)) if a.quick else (VERTICES, MODES)
+    fem_cells = [(8, 2, 2)] if a.quick else [FEM_CELLS]
+    info = _spawn(["--case", "info"], 120)
+    cases = []
+    for nv in vertices:
+        for r in modes:
+            print(f"[bench runtime] {nv} vertices x {r} modes", file=sys.stderr, flush=True)
+            res = _spawn(["--case", "runtime", "--nv", str(nv), "--r", str(r)]
+                         + (["--layouts"] if (nv, r) == GOAL else []))
+            cases.append({"nv": nv, "r": r, **res})
+    fem = []
+    for cells in fem_cells:
+        print(f"[bench runtime] implicit FEM step, box {cells}", file=sys.stderr, flush=True)
+        fem.append({"cells": list(cells), **_spawn(["--case", "fem", "--cells", *map(str, cells)])})
+    from modalfem.bench.cli import _machine, update_section
+
+    cmd = "python -m modalfem bench runtime" + ("" if not argv else " " + shlex.join(argv))
+    date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    section = render(cases, fem, info, command=cmd, date=date, machine=_machine())
+    print(section)
+    update_section(a.out, section)
+    return 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--child":
+        sys.exit(_child(sys.argv[2:]))
+    sys.exit(command(sys.argv[1:]))

@@ -1,0 +1,201 @@
+"""Opt-in load effects: ``Gravity``, ``Wind`` and ``PseudoForces`` (Coriolis, centripetal, Euler).
+
+An effect is composed into a ``ModalSolver(body, effects=[...])`` and is called only when present.
+Load effects implement ``loads(solver, state, dt, loads)`` and add to ``loads.force`` [N],
+``loads.torque`` [N m] (world) and ``loads.modal`` (r,) [sqrt(kg) m/s^2].
+
+Pseudo-forces. The deformation u = Phi q lives in the body frame, which rotates with angular
+velocity w (body axes) and angular acceleration w'. Projected on the mass-normalised modes, the
+body-frame equations of motion gain (M the mass matrix, X the rest positions relative to the
+centre of mass; the frame's linear acceleration projects to zero on deformation modes)::
+
+    q'' + mu q' + Lam q = f - 2 G(w) q'  - G(w') q - s(w')            (Coriolis, Euler)
+                            - (C(w) - |w|^2 I) q - (h(w) - |w|^2 h0)    (centripetal, centrifugal)
+
+with G(w) = Phi^T M [w]x Phi = sum eps_cde w_d T[c, e], C(w) = sum w_c w_e T[c, e],
+s(w') = sum eps_cde w'_d S[c, e], h(w) = sum w_c w_e S[c, e], h0 = sum_c S[c, c], where
+T[a, b] = Phi_a^T M Phi_b (r, r) (Phi_a: component-a rows) and S[a, b] = Phi_a^T M X_b (r,).
+These need the volume mass matrix, so they are computed offline (``RotationCoupling.from_matrices``)
+and handed to ``PseudoForces``. The rigid motion is not affected (one-way coupling).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from modalfem.errors import InputError
+
+__all__ = ["Gravity", "PseudoForces", "RotationCoupling", "Wind"]
+
+#: Levi-Civita symbol eps[c, d, e]
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+
+
+class Gravity:
+    """Uniform gravity: a force m g at the centre of mass (no torque, no deformation of a free body).
+
+    Args:
+        g: acceleration (3,) [m/s^2], world (default (0, 0, -9.81)).
+    """
+
+    def __init__(self, g=(0.0, 0.0, -9.81)) -> None:
+        self.g = np.asarray(g, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(self.g)):
+            raise InputError(f"gravity must be finite, got {self.g.tolist()}")
+
+    def loads(self, solver, state, dt, loads) -> None:
+        """Add m g to ``loads.force``."""
+        loads.force += solver.body.mass * self.g
+
+
+class Wind:
+    """Wind pressure on the windward triangles: p = 0.5 rho C ((w - u) . (-n))_+^2 along -n.
+
+    Each triangle t (area A_t, outward normal n_t, centroid velocity u_t of the rigid motion)
+    receives F_t = 0.5 rho C A_t max(0, -(w - u_t) . n_t)^2 (-n_t), shared equally by its three
+    vertices; the vertex forces project on the rigid body (force, torque) and on the modes
+    (``Phi^T R^T F``) like any point force. Costs a reconstruction and a transposed product per
+    step, so it is opt-in like every effect.
+
+    Args:
+        velocity: wind velocity w (3,) [m/s], world.
+        density: air density rho [kg/m^3] (default 1.2).
+        drag: pressure coefficient C [-] (default 1.0).
+    """
+
+    def __init__(self, velocity, *, density: float = 1.2, drag: float = 1.0) -> None:
+        self.velocity = np.asarray(velocity, dtype=np.float64).reshape(3)
+        self.density, self.drag = float(density), float(drag)
+        if not (np.all(np.isfinite(self.velocity)) and self.density >= 0 and self.drag >= 0):
+            raise InputError("wind velocity must be finite, density and drag >= 0")
+
+    def loads(self, solver, state, dt, loads) -> None:
+        """Add the wind forces at ``state`` to ``loads``."""
+        body = solver.body
+        x = body.positions(state).astype(np.float64, copy=False)
+        t = body.triangles
+        a = x[t[:, 0]]
+        cr = np.cross(x[t[:, 1]] - a, x[t[:, 2]] - a)  # 2 A_t n_t
+        rc = (a + x[t[:, 1]] + x[t[:, 2]]) / 3.0 - state.position  # centroids from the centre of mass
+        w_rel = self.velocity - (state.velocity + np.cross(body.angular_velocity(state), rc))
+        area2 = np.sqrt(np.einsum("ij,ij->i", cr, cr))
+        n = cr / np.where(area2 > 0, area2, 1.0)[:, None]
+        s = np.maximum(0.0, -np.einsum("ij,ij->i", w_rel, n))
+        F = (-0.25 * self.density * self.drag * area2 * s * s)[:, None] * n  # 0.5 rho C A s^2 (-n), A = area2 / 2
+        loads.force += F.sum(axis=0)
+        loads.torque += np.cross(rc, F).sum(axis=0)
+        Fv = np.zeros_like(x)
+        for c in range(3):
+            np.add.at(Fv, t[:, c], F / 3.0)
+        R = state.rotation()
+        loads.modal += body.shapes_t @ (Fv @ R).reshape(-1).astype(body.shapes_t.dtype)
+
+
+@dataclass(frozen=True)
+class RotationCoupling:
+    """Inertial coupling tensors of the modes with the frame rotation (see module docstring).
+
+    Attributes:
+        T: (3, 3, r, r) [-], ``T[a, b] = Phi_a^T M Phi_b``; sum_a T[a, a] = I for mass-normalised modes.
+        S: (3, 3, r) [sqrt(kg) m], ``S[a, b] = Phi_a^T M X_b``.
+    """
+
+    T: np.ndarray
+    S: np.ndarray
+
+    def __post_init__(self) -> None:
+        T = np.asarray(self.T, dtype=np.float64)
+        S = np.asarray(self.S, dtype=np.float64)
+        if T.ndim != 4 or T.shape[:2] != (3, 3) or T.shape[2] != T.shape[3] or S.shape != (3, 3, T.shape[2]):
+            raise InputError(f"RotationCoupling needs T (3, 3, r, r) and S (3, 3, r), got {T.shape}, {S.shape}")
+        if not (np.all(np.isfinite(T)) and np.all(np.isfinite(S))):
+            raise InputError("RotationCoupling tensors must be finite")
+        object.__setattr__(self, "T", T)
+        object.__setattr__(self, "S", S)
+
+    @property
+    def mode_count(self) -> int:
+        return self.T.shape[2]
+
+    @classmethod
+    def from_matrices(cls, shapes: np.ndarray, M, points: np.ndarray, center_of_mass) -> RotationCoupling:
+        """Compute T and S from full-mesh modes and the mass matrix (offline side; numpy only here).
+
+        Args:
+            shapes: mass-normalised deformation modes over all DOFs (3 n, r), node-major
+                (``ModalResult.shapes``).
+            M: mass matrix (3 n, 3 n) [kg], any object supporting ``M @ dense`` (scipy.sparse works).
+            points: DOF points (n, 3) [m] (``ModalResult.dof_points``).
+            center_of_mass: (3,) [m].
+        """
+        Phi = np.asarray(shapes, dtype=np.float64)
+        n3, r = Phi.shape
+        X = np.asarray(points, dtype=np.float64) - np.asarray(center_of_mass, dtype=np.float64)
+        T = np.empty((3, 3, r, r))
+        S = np.empty((3, 3, r))
+        comps = []
+        for b in range(3):
+            Pb = np.zeros_like(Phi)
+            Pb[b::3] = Phi[b::3]
+            comps.append(Pb)
+        for b in range(3):
+            MPb = np.asarray(M @ comps[b])
+            for a in range(3):
+                T[a, b] = comps[a].T @ MPb
+        for b in range(3):
+            for a in range(3):
+                fa = np.zeros(n3)
+                fa[a::3] = X[:, b]  # field: component a equal to X_b
+                S[a, b] = Phi.T @ np.asarray(M @ fa).reshape(-1)
+        return cls(T, S)
+
+
+class PseudoForces:
+    """Coriolis, centripetal/centrifugal and Euler pseudo-forces on the modes in the rotating body frame.
+
+    Args:
+        coupling: the body's ``RotationCoupling`` (r modes, same order as the model).
+        coriolis: include -2 G(w) q'.
+        centripetal: include -(C(w) - |w|^2 I) q and the centrifugal load on the rest shape.
+        euler: include the Euler terms from the torque-free angular acceleration w' = -I^-1 (w x I w).
+
+    With the body not rotating every term is zero (tested: the trajectory is unchanged).
+    """
+
+    state_dependent = True
+
+    def __init__(self, coupling: RotationCoupling, *, coriolis: bool = True, centripetal: bool = True,
+                 euler: bool = True) -> None:
+        self.coupling = coupling
+        self.coriolis, self.centripetal, self.euler = bool(coriolis), bool(centripetal), bool(euler)
+        T, S = coupling.T, coupling.S
+        # G_d = sum_{c,e} eps_cde T[c, e] (r, r) for each axis d; s_d likewise (r,)
+        self._G = np.einsum("cde,ceij->dij", _EPS, T)
+        self._s = np.einsum("cde,cei->di", _EPS, S)
+        self._h0 = np.einsum("cci->i", S)
+
+    def loads(self, solver, state, dt, loads) -> None:
+        """Add the pseudo-forces at ``state`` to ``loads.modal``."""
+        body = solver.body
+        if self.coupling.mode_count != body.mode_count:
+            raise InputError(f"RotationCoupling has {self.coupling.mode_count} modes, the body {body.mode_count}")
+        R = state.rotation()
+        Lb = R.T @ state.angular_momentum
+        w = body.inertia_inv @ Lb  # body-frame angular velocity [rad/s]
+        if not np.any(w):
+            return
+        f = loads.modal
+        if self.coriolis:
+            f -= 2.0 * np.einsum("d,dij,j->i", w, self._G, state.qdot)
+        if self.centripetal:
+            W = np.outer(w, w)
+            f -= np.einsum("ce,ceij,j->i", W, self.coupling.T, state.q) - (w @ w) * state.q
+            f -= np.einsum("ce,cei->i", W, self.coupling.S) - (w @ w) * self._h0
+        if self.euler:
+            wdot = -body.inertia_inv @ np.cross(w, body.inertia @ w)
+            if np.any(wdot):
+                f -= np.einsum("d,dij,j->i", wdot, self._G, state.q) + wdot @ self._s

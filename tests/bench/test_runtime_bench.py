@@ -1,0 +1,44 @@
+"""Smoke test of ``modalfem bench runtime --quick``: runs, writes a well-formed section, keeps others.
+Speed is not asserted (benchmarks are commands, not tests)."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from modalfem.bench import runtime_bench as rb
+
+
+def _rows(lines, header_start):
+    i = next(i for i, ln in enumerate(lines) if ln.startswith(header_start))
+    hdr = [c.strip() for c in lines[i].strip().strip("|").split("|")]
+    rows = []
+    for ln in lines[i + 2:]:
+        if not ln.startswith("|"):
+            break
+        rows.append(dict(zip(hdr, (c.strip() for c in ln.strip().strip("|").split("|")))))
+    return rows
+
+
+@pytest.mark.slow  # ~15-30 s: 5 child processes on a shared machine
+def test_bench_runtime_quick_writes_a_wellformed_section(tmp_path):
+    out = tmp_path / "BENCHMARKS.md"
+    out.write_text("# Benchmarks\n\n## Other\n\nkeep me\n\n" + rb.SECTION + "\n\nstale\n")
+    assert rb.command(["--quick", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "keep me" in text and "stale" not in text and text.count(rb.SECTION) == 1
+    section = text[text.index(rb.SECTION):]
+    for needle in ("Machine:", "Versions:", "Date:", "Command:", "python -m modalfem bench runtime --quick",
+                   "OPENBLAS_NUM_THREADS=1", "Goals at"):
+        assert needle in section, needle
+    lines = section.splitlines()
+    rows = _rows(lines, "| surface vertices")
+    assert len(rows) == 4
+    for row in rows:
+        for col in ("step us", "positions ms", "step + positions ms", "steps/s", "copy of Phi ms",
+                    "(step + positions) / copy"):
+            assert float(row[col]) > 0, (col, row)
+    fem = _rows(lines, "| cells")
+    assert len(fem) == 1 and int(fem[0]["DOFs"]) > 0 and re.fullmatch(r"\d+x", fem[0]["FEM / modal"])
+    assert "Layouts of the mode matrix" not in section  # only at the goal size

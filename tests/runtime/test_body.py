@@ -1,0 +1,117 @@
+"""Reconstruction of the surface (positions and normals) and surface points."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modalfem.errors import SimulationError
+from modalfem.runtime import ModalBody, State
+from modalfem.runtime.rotation import quat_from_axis_angle, quat_to_matrix
+
+
+def _state(body, rng):
+    q = quat_from_axis_angle(np.array([1.0, 2.0, -0.5]) / np.sqrt(5.25), 0.9)
+    return State(rng.normal(size=body.mode_count) * 1e-3, np.zeros(body.mode_count),
+                 position=(0.3, -0.2, 1.1), orientation=q)
+
+
+def test_positions_are_c_plus_R_times_rest_plus_shapes_q(small_body, small_model):
+    rng = np.random.default_rng(0)
+    st = _state(small_body, rng)
+    R = quat_to_matrix(st.orientation)
+    x = small_body.positions(st)
+    for i in range(0, small_model.vertex_count, 5):  # vertex by vertex, from the model arrays
+        u = small_model.shapes[3 * i : 3 * i + 3] @ st.q
+        expect = st.position + R @ (small_model.vertices[i] - small_model.center_of_mass + u)
+        assert np.allclose(x[i], expect, rtol=0, atol=1e-14)
+    out = np.empty_like(x)
+    assert small_body.positions(st, out=out) is out and np.array_equal(out, x)
+
+
+def test_float32_reconstruction_agrees_to_single_precision(small_model):
+    rng = np.random.default_rng(1)
+    b64, b32 = ModalBody(small_model), ModalBody(small_model, dtype=np.float32)
+    st = _state(b64, rng)
+    x64, x32 = b64.positions(st), b32.positions(st)
+    assert x32.dtype == np.float32 and np.allclose(x32, x64, rtol=0, atol=1e-6 * np.abs(x64).max())
+
+
+def test_normals_are_outward_unit_and_face_normals_on_flat_faces(small_body, small_model):
+    st = State.rest(small_body, position=(0, 0, 0))
+    x = small_body.positions(st)
+    n = small_body.normals(x)
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    assert np.all(np.einsum("ij,ij->i", n, x - st.position) > 0)  # convex body: outward
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    on_face = np.isclose(x, lo) | np.isclose(x, hi)
+    interior = on_face.sum(axis=1) == 1  # on exactly one face: not on an edge
+    axis = np.argmax(on_face[interior], axis=1)
+    sign = np.where(np.isclose(x[interior], hi)[np.arange(interior.sum()), axis], 1.0, -1.0)
+    expect = np.zeros((interior.sum(), 3))
+    expect[np.arange(len(axis)), axis] = sign
+    assert np.allclose(n[interior], expect, atol=1e-12)
+
+
+def test_normals_rotate_with_the_body_and_follow_the_deformation(small_body):
+    rng = np.random.default_rng(2)
+    st = _state(small_body, rng)
+    R = quat_to_matrix(st.orientation)
+    n_world = small_body.normals(small_body.positions(st))
+    n_body = small_body.normals(small_body.local_positions(st.q))
+    assert np.allclose(n_world, n_body @ R.T, atol=1e-12)
+    # a small deformation tilts the normals by a small amount, a large one by more
+    n0 = small_body.normals(small_body.local_positions(np.zeros(small_body.mode_count)))
+    tilt = [np.abs(small_body.normals(small_body.local_positions(s * st.q)) - n0).max() for s in (1.0, 10.0)]
+    assert 0 < tilt[0] < tilt[1]
+
+
+def test_surface_points_interpolate_the_vertices(small_body):
+    tri = small_body.triangles[3]
+    p = small_body.surface_point(3, (0.2, 0.3, 0.5))
+    assert np.allclose(small_body.point_shapes(p), np.einsum("k,kcr->cr", [0.2, 0.3, 0.5],
+                                                             small_body.shapes.reshape(-1, 3, small_body.mode_count)[tri]))
+    v = small_body.surface_point(3, (1.0, 0.0, 0.0))
+    assert np.allclose(small_body.point_shapes(v), small_body.point_shapes(int(tri[0])))
+    assert np.allclose(small_body.point_rest(v), small_body.point_rest(int(tri[0])))
+
+
+@pytest.mark.parametrize("tri,bary", [(10**6, (1 / 3, 1 / 3, 1 / 3)), (-1, (1 / 3, 1 / 3, 1 / 3)), (0, (0.5, 0.6, -0.1)),
+                                      (0, (0.5, 0.5, 0.5)), (0, (np.nan, 0.5, 0.5)), (0, (1.0, 0.0))])
+def test_points_off_the_surface_are_refused(small_body, tri, bary):
+    with pytest.raises(SimulationError, match="surface|barycentric"):
+        small_body.surface_point(tri, bary)
+
+
+def test_vertex_index_off_the_surface_is_refused(small_body):
+    with pytest.raises(SimulationError, match="off the surface"):
+        small_body.point_shapes(small_body.vertex_count)
+
+
+def test_segmented_and_scatter_normals_agree(small_body):
+    """The sorted-corner (reduceat) path and the bincount fallback give the same normals."""
+    st = _state(small_body, np.random.default_rng(3))
+    x = small_body.positions(st)
+    fast = small_body.normals(x)
+    small_body._every_vertex_used = False
+    assert np.allclose(small_body.normals(x), fast, rtol=0, atol=1e-14)
+
+
+def test_locate_finds_the_surface_point_under_a_world_point(small_body):
+    st = _state(small_body, np.random.default_rng(4))
+    x = small_body.positions(st)
+    tri = small_body.triangles[17]
+    bary = np.array([0.2, 0.5, 0.3])
+    target = bary @ x[tri]
+    p = small_body.locate(st, target)
+    assert np.allclose(np.asarray(p.barycentric) @ x[small_body.triangles[p.triangle]], target, atol=1e-12)
+    assert np.allclose(st.position + st.rotation() @ small_body.point_local(p, st.q), target, atol=1e-12)
+    corner = small_body.locate(st, x[5])
+    assert np.allclose(np.asarray(corner.barycentric) @ x[small_body.triangles[corner.triangle]], x[5], atol=1e-12)
+
+
+@pytest.mark.parametrize("where", [(0.0, 0.0, 5.0), (np.nan, 0.0, 0.0)])
+def test_locate_refuses_points_off_the_surface(small_body, where):
+    st = State.rest(small_body)
+    with pytest.raises(SimulationError, match="off the surface|finite"):
+        small_body.locate(st, where)

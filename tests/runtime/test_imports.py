@@ -1,0 +1,54 @@
+"""Light runtime: ``modalfem.runtime`` (and loading a model file with it) imports numpy only."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import modalfem.runtime as rt
+from modalfem.errors import ModelFileError
+
+HEAVY = ("scipy", "skfem", "dolfinx", "petsc4py", "ufl", "basix", "slepc4py", "meshio", "gmsh")
+
+
+def _heavy_after(code: str) -> list[str]:
+    probe = code + f"\nimport sys\nprint(sorted({{m.split('.')[0] for m in sys.modules}} & set({HEAVY!r})))"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120, check=True)
+    return eval(out.stdout.strip().splitlines()[-1])  # a printed list of module names
+
+
+def test_runtime_import_loads_no_fem_or_sparse_library():
+    assert _heavy_after("import modalfem.runtime") == []
+
+
+def test_loading_and_stepping_a_model_file_loads_no_fem_or_sparse_library(tmp_path, small_model):
+    path = tmp_path / "block.npz"
+    small_model.save(path)
+    code = (f"import numpy as np, modalfem.runtime as rt\nb = rt.load({str(path)!r})\n"
+            "s = rt.ModalSolver(b, effects=[rt.Gravity(), rt.Obstacles([rt.Ground(-1.0)])])\n"
+            "st = s.state()\nst.qdot[:] = 1.0\ns.advance(st, 1e-3)\nb.normals(b.positions(st))")
+    assert _heavy_after(code) == []
+
+
+def test_load_returns_a_body_of_the_file(tmp_path, small_model):
+    path = tmp_path / "block.npz"
+    small_model.save(path)
+    body = rt.load(path, damping=(1.0, 1e-7))
+    assert body.mode_count == small_model.mode_count and body.vertex_count == small_model.vertex_count
+    assert np.array_equal(body.shapes, small_model.shapes)
+    assert np.allclose(body.mu, 1.0 + 1e-7 * small_model.omega**2)
+
+
+def test_a_model_file_from_a_newer_schema_is_refused(tmp_path, small_model):
+    path = tmp_path / "block.npz"
+    small_model.save(path)
+    with np.load(path) as z:
+        data = {k: z[k] for k in z.files}
+    data["schema_version"] = np.array(small_model.SCHEMA_VERSION + 1)
+    newer = tmp_path / "newer.npz"
+    np.savez(newer, **data)
+    with pytest.raises(ModelFileError, match="schema version 2.*newer"):
+        rt.load(newer)
