@@ -1,0 +1,276 @@
+"""Isotropic elastic energy densities of tetrahedra, as functions of the signed singular values of F.
+
+Every term here is an energy density ``psi(sigma)`` [J/m^3 = Pa] per unit rest volume, where
+``sigma`` are the rotation-variant singular values of F (``modalfem.tet.kinematics.svd_rv``; an
+inverted element has ``sigma[2] < 0``). An element's energy is ``V0 psi`` [J]. Each term returns
+``SigmaDerivs``: psi, d psi / d sigma, d^2 psi / d sigma^2, and the eigenvalues of the two 2x2 blocks
+that couple ``F``-hat entries (i, j) and (j, i) (Teran et al. 2005, Stomakhin et al. 2012):
+
+* ``twist`` (antisymmetric, a rotation in the i-j plane) ``(psi_i + psi_j) / (sigma_i + sigma_j)``,
+* ``flip`` (symmetric) ``(psi_i - psi_j) / (sigma_i - sigma_j)``,
+
+written in closed forms without the removable 0/0. With those, ``d^2 Psi / d F^2`` has the 9 known
+eigenvectors and projection to positive semi-definite is a clamp of eigenvalues (exact, cheap).
+
+Terms:
+  * ``Corotated``: linear elasticity in the rotated frame, ``mu |S - I|^2 + lam/2 tr(S - I)^2`` with
+    ``F = R S`` (polar); its tangent at ``F = I`` is the linear elasticity tensor (stiffness warping).
+  * ``StableCorotated``: ``mu |S - I|^2 + lam/2 (J - 1)^2`` (Stomakhin et al. 2012, "fixed
+    corotated"): robust to inversion and to nu -> 0.5.
+  * ``VolumeSpringDensity``: ``k/2 (J - 1)^2`` = element energy ``K/2 (V - V0)^2`` with ``K = k / V0``.
+  * ``VolumeBarrierDensity``: ``k (J - 1 - log J)``, infinite for ``J <= 0``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "PAIRS",
+    "Corotated",
+    "SigmaDerivs",
+    "StableCorotated",
+    "VolumeBarrierDensity",
+    "VolumeSpringDensity",
+    "element_hessians",
+    "first_piola",
+]
+
+#: pair k couples singular values (i, j) = PAIRS[k]; k is the third index
+PAIRS = ((1, 2), (0, 2), (0, 1))
+_I = np.array([p[0] for p in PAIRS])
+_J = np.array([p[1] for p in PAIRS])
+_EPS = 1e-12
+
+
+@dataclass
+class SigmaDerivs:
+    """Derivatives of an isotropic density w.r.t. signed singular values, per element.
+
+    Attributes:
+        psi: energy density (m,) [Pa] (``inf`` outside the domain, e.g. a barrier at J <= 0).
+        d1: d psi / d sigma (m, 3) [Pa].
+        d2: d^2 psi / d sigma^2 (m, 3, 3) [Pa] (None when not requested).
+        twist: eigenvalue of the antisymmetric mode of pair k (m, 3) [Pa].
+        flip: eigenvalue of the symmetric mode of pair k (m, 3) [Pa].
+    """
+
+    psi: np.ndarray
+    d1: np.ndarray | None = None
+    d2: np.ndarray | None = None
+    twist: np.ndarray | None = None
+    flip: np.ndarray | None = None
+
+    def __add__(self, other: SigmaDerivs) -> SigmaDerivs:
+        def add(a, b):
+            return None if a is None or b is None else a + b
+
+        return SigmaDerivs(self.psi + other.psi, add(self.d1, other.d1), add(self.d2, other.d2),
+                           add(self.twist, other.twist), add(self.flip, other.flip))
+
+
+def _pair_sum(s: np.ndarray) -> np.ndarray:
+    """sigma_i + sigma_j per pair (m, 3), kept >= _EPS (it is >= 0 for the rotation-variant SVD)."""
+    return np.maximum(s[:, _I] + s[:, _J], _EPS)
+
+
+def _arap(s: np.ndarray, mu, order: int) -> SigmaDerivs:
+    """``mu sum (sigma - 1)^2`` = ``mu |F - R|^2``."""
+    mu = np.asarray(mu, dtype=float).reshape(-1, 1) if np.ndim(mu) else float(mu)
+    e = s - 1.0
+    out = SigmaDerivs(np.sum(mu * e * e, axis=1))
+    if order >= 1:
+        out.d1 = 2.0 * mu * e
+    if order >= 2:
+        m = len(s)
+        out.d2 = np.broadcast_to(2.0 * np.asarray(mu).reshape(-1, 1, 1) * np.eye(3), (m, 3, 3)).copy()
+        out.flip = np.broadcast_to(2.0 * mu, (m, 3)).astype(float)
+        out.twist = 2.0 * mu - 4.0 * mu / _pair_sum(s)
+    return out
+
+
+def _trace(s: np.ndarray, lam, order: int) -> SigmaDerivs:
+    """``lam/2 (sum sigma - 3)^2`` = ``lam/2 tr(S - I)^2``."""
+    lam = np.asarray(lam, dtype=float).reshape(-1) if np.ndim(lam) else float(lam)
+    t = s.sum(axis=1) - 3.0
+    out = SigmaDerivs(0.5 * lam * t * t)
+    if order >= 1:
+        out.d1 = np.repeat((lam * t)[:, None], 3, axis=1)
+    if order >= 2:
+        m = len(s)
+        out.d2 = np.broadcast_to(np.asarray(lam).reshape(-1, 1, 1) * np.ones((1, 3, 3)), (m, 3, 3)).copy()
+        out.flip = np.zeros((m, 3))
+        out.twist = 2.0 * (lam * t)[:, None] / _pair_sum(s)
+    return out
+
+
+def _volumetric(s: np.ndarray, e0, e1, e2, order: int) -> SigmaDerivs:
+    """A density ``e(J)``, ``J = s0 s1 s2``, from its values ``e0, e1 = e', e2 = e''`` (m,)."""
+    out = SigmaDerivs(e0)
+    if order >= 1:
+        dJ = np.stack([s[:, 1] * s[:, 2], s[:, 0] * s[:, 2], s[:, 0] * s[:, 1]], axis=1)
+        out.d1 = e1[:, None] * dJ
+    if order >= 2:
+        HJ = np.zeros((len(s), 3, 3))
+        for k, (i, j) in enumerate(PAIRS):
+            HJ[:, i, j] = HJ[:, j, i] = s[:, k]
+        out.d2 = e2[:, None, None] * dJ[:, :, None] * dJ[:, None, :] + e1[:, None, None] * HJ
+        out.twist = e1[:, None] * s
+        out.flip = -e1[:, None] * s
+    return out
+
+
+def _det(s: np.ndarray) -> np.ndarray:
+    return s[:, 0] * s[:, 1] * s[:, 2]
+
+
+@dataclass(frozen=True)
+class Corotated:
+    """Corotational linear elasticity ``mu |S - I|^2 + lam/2 tr(S - I)^2`` [Pa].
+
+    Args:
+        mu: shear modulus [Pa] (scalar or per element (m,)).
+        lam: first Lame parameter [Pa] (scalar or per element (m,)).
+    """
+
+    mu: float
+    lam: float
+
+    def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
+        """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2."""
+        return _arap(s, self.mu, order) + _trace(s, self.lam, order)
+
+
+@dataclass(frozen=True)
+class StableCorotated:
+    """Inversion-robust corotated model ``mu |S - I|^2 + lam/2 (J - 1)^2`` [Pa].
+
+    Args:
+        mu: shear modulus [Pa].
+        lam: first Lame parameter [Pa].
+    """
+
+    mu: float
+    lam: float
+
+    def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
+        """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2."""
+        d = _det(s) - 1.0
+        lam = np.asarray(self.lam, dtype=float)
+        e2 = np.broadcast_to(lam, d.shape).astype(float)
+        return _arap(s, self.mu, order) + _volumetric(s, 0.5 * lam * d * d, lam * d, e2, order)
+
+
+@dataclass(frozen=True)
+class VolumeSpringDensity:
+    """Volume spring density ``k/2 (J - 1)^2`` [Pa]: element energy ``K/2 (V - V0)^2``, ``K = k / V0``.
+
+    Args:
+        k: volumetric stiffness [Pa] (scalar or per element).
+    """
+
+    k: float
+
+    def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
+        """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2."""
+        d = _det(s) - 1.0
+        k = np.asarray(self.k, dtype=float)
+        return _volumetric(s, 0.5 * k * d * d, k * d, np.broadcast_to(k, d.shape).astype(float), order)
+
+
+@dataclass(frozen=True)
+class VolumeBarrierDensity:
+    """Volume barrier density ``k (J - 1 - log J)`` [Pa]: zero at rest volume, infinite as V -> 0.
+
+    Args:
+        k: stiffness [Pa] (its second derivative at J = 1 is ``k``, like a volume spring's).
+    """
+
+    k: float
+
+    def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
+        """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2.
+
+        Elements with ``J <= 0`` get ``psi = inf`` and zero derivatives (a line search rejects them).
+        """
+        J = _det(s)
+        ok = J > 0
+        Js = np.where(ok, J, 1.0)
+        k = np.asarray(self.k, dtype=float)
+        e0 = np.where(ok, k * (Js - 1.0 - np.log(Js)), np.inf)
+        e1 = np.where(ok, k * (1.0 - 1.0 / Js), 0.0)
+        e2 = np.where(ok, k / (Js * Js), 0.0)
+        return _volumetric(s, e0, e1, e2, order)
+
+
+def first_piola(U: np.ndarray, V: np.ndarray, d1: np.ndarray) -> np.ndarray:
+    """First Piola-Kirchhoff stress ``P = U diag(d psi/d sigma) V^T`` (m, 3, 3) [Pa]."""
+    return np.matmul(U * d1[:, None, :], np.swapaxes(V, 1, 2))
+
+
+def _psd3(A: np.ndarray) -> np.ndarray:
+    """Mask (m,) of symmetric 3x3 matrices that are positive semi-definite (principal-minor test)."""
+    a, b, c = A[:, 0, 0], A[:, 1, 1], A[:, 2, 2]
+    d, e, f = A[:, 0, 1], A[:, 1, 2], A[:, 0, 2]
+    tol = -1e-12 * (np.abs(a) + np.abs(b) + np.abs(c)) ** 2
+    minors2 = np.minimum(np.minimum(a * b - d * d, b * c - e * e), a * c - f * f)
+    det = a * (b * c - e * e) - d * (d * c - e * f) + f * (d * e - b * f)
+    return (np.minimum(np.minimum(a, b), c) >= 0) & (minors2 >= tol) & (det >= tol * np.abs(a + b + c))
+
+
+def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndarray, vol: np.ndarray, *,
+                     project: bool = True) -> np.ndarray:
+    """Element Hessians ``V0 B^T (d^2 psi / d F^2) B`` (m, 12, 12) [N/m] from the analytic eigensystem.
+
+    ``d^2 psi / d F^2 = sum_pq (d2)_pq D_p D_q^T + sum_pairs twist T T^T + flip L L^T`` with
+    ``D_p = vec(u_p v_p^T)``, ``T, L = vec(u_i v_j^T -+ u_j v_i^T) / sqrt 2``; projection clamps twist and
+    flip at 0 and replaces the 3x3 block ``d2`` by its positive part (an eigen-decomposition only for
+    the elements where ``d2`` is not already positive semi-definite).
+
+    Args:
+        U, V: rotations of the rotation-variant SVD (m, 3, 3).
+        d: ``SigmaDerivs`` of order 2.
+        grad: shape-function gradients (m, 4, 3) [1/m].
+        vol: rest volumes (m,) [m^3].
+        project: make every element Hessian positive semi-definite.
+
+    Returns:
+        Hessians (m, 12, 12), local DOF order ``3 a + k`` (vertex a, component k).
+    """
+    m = len(U)
+    d2 = d.d2
+    lam = np.concatenate([d.twist, d.flip], axis=1)
+    if project:
+        lam = np.maximum(lam, 0.0)
+        bad = ~_psd3(d2)
+        if bad.any():
+            w, W = np.linalg.eigh(d2[bad])
+            d2 = d2.copy()
+            d2[bad] = np.einsum("mik,mk,mjk->mij", W, np.maximum(w, 0.0), W)
+    # pattern e_p e_q^T in the SVD frame, U E V^T, maps to the 12-vector b[a, i] = U_ip (grad_a . v_q).
+    # Built with the element index last (long inner loops), then transposed once for the batched matmul.
+    Gv = np.ascontiguousarray(np.moveaxis(np.matmul(grad, V), 0, -1))[:, :, None, :]  # (4 a, 3 q, 1, m)
+    Ut = np.ascontiguousarray(np.moveaxis(U, 0, -1))[None]  # (1, 3 i, 3 p, m)
+    r = np.sqrt(0.5)
+    b = np.empty((9, 4, 3, m))
+    for p in range(3):
+        np.multiply(Gv[:, p], Ut[:, :, p], out=b[p])
+    for k, (i, j) in enumerate(PAIRS):
+        bij = Gv[:, j] * Ut[:, :, i]
+        bji = Gv[:, i] * Ut[:, :, j]
+        np.subtract(bij, bji, out=b[3 + k])
+        np.add(bij, bji, out=b[6 + k])
+    b[3:] *= r
+    b = b.reshape(9, 12, m)
+    c = np.empty_like(b)
+    d2t = np.moveaxis(d2, 0, -1) * vol  # (3, 3, m), contiguous (a new array)
+    for p in range(3):
+        np.multiply(d2t[p, 0], b[0], out=c[p])
+        c[p] += d2t[p, 1] * b[1]
+        c[p] += d2t[p, 2] * b[2]
+    np.multiply(b[3:], (lam * vol[:, None]).T[:, None, :], out=c[3:])
+    b = np.ascontiguousarray(b.transpose(2, 1, 0))  # (m, 12, 9)
+    c = np.ascontiguousarray(c.transpose(2, 0, 1))  # (m, 9, 12)
+    return np.matmul(b, c)

@@ -1,0 +1,177 @@
+"""Kinematics of linear tetrahedra: shape-function gradients, the deformation gradient F, dF/dx,
+area-weighted face normals, and the rotation-variant SVD / polar decomposition of F.
+
+Conventions: a tetrahedron's vertices are ``x_0..x_3`` (local order of ``Mesh.cells``, positively
+oriented at rest). ``Ds = [x_1 - x_0, x_2 - x_0, x_3 - x_0]`` (columns), ``Dm`` the same at rest,
+``F = Ds Dm^-1 = sum_a x_a (grad N_a)^T`` with ``grad N_a`` the (constant) rest gradient of vertex
+``a``'s linear shape function. Arrays are vectorised over elements: ``F`` is (m, 3, 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from modalfem.mesh.core import TET_FACES
+
+__all__ = [
+    "area_weighted_normals",
+    "dF_dx",
+    "deformation_gradient",
+    "polar",
+    "scatter_vertices",
+    "shape_gradients",
+    "svd_rv",
+]
+
+
+def shape_gradients(points: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rest gradients of the 4 linear shape functions and rest volumes.
+
+    Args:
+        points: rest vertex positions (n, 3) [m].
+        cells: tetrahedra (m, 4) (positively oriented).
+
+    Returns:
+        ``(grad, volumes)``: ``grad`` (m, 4, 3) [1/m] with ``grad[:, a] = grad N_a`` (rows of
+        ``Dm^-1`` for a = 1..3, minus their sum for a = 0); ``volumes`` (m,) signed rest volumes [m^3].
+    """
+    p = points[cells]
+    Dm = np.swapaxes(p[:, 1:] - p[:, :1], 1, 2)  # columns are edge vectors
+    vol = np.linalg.det(Dm) / 6.0
+    Dm_inv = np.linalg.inv(Dm)
+    grad = np.empty((len(cells), 4, 3))
+    grad[:, 1:] = Dm_inv
+    grad[:, 0] = -Dm_inv.sum(axis=1)
+    return grad, vol
+
+
+def deformation_gradient(x: np.ndarray, cells: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """Deformation gradient ``F = sum_a x_a grad N_a^T`` (m, 3, 3) [-] of positions ``x`` (n, 3) [m]."""
+    return np.matmul(np.swapaxes(x[cells], 1, 2), grad)
+
+
+def dF_dx(grad: np.ndarray) -> np.ndarray:
+    """Jacobian of vec(F) (row-major, index ``3 i + j``) w.r.t. the 12 vertex coordinates.
+
+    Args:
+        grad: shape-function gradients (m, 4, 3) [1/m].
+
+    Returns:
+        B (m, 9, 12) [1/m] with ``B[e, 3 i + j, 3 a + k] = delta_ik grad[e, a, j]``.
+    """
+    m = len(grad)
+    B = np.zeros((m, 3, 3, 4, 3))
+    for i in range(3):
+        B[:, i, :, :, i] = np.swapaxes(grad, 1, 2)
+    return B.reshape(m, 9, 12)
+
+
+def area_weighted_normals(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Outward normal times area of the face opposite each vertex (m, 4, 3) [m^2].
+
+    For a positively oriented tetrahedron face ``a`` of ``TET_FACES`` is opposite vertex ``a``;
+    ``V grad N_a = -A_a n_a / 3`` (so the four vectors sum to zero).
+    """
+    p = x[cells]
+    f = p[:, TET_FACES]  # (m, 4, 3 vertices, 3)
+    return 0.5 * np.cross(f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0])
+
+
+def _unit_normal_to(u: np.ndarray) -> np.ndarray:
+    """A unit vector orthogonal to each unit column of ``u`` (3, k)."""
+    e = np.zeros_like(u)
+    e[np.argmin(np.abs(u), axis=0), np.arange(u.shape[1])] = 1.0
+    w = np.cross(u, e, axis=0)
+    return w / np.linalg.norm(w, axis=0)
+
+
+def svd_rv(F: np.ndarray, V0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rotation-variant SVD ``F = U diag(s) V^T`` with ``det U = det V = +1``.
+
+    A reflection is moved onto the smallest singular value, so an inverted element has ``s[2] < 0``
+    (and ``s[0] >= s[1] >= |s[2]|``): the energies then see the inversion and push back.
+    Computed for all elements at once by one-sided (Hestenes) Jacobi rotations on the columns of F
+    (structure-of-arrays, a few sweeps to full precision), which is several times faster than a loop
+    of LAPACK calls for 3x3 matrices and well defined for repeated or zero singular values.
+
+    Args:
+        F: deformation gradients (m, 3, 3).
+        V0: optional starting rotations (m, 3, 3), e.g. the ``V`` of the previous call on nearby F: the
+            sweeps then start almost converged (the result is the same up to roundoff).
+
+    Returns:
+        ``(U, s, V)``: rotations (m, 3, 3), signed singular values (m, 3), rotations (m, 3, 3).
+    """
+    m = len(F)
+    if V0 is None:
+        A = np.moveaxis(np.asarray(F, dtype=float), 0, -1).copy()  # (3, 3, m), C order: A[i, j] = F_ij
+        V = np.zeros((3, 3, m))
+        V[0, 0] = V[1, 1] = V[2, 2] = 1.0
+    else:
+        V = np.moveaxis(np.asarray(V0, dtype=float), 0, -1).copy()
+        A = np.moveaxis(np.matmul(F, V0), 0, -1).copy()
+    for _ in range(12):
+        done = True
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            ap, aq = A[:, p], A[:, q]
+            al = np.einsum("im,im->m", ap, ap)
+            be = np.einsum("im,im->m", aq, aq)
+            ga = np.einsum("im,im->m", ap, aq)
+            rot = np.abs(ga) > 1e-15 * np.sqrt(al * be)
+            if not rot.any():
+                continue
+            done = False
+            # t = tan of the rotation angle = sign(z) / (|z| + sqrt(1 + z^2)), z = (be - al) / (2 ga),
+            # written without forming z (no overflow when ga is tiny)
+            tau, g2 = be - al, 2.0 * np.where(rot, ga, 1.0)
+            t = np.where(rot, np.copysign(1.0, tau) * g2 / (np.abs(tau) + np.hypot(tau, g2)), 0.0)
+            c = 1.0 / np.sqrt(1.0 + t * t)
+            sn = c * t
+            A[:, p], A[:, q] = c * ap - sn * aq, sn * ap + c * aq
+            vp, vq = V[:, p], V[:, q]
+            V[:, p], V[:, q] = c * vp - sn * vq, sn * vp + c * vq
+        if done:
+            break
+    n = np.sqrt(np.einsum("ijm,ijm->jm", A, A))
+    for p, q in ((0, 1), (1, 2), (0, 1)):  # sorting network: column norms descending
+        sw = np.flatnonzero(n[q] > n[p])
+        if len(sw):
+            for arr in (A, V):
+                arr[:, p, sw], arr[:, q, sw] = arr[:, q, sw], arr[:, p, sw]
+            n[p, sw], n[q, sw] = n[q, sw], n[p, sw]
+    flip = np.einsum("im,im->m", V[:, 0], np.cross(V[:, 1], V[:, 2], axis=0)) < 0
+    V[:, 2, flip] *= -1.0
+    A[:, 2, flip] *= -1.0
+    scale = np.maximum(n[0], 1e-300)
+    u0 = np.where(n[0] > 1e-300, A[:, 0] / scale, 0.0)
+    bad0 = n[0] <= 1e-300
+    u0[0, bad0] = 1.0
+    w = A[:, 1] - u0 * np.einsum("im,im->m", u0, A[:, 1])
+    s1 = np.sqrt(np.einsum("im,im->m", w, w))
+    ok1 = s1 > 1e-14 * scale
+    u1 = np.empty_like(u0)
+    u1[:, ok1] = w[:, ok1] / s1[ok1]
+    if not ok1.all():
+        u1[:, ~ok1] = _unit_normal_to(u0[:, ~ok1])
+    u2 = np.cross(u0, u1, axis=0)
+    s = np.stack([n[0], np.einsum("im,im->m", u1, A[:, 1]), np.einsum("im,im->m", u2, A[:, 2])], axis=1)
+    U = np.stack([u0, u1, u2], axis=1)  # (3 i, 3 column, m)
+    return np.moveaxis(U, -1, 0).copy(), s, np.moveaxis(V, -1, 0).copy()
+
+
+def polar(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Polar decomposition ``F = R S`` with ``R`` a rotation (det +1) and ``S`` symmetric (m, 3, 3).
+
+    Built from :func:`svd_rv`: ``R = U V^T``, ``S = V diag(s) V^T``; for an inverted element ``S``
+    has one negative eigenvalue instead of ``R`` being a reflection.
+    """
+    U, s, V = svd_rv(F)
+    R = U @ np.swapaxes(V, 1, 2)
+    S = np.einsum("mik,mk,mjk->mij", V, s, V)
+    return R, S
+
+
+def scatter_vertices(values: np.ndarray, cells: np.ndarray, n: int) -> np.ndarray:
+    """Sum per-element vertex vectors ``values`` (m, 4, 3) into vertices (n, 3)."""
+    idx = (3 * cells[:, :, None] + np.arange(3)).ravel()
+    return np.bincount(idx, weights=values.ravel(), minlength=3 * n).reshape(n, 3)

@@ -1,0 +1,384 @@
+"""Implicit backward Euler for tetrahedral soft bodies: ``TetState``, ``TetControl``, ``TetSolver``.
+
+One step minimises the incremental potential (Newton with a backtracking line search)
+
+    E(x) = 1/(2 h^2) |x - x_n - h v_n|_M^2 + Phi(x) + 1/(2 h) |x - x_n|_D^2,
+
+``Phi`` the elastic energy plus the opt-in potentials, ``D = alpha M + beta K(x_n)`` Rayleigh damping;
+then ``v_{n+1} = (x_{n+1} - x_n) / h``. Newton starts at ``x_n``, so ``newton_max=1`` is the classic
+linearised step (Baraff-Witkin). ``integrator="bdf2"`` (optional, second order, much less numerical
+damping) uses the same potential with ``h -> 2h/3``, ``x_n -> (4 x_n - x_{n-1}) / 3`` and
+``v_n -> (4 v_n - v_{n-1}) / 3`` once a previous step of the same dt is known (backward Euler before).
+Element Hessians are projected to positive semi-definite, so the system matrix ``M / h^2 + H`` is SPD:
+solved by CG with a two-level preconditioner (default, ``modalfem.tet.precond``), Jacobi-PCG, or SuperLU.
+Pinned (``Pins``) and scripted (``TetControl``) vertices are eliminated (identity rows).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from modalfem.errors import InputError, SimulationError
+from modalfem.tet.assembly import HessianPattern
+from modalfem.tet.energies import VolumeBarrierDensity, element_hessians, first_piola
+from modalfem.tet.kinematics import deformation_gradient, scatter_vertices, svd_rv
+from modalfem.tet.model import TetModel
+from modalfem.tet.precond import TwoLevel
+
+__all__ = ["LINEAR_SOLVERS", "StepInfo", "TetControl", "TetSolver", "TetState"]
+
+LINEAR_SOLVERS = ("cg", "splu", "spsolve")
+
+
+@dataclass
+class TetState:
+    """Changing state of a tetrahedral body.
+
+    Attributes:
+        x: vertex positions (n, 3) [m].
+        v: vertex velocities (n, 3) [m/s].
+        t: time [s].
+        history: ``(x, v, dt)`` of the previous step (used by ``integrator="bdf2"``), or None.
+    """
+
+    x: np.ndarray
+    v: np.ndarray
+    t: float = 0.0
+    history: tuple | None = None
+
+    @classmethod
+    def at_rest(cls, model: TetModel) -> TetState:
+        """The rest configuration with zero velocity at t = 0."""
+        return cls(model.rest_points.copy(), np.zeros((model.point_count, 3)), 0.0)
+
+    def copy(self) -> TetState:
+        return TetState(self.x.copy(), self.v.copy(), float(self.t), self.history)
+
+
+@dataclass(frozen=True, eq=False)
+class TetControl:
+    """Per-step inputs: scripted vertices and where they must be at the end of the step.
+
+    Args:
+        vertices: vertex indices (k,).
+        positions: their positions at the end of the step (k, 3) [m].
+    """
+
+    vertices: np.ndarray
+    positions: np.ndarray
+
+
+@dataclass
+class StepInfo:
+    """What one step did.
+
+    Attributes:
+        newton_iterations: Newton iterations (linear solves) taken.
+        linear_iterations: total CG iterations (0 for direct solves).
+        converged: the Newton step fell below the tolerance.
+        assembly_s, solve_s, total_s: wall time [s] in energy/gradient/Hessian evaluation, in linear
+            solves, and in the whole step.
+    """
+
+    newton_iterations: int = 0
+    linear_iterations: int = 0
+    converged: bool = False
+    assembly_s: float = 0.0
+    solve_s: float = 0.0
+    total_s: float = 0.0
+
+
+def _pcg(A, b: np.ndarray, prec, rtol: float, maxiter: int, x0: np.ndarray | None = None
+         ) -> tuple[np.ndarray, int]:
+    """Preconditioned conjugate gradients (``prec(r)`` applies M^-1) from ``x0`` (default 0).
+
+    Returns ``(x, iterations)``. (A 3x3 block-Jacobi preconditioner was measured too: the same iteration
+    counts as Jacobi on the benchmark bar.)
+    """
+    if x0 is None:
+        x = np.zeros_like(b)
+        r = b.copy()
+    else:
+        x = x0.copy()
+        r = b - A @ x
+    z = prec(r)
+    p = z.copy()
+    rz = float(r @ z)
+    stop = (rtol * float(np.linalg.norm(b))) ** 2
+    for it in range(1, maxiter + 1):
+        Ap = A @ p
+        alpha = rz / float(p @ Ap)
+        x += alpha * p
+        r -= alpha * Ap
+        if float(r @ r) <= stop:
+            return x, it
+        z = prec(r)
+        rz_new = float(r @ z)
+        p *= rz_new / rz
+        p += z
+        rz = rz_new
+    return x, maxiter
+
+
+class TetSolver:
+    """Backward Euler for a ``TetModel`` with opt-in effects.
+
+    Args:
+        model: the body's fixed data.
+        effects: any of ``Gravity``, ``Ground``, ``RayleighDamping``, ``Pins``, ``VolumeSprings``,
+            ``VolumeBarrier`` (``modalfem.tet.effects``); only these terms are ever evaluated.
+        newton_max: Newton iterations per step, >= 1 (1 = one linearised step).
+        tol: Newton stops when the largest vertex update is below ``tol * model.size`` [-].
+        linear_solver: ``"cg"`` (preconditioned CG), ``"splu"`` or ``"spsolve"`` (SuperLU).
+        preconditioner: for CG, ``"twolevel"`` (Jacobi + rigid motions of ~48 vertex aggregates,
+            ``modalfem.tet.precond``; default) or ``"jacobi"``.
+        cg_rtol: relative residual of the CG solves [-].
+        integrator: ``"backward_euler"`` (default) or ``"bdf2"``.
+
+    Raises:
+        InputError: unknown effect or solver, bad numbers, pinned vertex out of range.
+    """
+
+    def __init__(self, model: TetModel, *, effects=(), newton_max: int = 8, tol: float = 1e-6,
+                 linear_solver: str = "cg", cg_rtol: float = 1e-4, integrator: str = "backward_euler",
+                 preconditioner: str = "twolevel") -> None:
+        if preconditioner not in ("twolevel", "jacobi"):
+            raise InputError(f"unknown preconditioner {preconditioner!r}; choose 'twolevel' or 'jacobi'")
+        if integrator not in ("backward_euler", "bdf2"):
+            raise InputError(f"unknown integrator {integrator!r}; choose 'backward_euler' or 'bdf2'")
+        self.integrator = integrator
+        if linear_solver not in LINEAR_SOLVERS:
+            raise InputError(f"unknown linear solver {linear_solver!r}; choose one of {LINEAR_SOLVERS}")
+        if int(newton_max) < 1:
+            raise InputError(f"newton_max must be >= 1, got {newton_max!r}")
+        if not (float(tol) > 0 and float(cg_rtol) > 0):
+            raise InputError("tol and cg_rtol must be > 0")
+        self.model = model
+        self.newton_max = int(newton_max)
+        self.tol = float(tol)
+        self.cg_rtol = float(cg_rtol)
+        self.linear_solver = linear_solver
+        self.element_terms, self.vertex_terms, self.damping, pins = [model.density], [], None, []
+        for e in effects:
+            kind = getattr(e, "kind", None)
+            if kind == "element":
+                self.element_terms.append(e.density())
+            elif kind == "vertex":
+                self.vertex_terms.append(e)
+            elif kind == "damping":
+                if self.damping is not None:
+                    raise InputError("give at most one RayleighDamping effect")
+                self.damping = e
+            elif kind == "pins":
+                pins.append(e)
+            else:
+                raise InputError(f"unknown tet effect {e!r}")
+        self.effects = tuple(effects)
+        n = model.point_count
+        self.fixed = np.zeros(n, dtype=bool)
+        self.pin_targets = model.rest_points.copy()
+        for p in pins:
+            if p.vertices.size and (p.vertices.min() < 0 or p.vertices.max() >= n):
+                raise InputError(f"pinned vertex index out of range [0, {n})")
+            self.fixed[p.vertices] = True
+            if p.positions is not None:
+                self.pin_targets[p.vertices] = p.positions
+        self.pattern = HessianPattern(model.cells, n)
+        self._V = None
+        self.twolevel = TwoLevel(model.rest_points) if preconditioner == "twolevel" and linear_solver == "cg" else None
+        self.mass_dofs = np.repeat(model.masses, 3)
+        self.barrier = any(isinstance(t, VolumeBarrierDensity) for t in self.element_terms)
+
+    # ------------------------------------------------------------------ energies
+    def _elastic(self, x: np.ndarray, order: int):
+        """Sum of element terms at ``x``: (energy [J], gradient (n, 3) [N] or None, blocks or None)."""
+        m = self.model
+        U, s, V = svd_rv(deformation_gradient(x, m.cells, m.grad), self._V)
+        self._V = V  # warm start of the next SVD (a cache; results do not depend on it beyond roundoff)
+        d = self.element_terms[0].derivs(s, order)
+        for t in self.element_terms[1:]:
+            d = d + t.derivs(s, order)
+        E = float(m.rest_volumes @ d.psi) if np.all(np.isfinite(d.psi)) else math.inf
+        if order == 0 or not math.isfinite(E):
+            return E, None, None
+        P = first_piola(U, V, d.d1)
+        f = np.matmul(m.grad, np.swapaxes(P, 1, 2)) * m.rest_volumes[:, None, None]  # V0 P grad_a
+        g = scatter_vertices(f, m.cells, m.point_count)
+        H = element_hessians(U, V, d, m.grad, m.rest_volumes, project=True) if order >= 2 else None
+        return E, g, H
+
+    def energies(self, state: TetState) -> dict:
+        """Energies [J] of a state and their sum ``total``.
+
+        Keys: ``kinetic``, ``elastic`` (the material energy plus the opt-in volume springs / barrier) and
+        one per vertex potential (``gravity``, ``ground``). Damping is dissipative and has no entry.
+        """
+        m = self.model
+        out = {"kinetic": 0.5 * float(m.masses @ np.sum(state.v * state.v, axis=1)),
+               "elastic": self._elastic(state.x, 0)[0]}
+        for t in self.vertex_terms:
+            out[type(t).__name__.lower()] = t.energy(state.x, m.masses)
+        out["total"] = sum(out.values())
+        return out
+
+    def _incremental(self, x, xn, xhat, h, D, order: int):
+        """Incremental potential at ``x``: (E, gradient (3n,), Hessian data or None)."""
+        m = self.model
+        dx = (x - xhat).ravel()
+        E = 0.5 / h**2 * float(self.mass_dofs @ (dx * dx))
+        Ee, ge, He = self._elastic(x, order)
+        E += Ee
+        if D is not None:
+            w = (x - xn).ravel()
+            Dw = self.pattern.matrix(D) @ w
+            E += 0.5 / h * float(w @ Dw)
+        for t in self.vertex_terms:
+            E += t.energy(x, m.masses)
+        if order == 0 or not math.isfinite(E):
+            return E, None, None
+        g = self.mass_dofs * dx / h**2 + ge.ravel()
+        diag = self.mass_dofs / h**2
+        for t in self.vertex_terms:
+            g += t.gradient(x, m.masses).ravel()
+            hd = t.hessian_diagonal(x, m.masses)
+            if hd is not None:
+                diag = diag + hd.ravel()
+        if D is not None:
+            g += Dw / h
+        data = self.pattern.assemble(He, diag)
+        if D is not None:
+            data += D / h
+        return E, g, data
+
+    # ------------------------------------------------------------------ step
+    def _check(self, state_in: TetState, dt, control) -> tuple[float, np.ndarray, np.ndarray]:
+        n = self.model.point_count
+        try:
+            h = float(dt)
+        except (TypeError, ValueError):
+            raise SimulationError(f"time step dt must be a number [s], got {dt!r}") from None
+        if not (math.isfinite(h) and h > 0):
+            raise SimulationError(f"time step dt must be finite and > 0 s, got {dt!r}")
+        for name, a in (("positions x", state_in.x), ("velocities v", state_in.v)):
+            a = np.asarray(a)
+            if a.shape != (n, 3):
+                raise SimulationError(f"state {name} must have shape ({n}, 3), got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise SimulationError(f"state {name} has {int((~np.isfinite(a)).sum())} NaN/inf values")
+        fixed, targets = self.fixed.copy(), self.pin_targets.copy()
+        if control is not None:
+            cv = np.asarray(control.vertices)
+            cp = np.asarray(control.positions, dtype=float)
+            if cv.ndim != 1 or cp.shape != (len(cv), 3):
+                raise SimulationError(f"control needs vertices (k,) and positions (k, 3), got {cv.shape}, {cp.shape}")
+            if cv.size and (cv.min() < 0 or cv.max() >= n):
+                raise SimulationError(f"control vertex index out of range [0, {n})")
+            if not np.all(np.isfinite(cp)):
+                raise SimulationError("control positions have NaN/inf values")
+            fixed[cv] = True
+            targets[cv] = cp
+        return h, fixed, targets
+
+    def step(self, state_in: TetState, state_out: TetState, dt: float, *, control: TetControl | None = None
+             ) -> StepInfo:
+        """Advance ``state_in`` by ``dt`` [s] into ``state_out`` (may be the same object).
+
+        Raises:
+            SimulationError: dt <= 0 or not finite, non-finite state or control, a barrier step starting
+                with a non-positive element volume, or a non-finite result.
+        """
+        t0 = time.perf_counter()
+        h, fixed, targets = self._check(state_in, dt, control)
+        info = StepInfo()
+        x0 = np.asarray(state_in.x, dtype=float).copy()
+        v0 = np.asarray(state_in.v, dtype=float).copy()
+        hist = state_in.history
+        if self.integrator == "bdf2" and hist is not None and abs(hist[2] - h) <= 1e-12 * h:
+            # BDF2 as backward Euler with step 2h/3 from the base point (4 x_n - x_{n-1}) / 3
+            xn, vn, h_full, h = (4 * x0 - hist[0]) / 3, (4 * v0 - hist[1]) / 3, h, 2 * h / 3
+        else:
+            xn, vn, h_full = x0, v0, h
+        xhat = xn + h * vn
+        x = x0.copy()
+        x[fixed] = targets[fixed]
+        fixed_dofs = np.repeat(fixed, 3)
+        D = None
+        if self.damping is not None:
+            ta = time.perf_counter()
+            diag = float(self.damping.alpha) * self.mass_dofs
+            He = None
+            if float(self.damping.beta) > 0:
+                He = self._elastic(x0, 2)[2]
+                if He is not None:
+                    He = float(self.damping.beta) * He
+            D = self.pattern.assemble(He, diag)
+            info.assembly_s += time.perf_counter() - ta
+        lin_tol = self.tol * self.model.size
+        for _ in range(self.newton_max):
+            ta = time.perf_counter()
+            E, g, data = self._incremental(x, xn, xhat, h, D, 2)
+            info.assembly_s += time.perf_counter() - ta
+            if not math.isfinite(E):
+                raise SimulationError("the step starts with a non-positive element volume, which the "
+                                      "VolumeBarrier forbids" if self.barrier else "non-finite energy")
+            g[fixed_dofs] = 0.0
+            ts = time.perf_counter()
+            guess = None
+            if info.newton_iterations == 0:
+                guess = -(xhat - x).ravel()  # -(x_n + h v_n - x): the first step is close to it
+                guess[fixed_dofs] = 0.0
+            p = -self._solve(self.pattern.apply_dirichlet(data, fixed_dofs), g, info, guess, x=x, free=~fixed_dofs)
+            info.solve_s += time.perf_counter() - ts
+            info.newton_iterations += 1
+            slope = float(g @ p)
+            ta = time.perf_counter()
+            alpha, accepted = 1.0, False
+            if slope < 0:
+                for _ in range(30):
+                    xt = x + alpha * p.reshape(-1, 3)
+                    Et = self._incremental(xt, xn, xhat, h, D, 0)[0]
+                    if Et <= E + 1e-4 * alpha * slope:
+                        accepted = True
+                        break
+                    alpha *= 0.5
+            info.assembly_s += time.perf_counter() - ta
+            if not accepted:
+                info.converged = float(np.abs(p).max(initial=0.0)) <= lin_tol
+                break
+            x = xt
+            if alpha * float(np.abs(p).max(initial=0.0)) <= lin_tol:
+                info.converged = True
+                break
+        if not np.all(np.isfinite(x)):
+            raise SimulationError("the step produced non-finite positions")
+        state_out.v = (x - xn) / h
+        state_out.x = x
+        state_out.t = float(state_in.t) + h_full
+        state_out.history = (x0, v0, h_full) if self.integrator == "bdf2" else None
+        info.total_s = time.perf_counter() - t0
+        return info
+
+    def _solve(self, data: np.ndarray, g: np.ndarray, info: StepInfo, guess: np.ndarray | None = None, *,
+               x: np.ndarray | None = None, free: np.ndarray | None = None) -> np.ndarray:
+        A = self.pattern.matrix(data)
+        if self.linear_solver == "cg":
+            diag = self.pattern.diagonal(data)
+            if self.twolevel is not None:
+                prec = self.twolevel.setup(A, diag, x, free)
+            else:
+                inv = 1.0 / diag
+
+                def prec(r):
+                    return inv * r
+
+            x, it = _pcg(A, g, prec, self.cg_rtol, 10 * len(g), guess)
+            info.linear_iterations += it
+            return x
+        if self.linear_solver == "splu":
+            return spla.splu(A.tocsc()).solve(g)
+        return spla.spsolve(A.tocsc(), g)

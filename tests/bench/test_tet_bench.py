@@ -1,0 +1,29 @@
+"""Smoke test of ``modalfem bench tet``: the quick ladder runs and writes a well-formed section into a
+temporary file, keeping other sections. Speed is not asserted (benchmarks are commands, not tests)."""
+
+from __future__ import annotations
+
+import re
+
+from modalfem.bench import tet_bench as tb
+
+
+def test_run_case_here_measures_a_step():
+    r = tb.run_case_here((2, 1, 1), "newton+cg", 2)
+    assert r["tets"] == 12 and r["finite"]
+    assert r["ms_per_step"] > 0 and 1 <= r["newton_per_step"] <= 8 and 0 <= r["solve_share"] <= 1
+
+
+def test_quick_bench_writes_its_section(tmp_path):
+    out = tmp_path / "B.md"
+    out.write_text("# Benchmarks\n\n## Other\n\nkeep me\n")
+    assert tb.command(["--quick", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "keep me" in text and text.count(tb.SECTION) == 1
+    section = text[text.index(tb.SECTION):]
+    rows = [line for line in section.splitlines() if re.match(r"\| \d+ \|", line)]
+    assert [r.split("|")[3].strip() for r in rows] == list(tb.VARIANTS)
+    for r in rows:
+        cells = [c.strip() for c in r.strip("|").split("|")]
+        assert float(cells[3]) > 0 and float(cells[4]) > 0  # ms/step, steps/s
+        assert float(cells[4]) > 0 and cells[8].endswith("%")  # CPU ms/step, solve share

@@ -1,0 +1,143 @@
+"""Energies of tetrahedra: finite-difference gradient and Hessian of every term (upright and inverted),
+projection to positive semi-definite, the corotational stress built by polar decomposition, volume
+spring forces along area-weighted opposite-face normals, and the barrier's blow-up as V -> 0."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modalfem.tet import energies as en
+from modalfem.tet import kinematics as kin
+
+CELLS = np.array([[0, 1, 2, 3]])
+TERMS = {
+    "corotated": en.Corotated(1.3, 2.1),
+    "stable": en.StableCorotated(1.3, 2.1),
+    "volume_spring": en.VolumeSpringDensity(3.0),
+    "barrier": en.VolumeBarrierDensity(3.0),
+}
+
+
+def _rest(seed=0):
+    rng = np.random.default_rng(seed)
+    X = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) + 0.1 * rng.standard_normal((4, 3))
+    grad, vol = kin.shape_gradients(X, CELLS)
+    return X, grad, vol
+
+
+def _funcs(term, grad, vol):
+    def sv(x):
+        return kin.svd_rv(kin.deformation_gradient(x.reshape(4, 3), CELLS, grad))
+
+    def E(x):
+        _, s, _ = sv(x)
+        return float(vol @ term.derivs(s, 0).psi)
+
+    def G(x):
+        U, s, V = sv(x)
+        P = en.first_piola(U, V, term.derivs(s, 1).d1)
+        return (vol[:, None, None] * np.einsum("mij,maj->mai", P, grad)).ravel()
+
+    def H(x, project=False):
+        U, s, V = sv(x)
+        return en.element_hessians(U, V, term.derivs(s, 2), grad, vol, project=project)[0]
+
+    return E, G, H
+
+
+def _configs(X, rng, inverted):
+    x = X + 0.25 * rng.standard_normal((4, 3))
+    if inverted:  # reflect vertex 3 through the plane of the others: negative volume
+        n = np.cross(x[1] - x[0], x[2] - x[0])
+        n /= np.linalg.norm(n)
+        x[3] -= 1.5 * n * (n @ (x[3] - x[0]))
+    return x.ravel()
+
+
+@pytest.mark.parametrize("inverted", [False, True], ids=["upright", "inverted"])
+@pytest.mark.parametrize("name", list(TERMS))
+def test_gradient_and_hessian_match_finite_differences(name, inverted):
+    if name == "barrier" and inverted:
+        pytest.skip("the barrier is infinite on inverted elements (tested below)")
+    rng = np.random.default_rng(list(TERMS).index(name) + 10 * inverted)
+    X, grad, vol = _rest(1)
+    E, G, H = _funcs(TERMS[name], grad, vol)
+    for _ in range(3):
+        x = _configs(X, rng, inverted)
+        F = kin.deformation_gradient(x.reshape(4, 3), CELLS, grad)
+        assert (np.linalg.det(F)[0] < 0) == inverted
+        h = 1e-6
+        eye = np.eye(12)
+        gfd = np.array([(E(x + h * e) - E(x - h * e)) / (2 * h) for e in eye])
+        Hfd = np.array([(G(x + h * e) - G(x - h * e)) / (2 * h) for e in eye])
+        g, Hx = G(x), H(x)
+        assert np.abs(g - gfd).max() <= 1e-6 * np.abs(g).max()
+        assert np.abs(Hx - Hfd).max() <= 1e-6 * np.abs(Hx).max()
+        np.testing.assert_allclose(Hx, Hx.T, atol=1e-12 * np.abs(Hx).max())
+
+
+@pytest.mark.parametrize("name", list(TERMS))
+def test_projected_hessian_is_psd_and_exact_where_convex(name):
+    rng = np.random.default_rng(7)
+    X, grad, vol = _rest(2)
+    _, _, H = _funcs(TERMS[name], grad, vol)
+    for _ in range(5):
+        x = _configs(X, rng, inverted=(name != "barrier") and rng.random() < 0.5)
+        Hp = H(x, project=True)
+        w = np.linalg.eigvalsh(Hp)
+        assert w.min() >= -1e-10 * w.max()
+    Hp, Hu = H(X.ravel(), project=True), H(X.ravel(), project=False)  # at rest the Hessian is PSD already
+    np.testing.assert_allclose(Hp, Hu, atol=1e-10 * np.abs(Hu).max())
+
+
+def test_corotated_stress_is_rotated_linear_stress():
+    """P = R (2 mu (S - I) + lam tr(S - I) I), with F = R S the polar decomposition (stiffness warping)."""
+    rng = np.random.default_rng(3)
+    mu, lam = 1.3, 2.1
+    F = np.eye(3) + 0.4 * rng.standard_normal((50, 3, 3))
+    R, S = kin.polar(F)
+    eps = S - np.eye(3)
+    lin = 2 * mu * eps + lam * np.trace(eps, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    U, s, V = kin.svd_rv(F)
+    P = en.first_piola(U, V, en.Corotated(mu, lam).derivs(s, 1).d1)
+    np.testing.assert_allclose(P, R @ lin, atol=1e-12)
+
+
+def test_energies_vanish_and_push_back_from_inversion():
+    rng = np.random.default_rng(4)
+    s_rest = np.ones((1, 3))
+    for term in TERMS.values():
+        d = term.derivs(s_rest, 1)
+        assert abs(d.psi[0]) < 1e-15 and np.abs(d.d1).max() < 1e-15
+    s_inv = np.sort(rng.uniform(0.5, 1.5, (20, 3)), axis=1)[:, ::-1].copy()
+    s_inv[:, 2] *= -0.3
+    for name in ("corotated", "stable", "volume_spring"):
+        d = TERMS[name].derivs(s_inv, 1)
+        assert np.all(d.d1[:, 2] < 0), name  # energy decreases as the negative singular value grows
+
+
+def test_volume_spring_forces_along_opposite_face_normals():
+    """Volume spring force on vertex a is K (V - V0) A_a n_a / 3 (current area-weighted outward normal of
+    the opposite face): a too large element pulls each vertex towards its opposite face."""
+    rng = np.random.default_rng(5)
+    X, grad, vol = _rest(3)
+    k = 3.0
+    _, G, _ = _funcs(TERMS["volume_spring"], grad, vol)
+    x = X + 0.2 * rng.standard_normal((4, 3))
+    V = float(np.linalg.det((x[1:] - x[0]).T)) / 6.0
+    normals = kin.area_weighted_normals(x, CELLS)[0]
+    K = k / vol[0]
+    expected = K * (V - vol[0]) * normals / 3.0  # force = -dE/dx; dV/dx_a = -A_a n_a / 3
+    np.testing.assert_allclose(-G(x.ravel()).reshape(4, 3), expected, rtol=1e-10, atol=1e-14)
+    E, _, _ = _funcs(TERMS["volume_spring"], grad, vol)
+    assert np.isclose(E(x.ravel()), 0.5 * K * (V - vol[0]) ** 2, rtol=1e-10)
+
+
+def test_barrier_goes_to_infinity_as_volume_vanishes():
+    J = np.array([1.0, 0.5, 1e-2, 1e-4, 1e-8, 1e-12])
+    s = np.stack([np.ones_like(J), np.ones_like(J), J], axis=1)
+    psi = TERMS["barrier"].derivs(s, 0).psi
+    assert psi[0] == 0 and np.all(np.diff(psi) > 0) and psi[-1] > 20 * 3.0
+    bad = TERMS["barrier"].derivs(np.array([[1.0, 1.0, 0.0], [1.0, 1.0, -0.5]]), 2)
+    assert np.all(np.isinf(bad.psi))

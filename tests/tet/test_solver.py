@@ -1,0 +1,245 @@
+"""Backward Euler solver of the tet module: gravity, ground contact, pins and scripted vertices, Rayleigh
+damping, Newton convergence, linear solvers; opt-in terms are never evaluated unless asked for; bad
+input fails before stepping with one clear error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modalfem.errors import InputError, MaterialError, MeshError, SimulationError
+from modalfem.material import Material
+from modalfem.mesh import box
+from modalfem.mesh.core import signed_volumes
+from modalfem.tet import effects as fx
+from modalfem.tet import energies
+from modalfem.tet.model import tet_model
+from modalfem.tet.solver import TetControl, TetSolver, TetState
+
+SOFT = Material(E=1e5, nu=0.3, rho=1000.0)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return tet_model(box(size=(0.1, 0.1, 0.1), cells=(2, 2, 2)), SOFT)
+
+
+def test_free_fall_is_exact_backward_euler(model):
+    g = np.array([0.0, 0.0, -9.81])
+    solver = TetSolver(model, effects=[fx.Gravity(tuple(g))], cg_rtol=1e-12, tol=1e-12)
+    s = TetState.at_rest(model)
+    s.v[:] = [0.3, 0.0, 1.0]
+    x, v, h = s.x.copy(), s.v.copy(), 0.01
+    for _ in range(5):
+        solver.step(s, s, h)
+        v = v + h * g
+        x = x + h * v
+    np.testing.assert_allclose(s.v, v, atol=1e-9)
+    np.testing.assert_allclose(s.x, x, atol=1e-11)
+    assert s.t == pytest.approx(0.05)
+
+
+@pytest.mark.parametrize("energy", ["stable", "corotated"])
+def test_rigid_motions_cost_nothing(energy):
+    m = tet_model(box(size=(0.1, 0.1, 0.1), cells=(2, 2, 2)), SOFT, energy=energy)
+    solver = TetSolver(m)
+    th = 2.5
+    R = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1.0]])
+    E, g, _ = solver._elastic(m.rest_points @ R.T + 1.0, 1)
+    assert abs(E) < 1e-20 and np.abs(g).max() < 1e-9
+
+
+def test_body_comes_to_rest_on_the_ground(model):
+    k = 1e5
+    solver = TetSolver(model, effects=[fx.Gravity(), fx.Ground(height=0.0, stiffness=k),
+                                       fx.RayleighDamping(alpha=10.0)])
+    s = TetState.at_rest(model)
+    s.x[:, 2] += 0.05  # 5 cm above the ground
+    for _ in range(150):
+        solver.step(s, s, 0.01)
+    assert np.abs(s.v).max() < 1e-3
+    weight = model.masses.sum() * 9.81
+    reaction = k * np.sum(np.maximum(-s.x[:, 2], 0.0))
+    assert reaction == pytest.approx(weight, rel=1e-3)  # static equilibrium: the ground carries the weight
+    assert s.x[:, 2].min() > -2 * weight / k
+
+
+def test_pins_and_scripted_vertices_are_exact(model):
+    mesh = model.mesh
+    x0, x1 = mesh.tag_points("x0"), mesh.tag_points("x1")
+    solver = TetSolver(model, effects=[fx.Pins(x0), fx.Gravity()])
+    s = TetState.at_rest(model)
+    for i in range(10):
+        target = mesh.points[x1] + [0.002 * (i + 1), 0.0, 0.0]
+        solver.step(s, s, 0.01, control=TetControl(x1, target))
+        np.testing.assert_array_equal(s.x[x0], mesh.points[x0])
+        np.testing.assert_allclose(s.x[x1], target, atol=1e-15)
+    free = np.setdiff1d(np.arange(model.point_count), np.union1d(x0, x1))
+    assert np.abs(s.x[free] - mesh.points[free]).max() > 1e-4  # the rest of the body followed
+
+
+def test_newton_solves_the_incremental_potential(model):
+    solver = TetSolver(model, effects=[fx.Gravity()], newton_max=30, tol=1e-12, cg_rtol=1e-12)
+    s = TetState.at_rest(model)
+    s.x[:, 2] *= 0.5
+    s.v[:] = np.random.default_rng(0).normal(0, 0.1, s.v.shape)
+    xn, vn, h = s.x.copy(), s.v.copy(), 0.02
+    info = solver.step(s, s, h)
+    assert info.converged and info.newton_iterations > 1
+    _, grad, _ = solver._incremental(s.x, xn, xn + h * vn, h, None, 1)
+    scale = np.abs(solver._incremental(xn, xn, xn + h * vn, h, None, 1)[1]).max()
+    assert np.abs(grad).max() < 1e-8 * scale
+
+
+@pytest.mark.parametrize("linear_solver", ["splu", "spsolve"])
+def test_linear_solvers_agree(model, linear_solver):
+    out = []
+    for ls in ("cg", linear_solver):
+        solver = TetSolver(model, effects=[fx.Gravity()], linear_solver=ls, cg_rtol=1e-12, newton_max=1)
+        s = TetState.at_rest(model)
+        s.x[:, 0] *= 1.3
+        solver.step(s, s, 0.01)
+        out.append(s.x)
+    np.testing.assert_allclose(out[0], out[1], atol=1e-12)
+
+
+def test_rayleigh_damping_dissipates(model):
+    def energy_after(effects):
+        solver = TetSolver(model, effects=effects)
+        s = TetState.at_rest(model)
+        s.x[:, 0] *= 1.2
+        for _ in range(20):
+            solver.step(s, s, 0.001)
+        return solver.energies(s)["total"]
+
+    free = energy_after([])  # underdamped: both dampings take energy out faster than backward Euler alone
+    assert energy_after([fx.RayleighDamping(alpha=20.0)]) < 0.8 * free
+    assert energy_after([fx.RayleighDamping(beta=1e-3)]) < 0.5 * free
+
+
+def test_volume_terms_resist_compression(model):
+    def volume_after(effects):
+        solver = TetSolver(model, effects=effects)
+        s = TetState.at_rest(model)
+        top = model.rest_points[:, 2] > 0.1 - 1e-9
+        for i in range(5):
+            pos = model.rest_points[top] - [0, 0, 0.01 * (i + 1)]
+            solver.step(s, s, 0.01, control=TetControl(np.flatnonzero(top), pos))
+        return signed_volumes(s.x, model.cells).sum()
+
+    pins = fx.Pins(np.flatnonzero(model.rest_points[:, 2] < 1e-9))
+    plain = volume_after([pins])
+    assert volume_after([pins, fx.VolumeSprings(1e6)]) > plain
+    assert volume_after([pins, fx.VolumeBarrier(1e6)]) > plain
+
+
+# ---------------------------------------------------------------------- only what is asked for runs
+def _spy(monkeypatch, cls, name, calls):
+    original = getattr(cls, name)
+
+    def wrapped(self, *a, **k):
+        calls.append(cls.__name__)
+        return original(self, *a, **k)
+
+    monkeypatch.setattr(cls, name, wrapped)
+
+
+def test_terms_are_opt_in(model, monkeypatch):
+    calls: list[str] = []
+    for cls, name in [(energies.VolumeSpringDensity, "derivs"), (energies.VolumeBarrierDensity, "derivs"),
+                      (fx.Gravity, "energy"), (fx.Gravity, "gradient"), (fx.Ground, "energy"),
+                      (fx.Ground, "gradient")]:
+        _spy(monkeypatch, cls, name, calls)
+    damping_calls = []
+    original = TetSolver._elastic
+
+    def spy_elastic(self, x, order):
+        damping_calls.append(order)
+        return original(self, x, order)
+
+    monkeypatch.setattr(TetSolver, "_elastic", spy_elastic)
+    s = TetState.at_rest(model)
+    s.x[:, 0] *= 1.1
+    TetSolver(model, newton_max=1).step(s, s.copy(), 0.01)
+    assert calls == []
+    assert damping_calls.count(2) == 1  # one Hessian (the Newton step), no extra damping Hessian
+    for effect, expected in [(fx.VolumeSprings(1e4), "VolumeSpringDensity"),
+                             (fx.VolumeBarrier(1e4), "VolumeBarrierDensity"),
+                             (fx.Gravity(), "Gravity"), (fx.Ground(height=0.05), "Ground")]:
+        calls.clear()
+        TetSolver(model, effects=[effect], newton_max=1).step(s, s.copy(), 0.01)
+        assert set(calls) == {expected}
+    damping_calls.clear()
+    TetSolver(model, effects=[fx.RayleighDamping(beta=1e-3)], newton_max=1).step(s, s.copy(), 0.01)
+    assert damping_calls.count(2) == 2  # the damping matrix needs the Hessian at x_n
+
+
+# ---------------------------------------------------------------------- bad input
+def test_zero_volume_rest_element_is_rejected():
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0], [0, 0, 1.0]])
+    with pytest.raises(MeshError, match="zero volume"):
+        tet_model((pts, [[0, 1, 2, 4], [0, 1, 2, 3]]), SOFT)
+
+
+@pytest.mark.parametrize("energy", ["corotated", "stable"])
+def test_incompressible_nu_is_rejected(energy):
+    mesh = box(size=(0.1, 0.1, 0.1), cells=(1, 1, 1))
+    with pytest.raises(MaterialError, match="nu = 0.5 >= 0.5"):
+        tet_model(mesh, {"E": 1e5, "nu": 0.5, "rho": 1000.0}, energy=energy)
+    with pytest.raises(MaterialError):
+        tet_model(mesh, {"E": 1e5, "nu": 0.7, "rho": 1000.0}, energy=energy)
+
+
+def test_bad_model_arguments():
+    mesh = box(size=(0.1, 0.1, 0.1), cells=(1, 1, 1))
+    with pytest.raises(InputError, match="unknown tet energy"):
+        tet_model(mesh, SOFT, energy="neo")
+    with pytest.raises(InputError, match="missing"):
+        tet_model(mesh, {"E": 1e5, "nu": 0.3})
+    m = tet_model(mesh, SOFT)
+    with pytest.raises(InputError, match="linear solver"):
+        TetSolver(m, linear_solver="amg")
+    with pytest.raises(InputError, match="unknown tet effect"):
+        TetSolver(m, effects=["gravity"])
+    with pytest.raises(InputError, match="out of range"):
+        TetSolver(m, effects=[fx.Pins([0, 99])])
+    with pytest.raises(InputError):
+        fx.Ground(stiffness=-1.0)
+    with pytest.raises(InputError):
+        fx.RayleighDamping(alpha=float("nan"))
+
+
+@pytest.mark.parametrize("what", ["x_nan", "v_inf", "dt_zero", "dt_nan", "dt_negative", "shape", "control"])
+def test_bad_state_fails_before_stepping(model, what):
+    solver = TetSolver(model)
+    s = TetState.at_rest(model)
+    dt = 0.01
+    control = None
+    if what == "x_nan":
+        s.x[3, 1] = np.nan
+    elif what == "v_inf":
+        s.v[0, 0] = np.inf
+    elif what == "dt_zero":
+        dt = 0.0
+    elif what == "dt_nan":
+        dt = float("nan")
+    elif what == "dt_negative":
+        dt = -0.1
+    elif what == "shape":
+        s.x = s.x[:-1]
+    else:
+        control = TetControl(np.array([0, 1]), np.array([[0.0, 0.0, np.nan], [0, 0, 0]]))
+    before = s.copy() if what != "shape" else None
+    out = TetState.at_rest(model)
+    with pytest.raises(SimulationError):
+        solver.step(s, out, dt, control=control)
+    if before is not None:
+        np.testing.assert_array_equal(out.x, model.rest_points)  # nothing written
+
+
+def test_barrier_refuses_inverted_start(model):
+    solver = TetSolver(model, effects=[fx.VolumeBarrier(1e4)])
+    s = TetState.at_rest(model)
+    s.x[:, 2] *= -1.0  # every element inverted
+    with pytest.raises(SimulationError, match="VolumeBarrier"):
+        solver.step(s, s, 0.01)
