@@ -10,6 +10,9 @@ File format (``.npz``, written by ``numpy.savez`` without pickles):
   * ``schema_version``: int64 scalar;
   * ``vertices``, ``triangles``, ``shapes``, ``omega``, ``center_of_mass``, ``inertia``: arrays
     (float64, except ``triangles`` int64), little-endian;
+  * optional, both or neither: ``rotation_T`` (3, 3, r, r) and ``rotation_S`` (3, 3, r), float64,
+    the rotation-coupling tensors of the pseudo-forces (``modalfem.runtime.effects``); files
+    written before they existed lack them and still load (with None);
   * ``meta``: JSON text (sorted keys) with ``mass``, ``material``, ``damping``, ``provenance``;
   * ``checksum``: hex SHA-256 over a canonical serialisation of everything above
     (see ``payload_checksum``).
@@ -38,6 +41,8 @@ __all__ = ["ModalModel", "payload_checksum", "storage_report"]
 _FLOAT_KEYS = ("center_of_mass", "inertia", "omega", "shapes", "vertices")
 _INT_KEYS = ("triangles",)
 _ARRAY_KEYS = tuple(sorted(_FLOAT_KEYS + _INT_KEYS))
+#: optional float64 arrays (both or neither): hashed only when present, so older files keep their checksum
+_OPTIONAL_KEYS = ("rotation_S", "rotation_T")
 _FILE_KEYS = frozenset(_ARRAY_KEYS + ("schema_version", "meta", "checksum"))
 _MATERIAL_KEYS = ("name", "E", "nu", "rho")
 
@@ -47,12 +52,14 @@ def payload_checksum(schema_version: int, arrays: dict, meta: str) -> str:
 
     The hash covers, in this order: a format tag, the schema version, then for each array key in
     sorted order its name, dtype (little-endian), shape and raw C-order bytes, and finally the
-    UTF-8 bytes of the JSON ``meta`` text exactly as stored.
+    UTF-8 bytes of the JSON ``meta`` text exactly as stored. The optional arrays (``rotation_S``,
+    ``rotation_T``) take part in the sorted order only when present (not None), so a model
+    without them hashes as before they existed.
 
     Args:
         schema_version: schema version written in the file.
         arrays: the six model arrays by key (``vertices``, ``triangles``, ``shapes``, ``omega``,
-            ``center_of_mass``, ``inertia``).
+            ``center_of_mass``, ``inertia``), plus the optional ones when present.
         meta: JSON metadata text.
 
     Returns:
@@ -61,7 +68,8 @@ def payload_checksum(schema_version: int, arrays: dict, meta: str) -> str:
     h = hashlib.sha256()
     h.update(b"modalfem.ModalModel\0")
     h.update(f"schema={int(schema_version)}\0".encode())
-    for key in _ARRAY_KEYS:
+    keys = sorted(_ARRAY_KEYS + tuple(k for k in _OPTIONAL_KEYS if arrays.get(k) is not None))
+    for key in keys:
         a = np.asarray(arrays[key])
         dt = np.dtype("<i8") if key in _INT_KEYS else np.dtype("<f8")
         a = np.ascontiguousarray(a, dtype=dt)
@@ -125,11 +133,17 @@ class ModalModel:
             ``mu_i = alpha + beta * omega_i**2`` [1/s] (``q'' + mu q' + omega^2 q = f``).
         provenance: JSON-able dict: ``mesh_hash``, ``backend``, ``solver``, ``degree``, ``fixed``
             (str or None), ``rigid_mode_count``, ``versions``, ``created`` (UTC ISO 8601), ...
+        rotation_T: optional (3, 3, r, r) [-], ``T[a, b] = Phi_a^T m Phi_b`` over the full mesh
+            (m the scalar mass matrix, Phi_a the component-a rows of the modes), or None.
+        rotation_S: optional (3, 3, r) [sqrt(kg) m], ``S[a, b] = Phi_a^T m X_b`` (X the node
+            positions relative to the centre of mass), or None. Both or neither: together they are
+            the ``RotationCoupling`` of the runtime's ``PseudoForces``.
 
     Raises:
         ModelFileError: a shape, dtype or value is inconsistent (non-finite data, omega not
             positive ascending, mass <= 0, inertia not symmetric positive definite, triangle
-            index out of range, provenance not JSON-serialisable, ...).
+            index out of range, provenance not JSON-serialisable, only one of the rotation
+            tensors or one of the wrong shape, ...).
     """
 
     vertices: np.ndarray
@@ -142,6 +156,8 @@ class ModalModel:
     material: dict
     damping: tuple
     provenance: dict = field(default_factory=dict)
+    rotation_T: np.ndarray | None = None
+    rotation_S: np.ndarray | None = None
 
     SCHEMA_VERSION: ClassVar[int] = 1
 
@@ -202,13 +218,38 @@ class ModalModel:
             provenance = json.loads(json.dumps(self.provenance, sort_keys=True, allow_nan=False))
         except (TypeError, ValueError) as exc:
             raise ModelFileError(f"model provenance must be JSON-serialisable: {exc}") from None
+        rot_T, rot_S = self._check_rotation(self.rotation_T, self.rotation_S, s.shape[1])
         for name, value in (("vertices", v), ("triangles", t), ("shapes", s), ("omega", w),
                             ("center_of_mass", c), ("inertia", inertia)):
             object.__setattr__(self, name, _frozen(value))
+        object.__setattr__(self, "rotation_T", None if rot_T is None else _frozen(rot_T))
+        object.__setattr__(self, "rotation_S", None if rot_S is None else _frozen(rot_S))
         object.__setattr__(self, "mass", mass)
         object.__setattr__(self, "material", material)
         object.__setattr__(self, "damping", (alpha, beta))
         object.__setattr__(self, "provenance", provenance)
+
+    @staticmethod
+    def _check_rotation(T, S, r: int):
+        if T is None and S is None:
+            return None, None
+        if T is None or S is None:
+            raise ModelFileError(f"model has rotation_{'S' if T is None else 'T'} without "
+                                 f"rotation_{'T' if T is None else 'S'}: the rotation coupling needs both or neither")
+        T = _float_array("rotation_T", T, "(3, 3, r, r)")
+        if T.shape != (3, 3, r, r):
+            raise ModelFileError(f"model rotation_T must have shape (3, 3, r, r) = (3, 3, {r}, {r}), got {T.shape}")
+        _finite("rotation_T", T)
+        S = _float_array("rotation_S", S, "(3, 3, r)")
+        if S.shape != (3, 3, r):
+            raise ModelFileError(f"model rotation_S must have shape (3, 3, r) = (3, 3, {r}), got {S.shape}")
+        _finite("rotation_S", S)
+        return T, S
+
+    @property
+    def has_rotation_coupling(self) -> bool:
+        """True when the model carries ``rotation_T`` and ``rotation_S`` (pseudo-forces need no extra data)."""
+        return self.rotation_T is not None
 
     @staticmethod
     def _check_material(material) -> dict:
@@ -254,7 +295,9 @@ class ModalModel:
 
     # ------------------------------------------------------------------ file format
     def _arrays(self) -> dict:
-        return {k: getattr(self, k) for k in _ARRAY_KEYS}
+        out = {k: getattr(self, k) for k in _ARRAY_KEYS}
+        out.update({k: getattr(self, k) for k in _OPTIONAL_KEYS if getattr(self, k) is not None})
+        return out
 
     def _meta(self) -> str:
         meta = {"format": "modalfem.ModalModel", "mass": self.mass, "material": self.material,
@@ -365,14 +408,15 @@ class ModalModel:
         missing = sorted(_FILE_KEYS - set(data))
         if missing:
             raise ModelFileError(f"model file {name} lacks {', '.join(missing)}: incomplete model file")
-        extra = sorted(set(data) - _FILE_KEYS)
+        extra = sorted(set(data) - _FILE_KEYS - set(_OPTIONAL_KEYS))
         if extra:
             raise ModelFileError(f"model file {name} has unexpected entries {', '.join(extra)}")
         for key in ("meta", "checksum"):
             if data[key].shape != () or data[key].dtype.kind != "U":
                 raise ModelFileError(f"model file {name}: {key} must be a text entry")
         meta_text = str(data["meta"])
-        for key in _ARRAY_KEYS:
+        optional = [k for k in _OPTIONAL_KEYS if k in data]
+        for key in _ARRAY_KEYS + tuple(optional):
             want = np.dtype("<i8") if key in _INT_KEYS else np.dtype("<f8")
             if data[key].dtype.newbyteorder("<") != want:
                 raise ModelFileError(f"model file {name}: {key} has dtype {data[key].dtype}, expected {want}")
@@ -384,19 +428,25 @@ class ModalModel:
         except (ValueError, KeyError, TypeError) as exc:
             raise ModelFileError(f"model file {name} has malformed metadata: {_detail(exc)}") from None
         try:
-            return cls(**{k: data[k] for k in _ARRAY_KEYS}, **fields)
+            return cls(**{k: data[k] for k in _ARRAY_KEYS + tuple(optional)}, **fields)
         except ModelFileError as exc:
             raise ModelFileError(f"model file {name}: {exc}") from None
 
     # ------------------------------------------------------------------ offline construction
     @classmethod
-    def from_modes(cls, result, mesh, material, *, damping=(0.0, 1e-6), provenance: dict | None = None
-                   ) -> ModalModel:
+    def from_modes(cls, result, mesh, material, *, damping=(0.0, 1e-6), provenance: dict | None = None,
+                   rotation_coupling: bool = True, mass_matrix=None) -> ModalModel:
         """Build a model from a modal analysis: boundary surface, restricted modes, mass properties.
 
         Only the deformation modes of ``result`` are kept (a free body's rigid modes are handled by
         the runtime's rigid-body state from ``mass``, ``center_of_mass`` and ``inertia``). Clamped
         bodies are stored too; ``provenance["fixed"]`` then describes the held DOFs.
+
+        With ``rotation_coupling`` (default) the rotation-coupling tensors ``rotation_T`` /
+        ``rotation_S`` of the pseudo-forces are computed over the full mesh
+        (``RotationCoupling.from_matrices``) from ``mass_matrix`` or, when it is None, from the
+        mass matrix assembled here with scikit-fem (consistent or lumped as the result was; this
+        imports scipy and scikit-fem). Storing them costs 9 r^2 + 9 r floats.
 
         Args:
             result: ``ModalResult`` of ``modalfem.modes`` on ``mesh`` with ``material``.
@@ -406,12 +456,16 @@ class ModalModel:
             damping: Rayleigh (alpha [1/s], beta [s]); mu_i = alpha + beta omega_i^2.
             provenance: extra JSON-able entries merged over the generated provenance (e.g.
                 ``{"fixed": "x0", "source": {...}}``).
+            rotation_coupling: compute and store ``rotation_T`` and ``rotation_S``.
+            mass_matrix: the mass matrix (3 n, 3 n) [kg] of the analysis in the canonical DOF order
+                (e.g. from ``modalfem.backends.skfem.assemble``), to avoid assembling it again.
 
         Returns:
             The ``ModalModel``.
 
         Raises:
-            InputError: ``result`` does not match ``mesh`` (DOF count or node coordinates).
+            InputError: ``result`` does not match ``mesh`` (DOF count or node coordinates), or
+                ``mass_matrix`` has the wrong size.
             ModelFileError: the assembled model is inconsistent (see the class docstring).
         """
         import datetime
@@ -453,11 +507,14 @@ class ModalModel:
             "created": datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat(),
         }
         prov.update(provenance or {})
+        rot_T = rot_S = None
+        if rotation_coupling:
+            rot_T, rot_S = _rotation_tensors(result, mesh, mat, mp.center_of_mass, mass_matrix)
         return cls(
             vertices=surf.vertices, triangles=surf.triangles, shapes=np.asarray(result.shapes)[rows],
             omega=np.asarray(result.omega), mass=mp.mass, center_of_mass=mp.center_of_mass, inertia=mp.inertia,
             material=mat,
-            damping=tuple(damping), provenance=prov,
+            damping=tuple(damping), provenance=prov, rotation_T=rot_T, rotation_S=rot_S,
         )
 
     def __repr__(self) -> str:
@@ -465,6 +522,25 @@ class ModalModel:
         band = f"{f[0]:.4g}..{f[-1]:.4g} Hz" if len(f) else "no modes"
         return (f"ModalModel({self.vertex_count} surface vertices, {len(self.triangles)} triangles, "
                 f"{self.mode_count} modes {band}, mass {self.mass:.4g} kg, {self.material['name'] or 'custom'})")
+
+
+def _rotation_tensors(result, mesh, mat: dict, center_of_mass, mass_matrix):
+    """``(T, S)`` of ``RotationCoupling.from_matrices`` for a modal result (offline side)."""
+    from modalfem.runtime.effects import RotationCoupling
+
+    n_dof = int(np.asarray(result.shapes).shape[0])
+    M = mass_matrix
+    if M is None:
+        from modalfem.backends.skfem import assemble
+        from modalfem.material import Material
+
+        material = Material(mat["E"], mat["nu"], mat["rho"], mat["name"])
+        _, M = assemble(mesh, material, degree=int(result.degree), lumped=bool(result.info.get("lumped", False)))
+    if getattr(M, "shape", None) != (n_dof, n_dof):
+        raise InputError(f"mass matrix must have shape ({n_dof}, {n_dof}) like the result's DOFs, "
+                         f"got {getattr(M, 'shape', None)}")
+    c = RotationCoupling.from_matrices(result.shapes, M, result.dof_points, center_of_mass)
+    return c.T, c.S
 
 
 def _detail(exc: BaseException) -> str:

@@ -40,10 +40,21 @@ def _tet_model(**changes) -> ModalModel:
     return ModalModel(**kw)
 
 
+def _rotation(r: int = 3, seed: int = 1) -> dict:
+    """Random rotation-coupling tensors of the right shapes for r modes."""
+    rng = np.random.default_rng(seed)
+    return {"rotation_T": rng.standard_normal((3, 3, r, r)), "rotation_S": rng.standard_normal((3, 3, r))}
+
+
 def _same(a: ModalModel, b: ModalModel) -> None:
     for k in ("vertices", "triangles", "shapes", "omega", "center_of_mass", "inertia"):
         x, y = getattr(a, k), getattr(b, k)
         assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), k
+    for k in ("rotation_T", "rotation_S"):
+        x, y = getattr(a, k), getattr(b, k)
+        assert (x is None) == (y is None), k
+        if x is not None:
+            assert x.dtype == y.dtype == np.float64 and x.shape == y.shape and x.tobytes() == y.tobytes(), k
     assert a.mass == b.mass and a.material == b.material and a.damping == b.damping
     assert a.provenance == b.provenance and a.checksum() == b.checksum()
 
@@ -68,6 +79,53 @@ def test_round_trip_is_exact(tmp_path):
     assert os.listdir(tmp_path) == ["m.npz"]  # no temporary files left
     m.save(path)  # overwriting an existing model works and gives identical bytes
     assert ModalModel.load(path).checksum() == m.checksum()
+
+
+def test_round_trip_with_and_without_the_rotation_coupling(tmp_path):
+    plain, rotating = _tet_model(), _tet_model(**_rotation())
+    assert plain.rotation_T is None and plain.rotation_S is None and not plain.has_rotation_coupling
+    assert rotating.has_rotation_coupling and rotating.checksum() != plain.checksum()
+    for name, m in (("plain.npz", plain), ("rotating.npz", rotating)):
+        m.save(tmp_path / name)
+        back = ModalModel.load(tmp_path / name)
+        _same(m, back)
+    assert "rotation_T" not in _entries(tmp_path / "plain.npz")  # absent, as in files written before
+    assert {"rotation_T", "rotation_S"} <= set(_entries(tmp_path / "rotating.npz"))
+    with pytest.raises(ValueError):
+        rotating.rotation_T[0, 0, 0, 0] = 1.0  # read-only like the other arrays
+
+
+def test_a_model_without_rotation_tensors_keeps_the_schema_1_checksum():
+    """Files written before the optional arrays existed must still verify: the hash of a model
+    without them is the original schema-1 hash (re-implemented here from its specification)."""
+    import hashlib
+
+    m = _tet_model()
+    h = hashlib.sha256()
+    h.update(b"modalfem.ModalModel\0")
+    h.update(b"schema=1\0")
+    for key in ("center_of_mass", "inertia", "omega", "shapes", "triangles", "vertices"):
+        a = np.ascontiguousarray(getattr(m, key), dtype="<i8" if key == "triangles" else "<f8")
+        h.update(f"{key}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.tobytes())
+    h.update(b"meta\0")
+    h.update(m._meta().encode("utf-8"))
+    assert m.checksum() == h.hexdigest()
+
+
+@pytest.mark.parametrize(
+    "changes, needle",
+    [
+        ({"rotation_T": np.zeros((3, 3, 3, 3))}, "rotation_T without rotation_S"),
+        ({"rotation_S": np.zeros((3, 3, 3))}, "rotation_S without rotation_T"),
+        (dict(_rotation(), rotation_T=np.zeros((3, 3, 3, 2))), "rotation_T must have shape"),
+        (dict(_rotation(), rotation_S=np.zeros((3, 3, 2))), "rotation_S must have shape"),
+        (dict(_rotation(), rotation_S=np.full((3, 3, 3), np.nan)), "rotation_S holds 27 NaN"),
+    ],
+)
+def test_construction_rejects_inconsistent_rotation_tensors(changes, needle):
+    with pytest.raises(ModelFileError, match=needle):
+        _tet_model(**changes)
 
 
 def test_model_is_frozen_and_read_only():
@@ -211,6 +269,27 @@ def test_wrong_shape_and_dtype_with_a_valid_checksum(saved):
     assert "dtype" in _load_error(saved)
 
 
+def test_damaged_rotation_tensors_in_a_file(tmp_path):
+    path = tmp_path / "rot.npz"
+    _tet_model(**_rotation()).save(path)
+    good = _entries(path)
+    e = dict(good, rotation_T=good["rotation_T"] * (1 + 1e-12))
+    _rewrite(path, e, fix_checksum=False)
+    assert "checksum" in _load_error(path)
+    e = {k: v for k, v in good.items() if k not in ("rotation_T", "rotation_S")}
+    _rewrite(path, e, fix_checksum=False)  # both stripped: the checksum covered them
+    assert "checksum" in _load_error(path)
+    e = {k: v for k, v in good.items() if k != "rotation_S"}
+    _rewrite(path, e, fix_checksum=True)
+    assert "rotation_T without rotation_S" in _load_error(path)
+    e = dict(good, rotation_S=good["rotation_S"][:, :, :2])
+    _rewrite(path, e, fix_checksum=True)
+    assert "rotation_S must have shape" in _load_error(path)
+    e = dict(good, rotation_T=good["rotation_T"].astype(np.float32))
+    _rewrite(path, e, fix_checksum=True)
+    assert "rotation_T has dtype" in _load_error(path)
+
+
 def test_not_an_npz_file(tmp_path):
     text = tmp_path / "notes.npz"
     text.write_text("hello, I am not a model\n")
@@ -289,6 +368,25 @@ def test_from_modes_free_body_keeps_deformation_modes_on_boundary_vertices(free_
     rep = storage_report(res, m)
     assert rep["boundary_bytes"] < rep["full_bytes"] and rep["ratio"] > 1
     assert rep["full_nodes"] == mesh.node_count(2) and rep["boundary_vertices"] == surf.vertex_count
+
+
+def test_from_modes_stores_the_rotation_coupling_of_the_full_mesh(free_box):
+    from modalfem.backends.skfem import assemble
+    from modalfem.runtime import RotationCoupling
+
+    mesh, res = free_box
+    _, M = assemble(mesh, modalfem.ALUMINIUM, degree=2)
+    m = ModalModel.from_modes(res, mesh, modalfem.ALUMINIUM)
+    ref = RotationCoupling.from_matrices(res.shapes, M, res.dof_points, m.center_of_mass)
+    assert m.rotation_T.shape == (3, 3, 4, 4) and m.rotation_S.shape == (3, 3, 4)
+    np.testing.assert_allclose(m.rotation_T, ref.T, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(m.rotation_S, ref.S, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sum(m.rotation_T[a, a] for a in range(3)), np.eye(4), atol=1e-8)  # mass-normalised
+    given = ModalModel.from_modes(res, mesh, modalfem.ALUMINIUM, mass_matrix=M)
+    assert given.rotation_T.tobytes() == m.rotation_T.tobytes()
+    assert ModalModel.from_modes(res, mesh, modalfem.ALUMINIUM, rotation_coupling=False).rotation_T is None
+    with pytest.raises(InputError, match="mass matrix must have shape"):
+        ModalModel.from_modes(res, mesh, modalfem.ALUMINIUM, mass_matrix=M[:-3, :-3])
 
 
 def test_from_modes_clamped_body_records_the_constraint():

@@ -12,7 +12,7 @@ API (stable)::
         rt.Gravity(),                             #   m g at the centre of mass
         # rt.Wind((5.0, 0, 0)),                   #   pressure on windward triangles [m/s]
         rt.Obstacles([rt.Ground(0.0), rt.Sphere((0, 0, 1), 0.2)], restitution=0.3, friction=0.5),
-        # rt.PseudoForces(coupling),              #   Coriolis / centripetal / Euler on the modes
+        # rt.PseudoForces(),                      #   Coriolis / centripetal / Euler on the modes (coupling stored in the model)
     ])
     state = solver.state(position=(0, 0, 1.0), angular_velocity=(0, 0, 2.0))   # State at rest / moving
     control = rt.Control().add_impulse(body.surface_point(12, (0.2, 0.3, 0.5)), (0, 0, -0.5))  # [N s]
@@ -27,7 +27,8 @@ State (``rt.State``): ``q``, ``qdot`` (r,) [sqrt(kg) m, sqrt(kg) m/s]; ``positio
 ``angular_momentum`` (3) [kg m^2/s] world; ``time`` [s]. ``body.angular_velocity(state)`` [rad/s].
 
 Surface points are ``SurfacePoint(triangle, barycentric)`` or a vertex index. Pseudo-forces need
-the volume mass matrix, so their ``RotationCoupling`` is made offline:
+the rotation coupling of the modes, which ``ModalModel.from_modes`` computes and stores in the model
+file (``rotation_T``, ``rotation_S``); ``rt.PseudoForces()`` uses it. For an older file, pass
 ``rt.RotationCoupling.from_matrices(result.shapes, M, result.dof_points, model.center_of_mass)``.
 Mode shapes are stored modes-major, ``body.shapes_t`` (r, 3 nv) (``body.shapes`` is its transpose).
 

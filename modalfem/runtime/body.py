@@ -65,7 +65,8 @@ class ModalBody:
         right-handed); principal_moments (3,) [kg m^2]; shapes_t (r, 3 nv) [m/sqrt(kg)] (``shapes``
         is its (3 nv, r) transpose);
         rest (nv, 3) [m] rest vertices minus the centre of mass; triangles (nt, 3); radius [m]
-        the largest |rest|.
+        the largest |rest|; coupling: the ``RotationCoupling`` from the model's ``rotation_T`` /
+        ``rotation_S`` (used by ``PseudoForces()``), or None when the model has none.
     """
 
     def __init__(self, model, *, damping=None, dtype=np.float64) -> None:
@@ -100,6 +101,12 @@ class ModalBody:
         self._corner_triangle = order // 3
         self._corner_starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         self._every_vertex_used = bool(np.all(counts > 0))
+        rot_T, rot_S = getattr(model, "rotation_T", None), getattr(model, "rotation_S", None)
+        self.coupling = None
+        if rot_T is not None and rot_S is not None:
+            from modalfem.runtime.effects import RotationCoupling
+
+            self.coupling = RotationCoupling(rot_T, rot_S)
 
     @property
     def shapes(self) -> np.ndarray:

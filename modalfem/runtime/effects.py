@@ -14,9 +14,13 @@ centre of mass; the frame's linear acceleration projects to zero on deformation 
 
 with G(w) = Phi^T M [w]x Phi = sum eps_cde w_d T[c, e], C(w) = sum w_c w_e T[c, e],
 s(w') = sum eps_cde w'_d S[c, e], h(w) = sum w_c w_e S[c, e], h0 = sum_c S[c, c], where
-T[a, b] = Phi_a^T M Phi_b (r, r) (Phi_a: component-a rows) and S[a, b] = Phi_a^T M X_b (r,).
-These need the volume mass matrix, so they are computed offline (``RotationCoupling.from_matrices``)
-and handed to ``PseudoForces``. The rigid motion is not affected (one-way coupling).
+T[a, b] = int rho phi_a phi_b dV = Phi_a^T m Phi_b (r, r) and S[a, b] = int rho phi_a X_b dV =
+Phi_a^T m X_b (r,), with Phi_a (n, r) the component-a rows of the modes and m the scalar (per
+component) mass matrix, M = m (x) I3. These need the volume mass matrix, so they are computed
+offline (``RotationCoupling.from_matrices``, which ``ModalModel.from_modes`` calls and stores in
+the model file as ``rotation_T`` / ``rotation_S``). ``PseudoForces()`` uses the body's stored
+coupling; an explicit ``RotationCoupling`` may be given instead. The rigid motion is not affected
+(one-way coupling).
 """
 
 from __future__ import annotations
@@ -100,8 +104,9 @@ class RotationCoupling:
     """Inertial coupling tensors of the modes with the frame rotation (see module docstring).
 
     Attributes:
-        T: (3, 3, r, r) [-], ``T[a, b] = Phi_a^T M Phi_b``; sum_a T[a, a] = I for mass-normalised modes.
-        S: (3, 3, r) [sqrt(kg) m], ``S[a, b] = Phi_a^T M X_b``.
+        T: (3, 3, r, r) [-], ``T[a, b] = Phi_a^T m Phi_b`` (``T[b, a] = T[a, b]^T``);
+            sum_a T[a, a] = I for mass-normalised modes.
+        S: (3, 3, r) [sqrt(kg) m], ``S[a, b] = Phi_a^T m X_b``.
     """
 
     T: np.ndarray
@@ -125,32 +130,45 @@ class RotationCoupling:
     def from_matrices(cls, shapes: np.ndarray, M, points: np.ndarray, center_of_mass) -> RotationCoupling:
         """Compute T and S from full-mesh modes and the mass matrix (offline side; numpy only here).
 
+        The mass matrix of an isotropic density (consistent or lumped) is component-diagonal,
+        M = m (x) I3 in the node-major DOF order: it couples component a of one node only with
+        component a of another. T[a, b] with a != b pairs component a of one mode with component
+        b of another, so it is formed with the scalar block m (read as ``(M @ F)[0::3]`` for a
+        field F whose component 0 carries the values): ``T[a, b] = Phi_a^T m Phi_b``.
+
         Args:
             shapes: mass-normalised deformation modes over all DOFs (3 n, r), node-major
                 (``ModalResult.shapes``).
-            M: mass matrix (3 n, 3 n) [kg], any object supporting ``M @ dense`` (scipy.sparse works).
+            M: mass matrix (3 n, 3 n) [kg], component-diagonal ``m (x) I3``, any object
+                supporting ``M @ dense`` (scipy.sparse works).
             points: DOF points (n, 3) [m] (``ModalResult.dof_points``).
             center_of_mass: (3,) [m].
+
+        Returns:
+            The ``RotationCoupling``.
+
+        Raises:
+            InputError: sizes do not match.
         """
         Phi = np.asarray(shapes, dtype=np.float64)
         n3, r = Phi.shape
-        X = np.asarray(points, dtype=np.float64) - np.asarray(center_of_mass, dtype=np.float64)
+        X = np.asarray(points, dtype=np.float64) - np.asarray(center_of_mass, dtype=np.float64).reshape(1, 3)
+        if n3 % 3 or X.shape != (n3 // 3, 3):
+            raise InputError(f"RotationCoupling.from_matrices needs shapes (3 n, r) and points (n, 3), "
+                             f"got {Phi.shape} and {X.shape}")
+        comps = [Phi[a::3] for a in range(3)]  # (n, r) component-a rows
+        F = np.zeros((n3, r + 3))
         T = np.empty((3, 3, r, r))
         S = np.empty((3, 3, r))
-        comps = []
         for b in range(3):
-            Pb = np.zeros_like(Phi)
-            Pb[b::3] = Phi[b::3]
-            comps.append(Pb)
-        for b in range(3):
-            MPb = np.asarray(M @ comps[b])
+            F[0::3, :r] = comps[b]  # component 0 of the field carries Phi_b (and X_b below)
+            F[0::3, r + b] = X[:, b]
+            mF = np.asarray(M @ F).reshape(n3, r + 3)[0::3]  # m [Phi_b, ..., X_b, ...]
+            F[0::3, r + b] = 0.0
             for a in range(3):
-                T[a, b] = comps[a].T @ MPb
-        for b in range(3):
-            for a in range(3):
-                fa = np.zeros(n3)
-                fa[a::3] = X[:, b]  # field: component a equal to X_b
-                S[a, b] = Phi.T @ np.asarray(M @ fa).reshape(-1)
+                T[a, b] = comps[a].T @ mF[:, :r]
+                S[a, b] = comps[a].T @ mF[:, r + b]
+        T = 0.5 * (T + np.transpose(T, (1, 0, 3, 2)))  # exact symmetry T[b, a] = T[a, b]^T (M symmetric)
         return cls(T, S)
 
 
@@ -158,31 +176,49 @@ class PseudoForces:
     """Coriolis, centripetal/centrifugal and Euler pseudo-forces on the modes in the rotating body frame.
 
     Args:
-        coupling: the body's ``RotationCoupling`` (r modes, same order as the model).
+        coupling: a ``RotationCoupling`` (r modes, same order as the model), or None (default) for
+            the body's own coupling, stored in its model file (``ModalBody.coupling``).
         coriolis: include -2 G(w) q'.
         centripetal: include -(C(w) - |w|^2 I) q and the centrifugal load on the rest shape.
         euler: include the Euler terms from the torque-free angular acceleration w' = -I^-1 (w x I w).
 
     With the body not rotating every term is zero (tested: the trajectory is unchanged).
+
+    Raises:
+        InputError: (at the first step) no coupling given and the body's model has none, or a
+            coupling whose mode count differs from the body's.
     """
 
     state_dependent = True
 
-    def __init__(self, coupling: RotationCoupling, *, coriolis: bool = True, centripetal: bool = True,
-                 euler: bool = True) -> None:
+    def __init__(self, coupling: RotationCoupling | None = None, *, coriolis: bool = True,
+                 centripetal: bool = True, euler: bool = True) -> None:
+        if coupling is not None and not isinstance(coupling, RotationCoupling):
+            raise InputError(f"PseudoForces needs a RotationCoupling or None, got {type(coupling).__name__}")
         self.coupling = coupling
         self.coriolis, self.centripetal, self.euler = bool(coriolis), bool(centripetal), bool(euler)
-        T, S = coupling.T, coupling.S
-        # G_d = sum_{c,e} eps_cde T[c, e] (r, r) for each axis d; s_d likewise (r,)
-        self._G = np.einsum("cde,ceij->dij", _EPS, T)
-        self._s = np.einsum("cde,cei->di", _EPS, S)
-        self._h0 = np.einsum("cci->i", S)
+        self._cache = None  # (coupling, G, s, h0) of the coupling in use
+        if coupling is not None:
+            self._tensors(coupling)
+
+    def _tensors(self, coupling: RotationCoupling):
+        if self._cache is None or self._cache[0] is not coupling:
+            T, S = coupling.T, coupling.S
+            # G_d = sum_{c,e} eps_cde T[c, e] (r, r) for each axis d; s_d likewise (r,)
+            self._cache = (coupling, np.einsum("cde,ceij->dij", _EPS, T), np.einsum("cde,cei->di", _EPS, S),
+                           np.einsum("cci->i", S))
+        return self._cache
 
     def loads(self, solver, state, dt, loads) -> None:
         """Add the pseudo-forces at ``state`` to ``loads.modal``."""
         body = solver.body
-        if self.coupling.mode_count != body.mode_count:
-            raise InputError(f"RotationCoupling has {self.coupling.mode_count} modes, the body {body.mode_count}")
+        coupling = self.coupling if self.coupling is not None else getattr(body, "coupling", None)
+        if coupling is None:
+            raise InputError("PseudoForces() needs the body's rotation coupling, but its model has no rotation_T/"
+                             "rotation_S (rebuild it with ModalModel.from_modes) and no RotationCoupling was given")
+        if coupling.mode_count != body.mode_count:
+            raise InputError(f"RotationCoupling has {coupling.mode_count} modes, the body {body.mode_count}")
+        _, G, s_eps, h0 = self._tensors(coupling)
         R = state.rotation()
         Lb = R.T @ state.angular_momentum
         w = body.inertia_inv @ Lb  # body-frame angular velocity [rad/s]
@@ -190,12 +226,12 @@ class PseudoForces:
             return
         f = loads.modal
         if self.coriolis:
-            f -= 2.0 * np.einsum("d,dij,j->i", w, self._G, state.qdot)
+            f -= 2.0 * np.einsum("d,dij,j->i", w, G, state.qdot)
         if self.centripetal:
             W = np.outer(w, w)
-            f -= np.einsum("ce,ceij,j->i", W, self.coupling.T, state.q) - (w @ w) * state.q
-            f -= np.einsum("ce,cei->i", W, self.coupling.S) - (w @ w) * self._h0
+            f -= np.einsum("ce,ceij,j->i", W, coupling.T, state.q) - (w @ w) * state.q
+            f -= np.einsum("ce,cei->i", W, coupling.S) - (w @ w) * h0
         if self.euler:
             wdot = -body.inertia_inv @ np.cross(w, body.inertia @ w)
             if np.any(wdot):
-                f -= np.einsum("d,dij,j->i", wdot, self._G, state.q) + wdot @ self._s
+                f -= np.einsum("d,dij,j->i", wdot, G, state.q) + wdot @ s_eps
