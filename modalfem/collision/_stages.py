@@ -1,0 +1,285 @@
+"""The body of ``CollisionPipeline.resolve``: stages (a) repulsion, (b) CCD passes, (c) impact zones."""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+from modalfem.collision.ccd import edge_edge_ccd, vertex_face_ccd
+from modalfem.collision.obstacles import Plane
+from modalfem.collision.repulsion import (
+    apply_pair_impulses,
+    contact_frames,
+    repulsion_impulses,
+)
+from modalfem.collision.zones import UnionFind, rigid_zone_velocities
+from modalfem.errors import SimulationError
+
+__all__ = ["PIPELINE_DEPTH", "analytic_hits", "ccd_hits", "resolve"]
+
+#: CCD bisection depth in the pipeline: a near miss within eta + L * 2**-20 counts as a hit (L: the
+#: pair's relative displacement over the step), a conservative answer that costs fewer levels
+PIPELINE_DEPTH = 20
+
+
+def _analytic_contacts(ob, X0, V, dt, t, eta):
+    """Vertex trajectories against a plane or sphere: (hit mask, time of impact in [0, 1])."""
+    if isinstance(ob, Plane):
+        d0 = ob.signed_distance(X0, t)
+        d1 = ob.signed_distance(X0 + dt * V, t + dt)
+        hit = d1 < eta
+        s = np.clip(np.where(d0 > d1, (d0 - eta) / np.where(d0 > d1, d0 - d1, 1.0), 0.0), 0.0, 1.0)
+        return hit, s
+    r0 = X0 - ob.center_at(t)
+    dr = dt * (V - ob.velocity)
+    dd = np.einsum("ki,ki->k", dr, dr)
+    s = np.clip(-np.einsum("ki,ki->k", r0, dr) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
+    near = np.linalg.norm(r0 + s[:, None] * dr, axis=1) < ob.radius + eta
+    end = np.linalg.norm(r0 + dr, axis=1) < ob.radius + eta
+    hit = (near & (s > 0)) | end
+    return hit, np.where(hit, s, np.inf)
+
+
+def analytic_hits(system, X0, V, dt, t, eta, n):
+    """List of (obstacle index, vertex indices, toi) for cloth vertices hitting planes/spheres."""
+    out = []
+    for k, ob in enumerate(system.analytic):
+        hit, s = _analytic_contacts(ob, X0[:n], V[:n], dt, t, eta)
+        ids = np.nonzero(hit)[0]
+        if len(ids):
+            out.append((k, ids, s[ids]))
+    return out
+
+
+def ccd_hits(system, X0, V, dt, cand, invm, eta, roots=None, only=None):
+    """Colliding candidate pairs: [("vf"|"ee", quads (k, 4), toi (k,))], skipping all-kinematic pairs,
+    pairs inside one zone (``roots``) and, if ``only`` ((N,) bool) is given, pairs without a flagged
+    vertex (their trajectories did not change since they were last found collision-free)."""
+    X1 = X0 + dt * V
+    cand = cand.subset(*cand.within(system, X0, X1, eta))
+    out = []
+    for kind, q, fun in (("vf", cand.vf, vertex_face_ccd), ("ee", cand.ee, edge_edge_ccd)):
+        if len(q) == 0:
+            continue
+        keep = (invm[q] > 0).any(axis=1)
+        if only is not None:
+            keep &= only[q].any(axis=1)
+        if roots is not None:
+            r = roots[q]
+            keep &= ~(r == r[:, :1]).all(axis=1)
+        q = q[keep]
+        if len(q) == 0:
+            continue
+        hit, toi = fun(X0[q], X1[q], eta=eta, max_depth=PIPELINE_DEPTH)
+        if hit.any():
+            out.append((kind, q[hit], toi[hit]))
+    return out
+
+
+def _ccd_impulses(system, X0, V, invm, dt, t, hits, ahits, cfg):
+    h, eta = cfg.thickness, cfg.eta
+    quads, ws, ns, tv = [], [], [], []
+    for kind, q, toi in hits:
+        # positions at each pair's time of impact
+        Pq = X0[q] + (dt * np.clip(toi, 0.0, 1.0))[:, None, None] * V[q]
+        Xl = Pq.reshape(-1, 3)
+        ql = np.arange(len(Xl)).reshape(-1, 4)
+        w, n, _ = contact_frames(Xl, ql, kind, X0[q].reshape(-1, 3))
+        d0 = np.einsum("ki,ki->k", np.einsum("kj,kji->ki", w, X0[q]), n)
+        target_end = np.clip(0.5 * d0, 2 * eta, h)
+        quads.append(q)
+        ws.append(w)
+        ns.append(n)
+        tv.append((target_end - d0) / dt)
+    dV = np.zeros_like(V)
+    if quads:
+        dV, _ = apply_pair_impulses(V, invm, np.concatenate(quads), np.concatenate(ws), np.concatenate(ns),
+                                    np.concatenate(tv), friction=0.0)
+    for k, ids, s in ahits:
+        ob = system.analytic[k]
+        s = np.clip(s, 0.0, 1.0)
+        xs = X0[ids] + (dt * s)[:, None] * V[ids]
+        if isinstance(ob, Plane):
+            nrm = ob.normal_at(xs, t)
+        else:
+            r = xs - (ob.center + (t + dt * s)[:, None] * ob.velocity)
+            nrm = r / np.maximum(np.linalg.norm(r, axis=1), 1e-300)[:, None]
+        d0 = ob.signed_distance(X0[ids], t)
+        vn = np.einsum("ki,ki->k", V[ids] - ob.velocity_at(xs, t), nrm)
+        want = (np.clip(0.5 * d0, 2 * eta, h) - d0) / dt
+        dvn = np.maximum(want - vn, 0.0) * (invm[ids] > 0)
+        dV[ids] += dvn[:, None] * nrm
+    return dV
+
+
+def _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n):
+    h, mu = cfg.thickness, cfg.friction
+    dV = np.zeros_like(V)
+    count = 0
+    for ob in system.analytic:
+        d = ob.signed_distance(X0[:n], t)
+        ids = np.nonzero((d < h) & (invm[:n] > 0))[0]
+        if not len(ids):
+            continue
+        count += len(ids)
+        nrm = ob.normal_at(X0[ids], t)
+        vr = V[ids] - ob.velocity_at(X0[ids], t)
+        vn = np.einsum("ki,ki->k", vr, nrm)
+        dvn = np.maximum(0.1 * (h - d[ids]) / dt - vn, 0.0)
+        vt = vr - vn[:, None] * nrm
+        tn = np.linalg.norm(vt, axis=1)
+        kf = np.minimum(mu * dvn / np.where(tn > 0, tn, 1.0), 1.0)
+        dV[ids] += dvn[:, None] * nrm - kf[:, None] * vt
+    return dV, count
+
+
+def resolve(system, cfg, x0, v, masses, dt, t):
+    """Run stages (a)-(c); see ``CollisionPipeline.resolve``."""
+    from modalfem.collision.pipeline import CollisionStats
+
+    tic = time.perf_counter()
+    stats = CollisionStats()
+    sec = {"broad_phase": 0.0, "repulsion": 0.0, "ccd": 0.0, "impact_zones": 0.0}
+    n = system.n_cloth
+    Xo0 = system.obstacle_positions(t)
+    Xo1 = system.obstacle_positions(t + dt)
+    X0 = np.concatenate([x0, Xo0])
+    V = np.concatenate([v, (Xo1 - Xo0) / dt])
+    invm = np.concatenate([1.0 / masses, np.zeros(len(Xo0))])
+    eta = cfg.eta
+    slack = eta  # spare box margin [m] before a vertex counts as dirty
+    cache = {"cand": None, "V": None}
+
+    def tally(c, measured):
+        stats.pair_tests += c.tests
+        if measured:
+            stats.pair_tests_unculled = (stats.pair_tests_unculled or 0) + c.tests_unculled
+        stats.candidates_vf += len(c.vf)
+        stats.candidates_ee += len(c.ee)
+
+    def static_candidates():
+        """Pairs whose boxes at X0 come within the thickness (for repulsions)."""
+        t0 = time.perf_counter()
+        measured = cfg.measure_culling or not cfg.culling
+        c = system.candidates(X0, X0, margin=0.5 * cfg.thickness, self_collision=cfg.self_collision,
+                              culling=cfg.culling, count_unculled=cfg.measure_culling)
+        tally(c, measured)
+        sec["broad_phase"] += time.perf_counter() - t0
+        return c
+
+    def candidates():
+        """Pairs whose swept boxes come within eta, valid for the current V.
+
+        Boxes are grown by ``eta / 2 + 2 * slack``; a vertex whose velocity moved by more than ``slack /
+        dt`` from its reference (the velocity its pairs were found with) is dirty, and only the pairs
+        holding a dirty vertex are searched again (a restricted traversal); the others stay valid."""
+        t0 = time.perf_counter()
+        margin = 0.5 * eta + 2 * slack
+        if cache["cand"] is None:
+            measured = cfg.measure_culling or not cfg.culling
+            c = system.candidates(X0, X0 + dt * V, margin=margin, self_collision=cfg.self_collision,
+                                  culling=cfg.culling, count_unculled=cfg.measure_culling)
+            tally(c, measured)
+            cache["cand"], cache["V"] = c, V.copy()
+        else:
+            dirty = dt * np.abs(V - cache["V"]).max(axis=1) > slack
+            if dirty.any():
+                old = cache["cand"]
+                keep_v, keep_e = ~dirty[old.vf].any(axis=1), ~dirty[old.ee].any(axis=1)
+                new = system.candidates(X0, X0 + dt * V, margin=margin, self_collision=cfg.self_collision,
+                                        culling=cfg.culling, dirty=dirty)
+                cache["cand"] = old.subset(keep_v, keep_e).merged(new)
+                cache["V"][dirty] = V[dirty]
+        sec["broad_phase"] += time.perf_counter() - t0
+        return cache["cand"]
+
+    if cfg.repulsion:
+        cand = static_candidates()
+        t0 = time.perf_counter()
+        near = cand.subset(*cand.within(system, X0, X0, cfg.thickness))
+        dV, count = repulsion_impulses(X0, V, invm, near.vf, near.ee, thickness=cfg.thickness, dt=dt,
+                                       friction=cfg.friction)
+        dA, acount = _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n)
+        V = V + dV + dA
+        stats.proximities = count + acount
+        sec["repulsion"] += time.perf_counter() - t0
+    remaining = None
+    only = None
+    if cfg.ccd:
+        only = None  # pass 1 tests every pair; later passes only pairs with a vertex changed since
+        for _ in range(int(cfg.ccd_passes)):
+            cand = candidates()
+            t0 = time.perf_counter()
+            hits = ccd_hits(system, X0, V, dt, cand, invm, eta, only=only)
+            ahits = analytic_hits(system, X0, V, dt, t, eta, n)
+            nh = sum(len(h[1]) for h in hits) + sum(len(a[1]) for a in ahits)
+            stats.ccd_hits.append(nh)
+            if nh:
+                # invariant: a pair without a vertex in `only` was found collision-free on its current
+                # trajectory; changed vertices and vertices of hit pairs are retested
+                dV = _ccd_impulses(system, X0, V, invm, dt, t, hits, ahits, cfg)
+                only = (dV != 0).any(axis=1)
+                for _, q, _ in hits:
+                    only[q.ravel()] = True
+                for _, ids, _ in ahits:
+                    only[ids] = True
+                V = V + dV
+            sec["ccd"] += time.perf_counter() - t0
+            if nh == 0:
+                remaining = 0
+                break
+    if cfg.impact_zones and remaining != 0:
+        t0 = time.perf_counter()
+        bp0 = sec["broad_phase"]
+        uf = UnionFind(len(X0) + len(system.analytic))
+        inconsistent = np.zeros(0, dtype=np.int64)
+        # first iteration: pairs flagged by the CCD passes (all if none ran); then pairs touching the
+        # zones just recomputed
+        only = only if cfg.ccd else None
+        for it in range(int(cfg.max_zone_iterations) + 1):
+            roots = uf.roots()
+            skip = roots.copy()
+            if len(inconsistent):
+                bad = np.isin(roots, inconsistent)
+                skip[bad] = -1 - np.arange(len(roots))[bad]
+            cand = candidates()
+            hits = ccd_hits(system, X0, V, dt, cand, invm, eta, roots=skip, only=only)
+            ahits = [(k, ids[skip[ids] != skip[len(X0) + k]], s[skip[ids] != skip[len(X0) + k]])
+                     for k, ids, s in analytic_hits(system, X0, V, dt, t, eta, n)]
+            remaining = sum(len(h[1]) for h in hits) + sum(len(a[1]) for a in ahits)
+            if remaining == 0 or it == cfg.max_zone_iterations:
+                break
+            for _, q, _ in hits:
+                for j in range(1, 4):
+                    uf.union(q[:, 0], q[:, j])
+            for k, ids, _ in ahits:
+                uf.union(ids, np.full(len(ids), len(X0) + k))
+            roots = uf.roots()
+            hit_nodes = np.concatenate([q.ravel() for _, q, _ in hits] + [a[1] for a in ahits]
+                                       + [np.array([len(X0) + a[0]]) for a in ahits])
+            V_old = V
+            V, inconsistent = rigid_zone_velocities(X0, V, invm, roots, system.analytic, t)
+            only = np.isin(roots[: len(X0)], roots[hit_nodes]) | (V != V_old).any(axis=1)
+        stats.zone_iterations = it
+        roots = uf.roots()
+        sizes = np.bincount(roots[:n], minlength=len(roots))
+        stats.zone_sizes = sorted((int(s) for s in sizes[sizes > 1]), reverse=True)
+        sec["impact_zones"] += time.perf_counter() - t0 - (sec["broad_phase"] - bp0)
+    elif remaining is None:
+        cand = candidates()
+        remaining = sum(len(h[1]) for h in ccd_hits(system, X0, V, dt, cand, invm, eta)) + sum(
+            len(a[1]) for a in analytic_hits(system, X0, V, dt, t, eta, n))
+    stats.unresolved = int(remaining)
+    if stats.unresolved and cfg.impact_zones:
+        warnings.warn(f"collision pipeline left {stats.unresolved} colliding pairs (impact zones did not converge)",
+                      stacklevel=3)
+    v_new = V[:n]
+    v_new[masses == np.inf] = v[masses == np.inf]
+    if not np.isfinite(v_new).all():
+        raise SimulationError("collision response produced non-finite velocities")
+    stats.touched = np.any(v_new != v, axis=1)
+    sec["total"] = time.perf_counter() - tic
+    stats.seconds = sec
+    return v_new, stats

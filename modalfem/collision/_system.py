@@ -1,0 +1,213 @@
+"""The cloth and its mesh obstacles as one system of vertices, edges and triangles; candidate pairs.
+
+Vertices ``0..n-1`` are the cloth's, then the obstacle meshes' (kinematic: infinite mass). Triangles
+and edges are numbered likewise. Candidates are point-triangle (``vf``: p, a, b, c) and edge-edge
+(``ee``: a0, a1, b0, b1) vertex quadruples from BVH triangle pairs, without pairs sharing a vertex.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from modalfem.collision.bvh import BroadPhaseBVH
+from modalfem.collision.obstacles import Plane, Sphere, TriangleMeshObstacle
+from modalfem.collision.tritri import intersecting_pairs
+from modalfem.errors import InputError
+
+__all__ = ["Candidates", "System", "check_triangles", "count_intersections", "edges_of"]
+
+
+
+def check_triangles(triangles) -> np.ndarray:
+    tri = np.asarray(triangles)
+    if tri.ndim != 2 or tri.shape[1] != 3 or len(tri) == 0 or not np.issubdtype(tri.dtype, np.integer):
+        raise InputError(f"cloth triangles must be a non-empty (m, 3) integer array, got shape {tri.shape}")
+    if tri.min() < 0:
+        raise InputError("cloth triangles contain negative vertex indices")
+    if (tri[:, 0] == tri[:, 1]).any() or (tri[:, 1] == tri[:, 2]).any() or (tri[:, 0] == tri[:, 2]).any():
+        raise InputError("cloth triangles must have three distinct vertices")
+    return tri.astype(np.int64)
+
+
+def edges_of(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique edges (e, 2) sorted, and the (m, 3) edge index of each triangle side (v0v1, v1v2, v2v0)."""
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    e.sort(axis=1)
+    edges, inv = np.unique(e, axis=0, return_inverse=True)
+    return edges, inv.reshape(3, -1).T
+
+
+@dataclass
+class Candidates:
+    """Candidate primitive pairs: vertex quadruples and the triangle-pair test counts."""
+
+    vf: np.ndarray
+    ee: np.ndarray
+    tests: int
+    tests_unculled: int
+    vf_ids: np.ndarray
+    ee_ids: np.ndarray
+
+    def within(self, system: System, X0: np.ndarray, X1: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
+        """Masks of ``vf`` and ``ee`` pairs whose primitives' trajectory boxes come within ``margin`` [m]."""
+        vlo, vhi = np.minimum(X0, X1), np.maximum(X0, X1)
+        flo, fhi = vlo[system.tris].min(axis=1), vhi[system.tris].max(axis=1)
+        elo, ehi = vlo[system.edges].min(axis=1), vhi[system.edges].max(axis=1)
+        v, f = self.vf_ids[:, 0], self.vf_ids[:, 1]
+        mv = ((vlo[v] <= fhi[f] + margin) & (flo[f] <= vhi[v] + margin)).all(axis=1)
+        a, b = self.ee_ids[:, 0], self.ee_ids[:, 1]
+        me = ((elo[a] <= ehi[b] + margin) & (elo[b] <= ehi[a] + margin)).all(axis=1)
+        return mv, me
+
+    def merged(self, other: Candidates) -> Candidates:
+        """Both candidate sets (assumed disjoint)."""
+        return Candidates(
+            np.concatenate([self.vf, other.vf]), np.concatenate([self.ee, other.ee]), self.tests + other.tests,
+            self.tests_unculled + other.tests_unculled, np.concatenate([self.vf_ids, other.vf_ids]),
+            np.concatenate([self.ee_ids, other.ee_ids]),
+        )
+
+    def subset(self, mv: np.ndarray, me: np.ndarray) -> Candidates:
+        """The candidates selected by the masks."""
+        return Candidates(self.vf[mv], self.ee[me], self.tests, self.tests_unculled, self.vf_ids[mv], self.ee_ids[me])
+
+
+class System:
+    """Cloth triangles plus obstacle meshes, their edges and BVHs."""
+
+    def __init__(self, triangles: np.ndarray, obstacles, n_cloth: int | None = None) -> None:
+        self.n_cloth = int(triangles.max()) + 1 if n_cloth is None else int(n_cloth)
+        if self.n_cloth <= int(triangles.max()):
+            raise InputError(f"cloth triangles index vertex {int(triangles.max())} but n_vertices is {self.n_cloth}")
+        self.m_cloth = len(triangles)
+        self.meshes = [o for o in obstacles if isinstance(o, TriangleMeshObstacle)]
+        self.analytic = [o for o in obstacles if isinstance(o, (Plane, Sphere))]
+        bad = [type(o).__name__ for o in obstacles if not isinstance(o, (Plane, Sphere, TriangleMeshObstacle))]
+        if bad:
+            raise InputError(f"unknown obstacle type(s): {', '.join(bad)}")
+        tris = [triangles]
+        offset = self.n_cloth
+        for mo in self.meshes:
+            tris.append(mo.triangles + offset)
+            offset += len(mo.vertices)
+        self.n_total = offset
+        self.tris = np.concatenate(tris)
+        self.edges, self.tri_edges = edges_of(self.tris)
+        # each vertex and edge is owned by one of its triangles: a primitive pair is generated only by
+        # the triangle pair of its owners, so it comes out once (no deduplication) and its boxes
+        # (inside the owners' boxes) cannot be missed
+        self.owned_verts = self._owned(self.tris, self.n_total)
+        self.owned_edges = self._owned(self.tri_edges, len(self.edges))
+        self.cloth_bvh: BroadPhaseBVH | None = None
+        self.obstacle_bvh: BroadPhaseBVH | None = None
+        if self.meshes:
+            ref = np.concatenate([np.zeros((self.n_cloth, 3))] + [mo.positions(mo.t_start) for mo in self.meshes])
+            self.obstacle_bvh = BroadPhaseBVH(self.tris[self.m_cloth:], ref)
+
+    @staticmethod
+    def _owned(items: np.ndarray, count: int) -> np.ndarray:
+        """(F, 3) items owned by each triangle (first triangle listing them), -1 padded."""
+        F = len(items)
+        owner = np.full(count, F)
+        np.minimum.at(owner, items.ravel(), np.repeat(np.arange(F), 3))
+        mine = owner[items] == np.arange(F)[:, None]
+        return np.where(mine, items, -1)
+
+    def build_cloth_bvh(self, x_ref: np.ndarray) -> None:
+        """Build the cloth's BVH grouping triangles by ``x_ref`` (n_cloth, 3) [m]."""
+        self.cloth_bvh = BroadPhaseBVH(self.tris[: self.m_cloth], x_ref)
+
+    def obstacle_positions(self, t: float) -> np.ndarray:
+        """(n_total - n_cloth, 3) obstacle mesh vertex positions [m] at time ``t`` [s]."""
+        if not self.meshes:
+            return np.zeros((0, 3))
+        return np.concatenate([mo.positions(t) for mo in self.meshes])
+
+    def candidates(
+        self, X0: np.ndarray, X1: np.ndarray, *, margin: float, self_collision: bool, culling: bool,
+        count_unculled: bool = False, dirty: np.ndarray | None = None, static_margin: float | None = None,
+    ) -> Candidates:
+        """Candidate pairs for trajectories ``X0 -> X1`` ((n_total, 3) [m]), boxes grown by ``margin`` [m]
+        (and covering the primitives at ``X0`` grown by ``static_margin`` [m] if given).
+
+        With ``dirty`` ((n_total,) bool), only the pairs holding at least one flagged vertex."""
+        dtri = None if dirty is None else dirty[self.tris].any(axis=1)
+        n = self.n_cloth
+        if self.cloth_bvh is None:
+            self.build_cloth_bvh(X0[:n])
+        self.cloth_bvh.refit(X0, X1, margin=margin, static_margin=static_margin)
+        parts, tests, unculled = [], 0, 0
+        if self_collision:
+            pairs, tests = self.cloth_bvh.self_pairs(culling=culling, dirty=None if dtri is None else dtri[: self.m_cloth])
+            parts.append(pairs)
+            unculled = tests
+            if count_unculled and culling:
+                unculled = self.cloth_bvh.self_pairs(culling=False)[1]
+        if self.obstacle_bvh is not None:
+            self.obstacle_bvh.refit(X0, X1, margin=margin, static_margin=static_margin)
+            pairs, t2 = self.cloth_bvh.cross_pairs(self.obstacle_bvh, dirty=None if dtri is None else dtri[: self.m_cloth])
+            parts.append(pairs + np.array([0, self.m_cloth]))
+            tests += t2
+            unculled += t2
+        tp = np.concatenate(parts) if parts else np.zeros((0, 2), dtype=np.int64)
+        vlo = np.minimum(X0, X1) - margin
+        vhi = np.maximum(X0, X1) + margin
+        if static_margin is not None:
+            vlo = np.minimum(vlo, X0 - static_margin)
+            vhi = np.maximum(vhi, X0 + static_margin)
+        vf, ee, vf_ids, ee_ids = self._primitive_pairs(tp, vlo, vhi, dirty)
+        return Candidates(vf, ee, tests, unculled, vf_ids, ee_ids)
+
+    def _primitive_pairs(self, tp: np.ndarray, vlo: np.ndarray, vhi: np.ndarray, dirty=None) -> tuple:
+        """Point-triangle and edge-edge pairs of triangle pairs ``tp`` whose boxes overlap (vertex boxes
+        ``vlo``/``vhi`` (N, 3) [m] already grown by the margin), without pairs sharing a vertex; with
+        ``dirty`` ((N,) bool) only pairs holding a flagged vertex."""
+        tris = self.tris
+        if len(tp) == 0:
+            z4, z2 = np.zeros((0, 4), dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
+            return z4, z4, z2, z2
+        flo, fhi = vlo[tris].min(axis=1).T.copy(), vhi[tris].max(axis=1).T.copy()
+        elo, ehi = vlo[self.edges].min(axis=1).T.copy(), vhi[self.edges].max(axis=1).T.copy()
+        A, B = tp[:, 0], tp[:, 1]
+        # vertex-face: vertices owned by one triangle against the other triangle
+        v = np.concatenate([self.owned_verts[A].ravel(), self.owned_verts[B].ravel()])
+        f = np.concatenate([np.repeat(B, 3), np.repeat(A, 3)])
+        ok = v >= 0
+        if dirty is not None:
+            ok &= dirty[np.maximum(v, 0)] | dirty[tris].any(axis=1)[f]
+        v, f = _overlapping(vlo.T.copy(), vhi.T.copy(), v[ok], flo, fhi, f[ok])
+        ok = (tris[f] != v[:, None]).all(axis=1)
+        v, f = v[ok], f[ok]
+        vf = np.concatenate([v[:, None], tris[f]], axis=1)
+        # edge-edge: edges owned by one triangle against those owned by the other
+        ea = np.repeat(self.owned_edges[A], 3, axis=1).ravel()
+        eb = np.tile(self.owned_edges[B], (1, 3)).ravel()
+        ok = (ea >= 0) & (eb >= 0)
+        if dirty is not None:
+            de = dirty[self.edges].any(axis=1)
+            ok &= de[np.maximum(ea, 0)] | de[np.maximum(eb, 0)]
+        ea, eb = _overlapping(elo, ehi, ea[ok], elo, ehi, eb[ok])
+        quad = np.concatenate([self.edges[ea], self.edges[eb]], axis=1)
+        ok = (quad[:, :2, None] != quad[:, None, 2:]).all(axis=(1, 2))
+        return vf, quad[ok], np.stack([v, f], axis=1), np.stack([ea[ok], eb[ok]], axis=1)
+
+
+def _overlapping(lo1, hi1, i, lo2, hi2, j):
+    """Index pairs whose boxes overlap; boxes given per axis as (3, count) arrays."""
+    for ax in range(3):
+        ok = (lo1[ax][i] <= hi2[ax][j]) & (lo2[ax][j] <= hi1[ax][i])
+        i, j = i[ok], j[ok]
+    return i, j
+
+def count_intersections(system: System, x: np.ndarray, t: float, self_collision: bool) -> int:
+    """Intersecting pairs at ``x`` (n_cloth, 3) [m]: triangle pairs (independent test) + vertices inside
+    planes/spheres."""
+    tri = system.tris[: system.m_cloth]
+    count = len(intersecting_pairs(x, tri)) if self_collision else 0
+    for mo in system.meshes:
+        count += len(intersecting_pairs(x, tri, other_points=mo.positions(t), other_triangles=mo.triangles))
+    for ob in system.analytic:
+        count += int((ob.signed_distance(x, t) < 0).sum())
+    return count

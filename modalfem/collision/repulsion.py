@@ -1,0 +1,144 @@
+"""Contact frames and impulses for primitive pairs; stage (a): repulsions with Coulomb friction.
+
+A pair is four vertices with weights ``w`` such that ``sum_i w_i x_i`` is the separation vector from
+the second primitive's closest point to the first's (point-triangle: ``w = (1, -b0, -b1, -b2)``;
+edge-edge: ``w = (1 - s, s, -(1 - t), -t)``). A change ``dvn`` [m/s] of the relative normal velocity
+needs the impulse ``j = dvn / sum_i w_i**2 / m_i`` and moves vertex i by ``w_i j / m_i`` along the
+normal (pinned and obstacle vertices have ``1 / m = 0`` and do not move). The changes of many pairs
+are summed per vertex and divided by the sum of that vertex's weights |w_i| over those pairs (when
+above 1): k identical contacts give one push, not k, while an edge pair in which the vertex has a
+small weight dilutes the others only by that weight.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from modalfem.collision.distance import cross, edge_edge, point_triangle
+
+__all__ = ["apply_pair_impulses", "contact_frames", "repulsion_impulses"]
+
+
+def contact_frames(X: np.ndarray, quads: np.ndarray, kind: str, Xref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weights, unit normals and distances of primitive pairs at positions ``X``.
+
+    Args:
+        X: (N, 3) positions [m] at which the closest points are taken.
+        quads: (k, 4) vertex indices (``vf``: p, a, b, c; ``ee``: a0, a1, b0, b1).
+        kind: ``"vf"`` or ``"ee"``.
+        Xref: (N, 3) positions [m] (step start) that orient the normal when the primitives touch.
+
+    Returns:
+        ``(w, n, d)``: (k, 4) weights, (k, 3) unit normals from the second primitive to the first, (k,)
+        distances [m].
+    """
+    P = X[quads]
+    if kind == "vf":
+        d, b = point_triangle(P[:, 0], P[:, 1], P[:, 2], P[:, 3])
+        w = np.concatenate([np.ones((len(d), 1)), -b], axis=1)
+        geo = cross(P[:, 2] - P[:, 1], P[:, 3] - P[:, 1])
+    else:
+        d, s, t = edge_edge(P[:, 0], P[:, 1], P[:, 2], P[:, 3])
+        w = np.stack([1 - s, s, -(1 - t), -t], axis=1)
+        geo = cross(P[:, 1] - P[:, 0], P[:, 3] - P[:, 2])
+    sep = np.einsum("kj,kji->ki", w, P)
+    sep_ref = np.einsum("kj,kji->ki", w, Xref[quads])
+    scale = np.abs(P).max(axis=(1, 2)) + 1e-300
+    small = d <= 1e-9 * scale
+    # touching: the geometric normal, oriented by the side the first primitive started on
+    sgn = np.where(np.einsum("ki,ki->k", geo, sep_ref) < 0, -1.0, 1.0)
+    gn = np.linalg.norm(geo, axis=1)
+    fallback = sgn[:, None] * geo / np.where(gn > 0, gn, 1.0)[:, None]
+    n = np.where(small[:, None], fallback, sep / np.where(d > 0, d, 1.0)[:, None])
+    return w, n, d
+
+
+def apply_pair_impulses(
+    V: np.ndarray,
+    invm: np.ndarray,
+    quads: np.ndarray,
+    w: np.ndarray,
+    n: np.ndarray,
+    target_vn: np.ndarray,
+    *,
+    friction: float = 0.0,
+) -> tuple[np.ndarray, int]:
+    """Raise the relative normal velocity of pairs to at least ``target_vn``, with Coulomb friction.
+
+    Args:
+        V: (N, 3) velocities [m/s] (not modified).
+        invm: (N,) inverse masses [1/kg] (0: kinematic).
+        quads, w, n: pairs, weights and unit normals as from :func:`contact_frames`.
+        target_vn: (k,) wanted relative normal velocity [m/s].
+        friction: Coulomb coefficient [-]: the tangential relative velocity drops by at most
+            ``friction`` times the normal change.
+
+    Returns:
+        ``(dV, active)``: (N, 3) velocity change [m/s] (weight-averaged per vertex), number of pairs that
+        acted.
+    """
+    vr = np.einsum("kj,kji->ki", w, V[quads])
+    vn = np.einsum("ki,ki->k", vr, n)
+    dvn = np.maximum(target_vn - vn, 0.0)
+    im = invm[quads]
+    den = np.einsum("kj,kj->k", w * w, im)
+    act = (dvn > 0) & (den > 0)
+    dV = np.zeros_like(V)
+    if not act.any():
+        return dV, 0
+    q, w, n, im, den, dvn, vr, vn = (a[act] for a in (quads, w, n, im, den, dvn, vr, vn))
+    dv_rel = dvn[:, None] * n
+    if friction > 0:
+        vt = vr - vn[:, None] * n
+        tn = np.linalg.norm(vt, axis=1)
+        k = np.minimum(friction * dvn / np.where(tn > 0, tn, 1.0), 1.0)
+        dv_rel = dv_rel - k[:, None] * vt
+    per = (w * im / den[:, None])[:, :, None] * dv_rel[:, None, :]
+    cnt = np.zeros(len(V))
+    for j in range(4):
+        np.add.at(dV, q[:, j], per[:, j])
+        np.add.at(cnt, q[:, j], np.abs(w[:, j]) * (im[:, j] > 0))
+    dV /= np.maximum(cnt, 1.0)[:, None]
+    return dV, int(act.sum())
+
+
+def repulsion_impulses(
+    X0: np.ndarray,
+    V: np.ndarray,
+    invm: np.ndarray,
+    vf: np.ndarray,
+    ee: np.ndarray,
+    *,
+    thickness: float,
+    dt: float,
+    friction: float,
+) -> tuple[np.ndarray, int]:
+    """Stage (a): pairs closer than ``thickness`` at ``X0`` stop approaching and are pushed apart.
+
+    The relative normal velocity of a pair at distance ``d < h`` is raised to ``0.1 (h - d) / dt``
+    (an inelastic impulse plus a soft repulsion that restores a tenth of the missing thickness per
+    step), with Coulomb friction on the tangential velocity.
+
+    Args:
+        X0: (N, 3) positions [m]; V: (N, 3) velocities [m/s]; invm: (N,) inverse masses [1/kg].
+        vf, ee: (k, 4) candidate point-triangle and edge-edge pairs.
+        thickness: ``h`` [m]; dt: step [s]; friction: Coulomb coefficient [-].
+
+    Returns:
+        ``(dV, count)``: (N, 3) velocity change [m/s] and the number of proximities (d < h).
+    """
+    quads, ws, ns, ts = [], [], [], []
+    for kind, q in (("vf", vf), ("ee", ee)):
+        if len(q) == 0:
+            continue
+        w, n, d = contact_frames(X0, q, kind, X0)
+        close = d < thickness
+        quads.append(q[close])
+        ws.append(w[close])
+        ns.append(n[close])
+        ts.append(0.1 * (thickness - d[close]) / dt)
+    if not quads or sum(len(q) for q in quads) == 0:
+        return np.zeros_like(V), 0
+    quads, w, n, tv = (np.concatenate(a) for a in (quads, ws, ns, ts))
+    dV, _ = apply_pair_impulses(V, invm, quads, w, n, tv, friction=friction)
+    return dV, len(quads)

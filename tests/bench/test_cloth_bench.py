@@ -1,0 +1,30 @@
+"""Smoke test of ``modalfem bench cloth --quick``: runs tiny cases and writes a well-formed section."""
+
+from __future__ import annotations
+
+from modalfem.bench import cloth_bench
+
+
+def test_quick_bench_writes_its_section(tmp_path):
+    out = tmp_path / "B.md"
+    out.write_text("# Benchmarks\n\n## Other\n\nkeep\n")
+    assert cloth_bench.command(["--quick", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "keep" in text and text.count(cloth_bench.SECTION) == 1
+    rows = [ln for ln in text.splitlines() if ln.startswith("| drape") or ln.startswith("| pile")]
+    assert len(rows) == 2
+    for ln in rows:
+        cells = [c.strip() for c in ln.strip("|").split("|")]
+        assert float(cells[3]) > 0  # ms/step
+        assert cells[-1] == "0"  # intersections
+    assert "Jacobi-CG" in text
+
+
+def test_render_marks_failed_cases():
+    text = cloth_bench.render([{"case": "pile", "n": 64, "error": "boom"}], [], command="c", date="d", machine="m",
+                              versions="v")
+    assert "boom" in text and cloth_bench.SECTION in text
+    lines = text.splitlines()
+    head = next(ln for ln in lines if ln.startswith("| scene"))
+    row = next(ln for ln in lines if ln.startswith("| pile"))
+    assert row.count("|") == head.count("|")

@@ -1,0 +1,136 @@
+"""Implicit backward Euler: free fall, momentum, dissipation, handles, statics, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modalfem.cloth.mesh import grid
+from modalfem.cloth.model import COTTON, ClothMaterial, ClothModel, Handle
+from modalfem.cloth.scene import ClothScene
+from modalfem.cloth.solver import ImplicitEuler, pcg_jacobi
+from modalfem.errors import InputError, MaterialError, SimulationError
+
+MESH = grid((0.4, 0.4), (6, 6))
+SOFT = ClothMaterial(areal_density=0.2, young=2e5, poisson=0.3, thickness=5e-4, bending_stiffness=1e-5)
+
+
+def test_free_fall_is_exact():
+    scene = ClothScene(ClothModel(MESH, COTTON), gravity=(0, 0, -9.81))
+    dt, n = 0.02, 10
+    for _ in range(n):
+        scene.step(dt)
+    assert np.allclose(scene.v, [0, 0, -9.81 * n * dt], atol=1e-9)
+    # backward Euler positions: x_k = x_0 + dt^2 g k (k + 1) / 2
+    assert np.allclose(scene.x - MESH.points, [0, 0, -9.81 * dt * dt * n * (n + 1) / 2], atol=1e-9)
+
+
+@pytest.mark.parametrize("linear_solver", ["splu", "cg"])
+def test_linear_momentum_is_conserved_and_energy_decays(linear_solver):
+    rng = np.random.default_rng(0)
+    x0 = MESH.points * np.array([1.2, 0.9, 1.0]) + 0.01 * rng.standard_normal(MESH.points.shape)
+    v0 = 0.3 * rng.standard_normal(x0.shape)
+    model = ClothModel(MESH, SOFT)
+    scene = ClothScene(model, x0=x0, v0=v0, linear_solver=linear_solver)
+    scene.solver.cg_rtol = 1e-10
+    p0 = model.masses @ v0
+    e = [scene.energy()["total"]]
+    for _ in range(20):
+        scene.step(0.01)
+        e.append(scene.energy()["total"])
+    assert np.allclose(model.masses @ scene.v, p0, atol=1e-9 * np.abs(p0).max())
+    assert e[-1] < 0.5 * e[0] and max(e) <= e[0] * (1 + 1e-9)
+
+
+def test_cg_and_splu_agree_and_cg_reports_iterations():
+    model = ClothModel(MESH, SOFT, handles=(Handle.pin(MESH.points, [0, 5]),))
+    x = MESH.points + 0.02 * np.random.default_rng(1).standard_normal(MESH.points.shape)
+    f = np.tile([0.0, 0.0, -0.1], (MESH.point_count, 1))
+    vs = []
+    for ls in ("splu", "cg"):
+        s = ImplicitEuler(model, linear_solver=ls, cg_rtol=1e-12)
+        v, info = s.step_velocity(x, np.zeros_like(x), f, 0.01, fixed=[0, 5], fixed_velocity=np.zeros((2, 3)))
+        vs.append(v)
+        assert (info.iterations > 0) == (ls == "cg")
+    assert np.allclose(vs[0], vs[1], atol=1e-9 * np.abs(vs[0]).max())
+    assert np.allclose(vs[0][[0, 5]], 0.0)
+    with pytest.raises(InputError, match="linear_solver"):
+        ImplicitEuler(model, linear_solver="amg")
+
+
+def test_pcg_solves_an_spd_system():
+    import scipy.sparse as sp
+
+    A = sp.diags([-1.0, 2.5, -1.0], [-1, 0, 1], shape=(50, 50)).tocsr()
+    b = np.arange(50.0)
+    x, it = pcg_jacobi(A, b, rtol=1e-12)
+    assert np.allclose(A @ x, b) and 0 < it <= 50
+
+
+def test_hanging_cloth_pins_carry_its_weight():
+    m = grid((0.3, 0.3), (6, 6), plane="xz")
+    top = np.flatnonzero(np.isclose(m.points[:, 2], 0.3))
+    model = ClothModel(m, SOFT, handles=(Handle.pin(m.points, top),), mass_damping=2.0)
+    scene = ClothScene(model, gravity=(0, 0, -9.81), linear_solver="splu")
+    for _ in range(300):
+        scene.step(0.01)
+    free = np.setdiff1d(np.arange(m.point_count), top)
+    f_el = -(model.membrane.gradient(scene.x) + model.bending.gradient(scene.x))
+    weight = 9.81 * model.masses[free].sum()
+    # free vertices in equilibrium; the pins' elastic forces carry the free part's weight
+    assert np.abs(f_el[free] + model.masses[free, None] * [0, 0, -9.81]).max() < 1e-3 * weight
+    assert np.isclose(-f_el[top, 2].sum(), weight, rtol=1e-3)
+
+
+def test_twist_handles_follow_their_path_exactly():
+    m = grid((0.2, 0.2), (5, 5))
+    left = np.flatnonzero(np.isclose(m.points[:, 0], 0.0))
+    right = np.flatnonzero(np.isclose(m.points[:, 0], 0.2))
+    c = np.array([0.1, 0.1, 0.0])
+    h = (Handle.pin(m.points, left), Handle.rotating(m.points, right, center=c, axis=(1, 0, 0), rate=2 * np.pi))
+    scene = ClothScene(ClothModel(m, SOFT, handles=h))
+    for _ in range(25):
+        scene.step(0.02)
+    assert np.allclose(scene.x[left], m.points[left])
+    turned = m.points[right] - c
+    assert np.allclose(scene.x[right, 1:] - c[1:], -turned[:, 1:], atol=1e-12)  # half a turn at t = 0.5 s
+    assert np.all(np.isfinite(scene.x))
+
+
+def test_bad_materials_and_steps():
+    with pytest.raises(MaterialError, match="thickness"):
+        ClothMaterial(areal_density=0.2, young=1e6, poisson=0.3, thickness=0.0)
+    with pytest.raises(MaterialError, match="thickness"):
+        ClothMaterial(areal_density=0.2, young=1e6, poisson=0.3, thickness=-1e-3)
+    with pytest.raises(MaterialError, match="areal density"):
+        ClothMaterial(areal_density=0.0, young=1e6, poisson=0.3, thickness=1e-3)
+    with pytest.raises(MaterialError, match="Poisson"):
+        ClothMaterial(areal_density=0.2, young=1e6, poisson=0.5, thickness=1e-3)
+    scene = ClothScene(ClothModel(MESH, SOFT))
+    with pytest.raises(SimulationError, match="time step"):
+        scene.step(0.0)
+    with pytest.raises(InputError, match="overlap"):
+        ClothModel(MESH, SOFT, handles=(Handle.pin(MESH.points, [1, 2]), Handle.pin(MESH.points, [2])))
+    with pytest.raises(InputError, match="collision config"):
+        ClothScene(ClothModel(MESH, SOFT), obstacles=(object(),))
+
+
+def test_contact_constraints_prescribe_normal_velocity_in_both_solvers():
+    model = ClothModel(MESH, SOFT, handles=(Handle.pin(MESH.points, [0]),))
+    rng = np.random.default_rng(4)
+    x = MESH.points + 0.02 * rng.standard_normal(MESH.points.shape)
+    v = 0.1 * rng.standard_normal(x.shape)
+    f = np.tile([0.0, 0.0, -0.1], (MESH.point_count, 1))
+    idx = np.array([7, 8, 20])
+    nrm = rng.standard_normal((3, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    un = np.array([0.0, 0.2, -0.1])
+    out = []
+    for ls in ("splu", "cg"):
+        s = ImplicitEuler(model, linear_solver=ls, cg_rtol=1e-12)
+        vn, info = s.step_velocity(x, v, f, 0.01, fixed=[0], fixed_velocity=np.zeros((1, 3)), contacts=(idx, nrm, un))
+        assert np.allclose(np.sum(vn[idx] * nrm, axis=1), un, atol=1e-12)
+        assert np.allclose(vn[0], 0.0) and info.contact_impulses.shape == (3,)
+        out.append((vn, info.contact_impulses))
+    assert np.allclose(out[0][0], out[1][0], atol=1e-8)
+    assert np.allclose(out[0][1], out[1][1], atol=1e-8 * np.abs(out[0][1]).max())

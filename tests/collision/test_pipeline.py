@@ -1,0 +1,243 @@
+"""The collision pipeline: adversarial random steps end collision-free (independent triangle test and an
+exact CCD of every primitive pair), obstacles, pins, stage switches, statistics and bad input."""
+
+from __future__ import annotations
+
+import warnings
+
+import _meshes
+import numpy as np
+import pytest
+from _meshes import grid, stacked_sheets
+
+from modalfem.collision.ccd import edge_edge_ccd, vertex_face_ccd
+from modalfem.collision.obstacles import Plane, Sphere, TriangleMeshObstacle
+from modalfem.collision.pipeline import CollisionConfig, CollisionPipeline
+from modalfem.collision.tritri import intersecting_pairs
+from modalfem.errors import InputError, SceneError, SimulationError
+
+DT = 0.01
+
+
+def _all_pairs(tri):
+    """Every vertex-face and edge-edge pair not sharing a vertex (brute force, no BVH)."""
+    n = tri.max() + 1
+    v = np.repeat(np.arange(n), len(tri))
+    f = np.tile(np.arange(len(tri)), n)
+    ok = (tri[f] != v[:, None]).all(axis=1)
+    vf = np.concatenate([v[ok, None], tri[f[ok]]], axis=1)
+    e = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1), axis=0)
+    i, j = np.triu_indices(len(e), 1)
+    ee = np.concatenate([e[i], e[j]], axis=1)
+    ee = ee[(ee[:, :2, None] != ee[:, None, 2:]).all(axis=(1, 2))]
+    return vf, ee
+
+
+def _crossings(x0, x1, tri):
+    vf, ee = _all_pairs(tri)
+    hv, _ = vertex_face_ccd(x0[vf], x1[vf])
+    he, _ = edge_edge_ccd(x0[ee], x1[ee])
+    return int(hv.sum() + he.sum())
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_adversarial_random_steps_end_collision_free(seed):
+    rng = np.random.default_rng(seed)
+    x0, tri = stacked_sheets(3, 4, gap=0.03, seed=seed)
+    v = rng.normal(scale=3.0, size=x0.shape)  # moves ~10 layer gaps per step
+    masses = rng.uniform(0.5, 2.0, len(x0))
+    assert _crossings(x0, x0 + DT * v, tri) > 0  # the candidate step does cross
+    pipe = CollisionPipeline(tri, config=CollisionConfig(thickness=0.004))
+    v_new, st = pipe.resolve(x0, v, masses, DT)
+    x1 = x0 + DT * v_new
+    assert st.unresolved == 0
+    assert len(intersecting_pairs(x1, tri)) == 0
+    assert _crossings(x0, x1, tri) == 0
+    assert st.touched.any() and np.isfinite(v_new).all()
+
+
+def test_impact_zones_alone_are_a_fail_safe_and_pins_hold():
+    rng = np.random.default_rng(11)
+    x0, tri = stacked_sheets(2, 4, gap=0.02, seed=11)
+    v = rng.normal(scale=4.0, size=x0.shape)
+    masses = np.ones(len(x0))
+    pinned = rng.choice(len(x0), 5, replace=False)
+    masses[pinned] = np.inf
+    v[pinned] = 0.0
+    cfg = CollisionConfig(thickness=0.004, repulsion=False, ccd=False)
+    v_new, st = CollisionPipeline(tri, config=cfg).resolve(x0, v, masses, DT)
+    assert st.unresolved == 0 and st.zone_iterations > 0 and st.zone_sizes
+    assert np.array_equal(v_new[pinned], v[pinned])
+    assert _crossings(x0, x0 + DT * v_new, tri) == 0
+
+
+def test_stages_off_leave_velocities_and_report_unresolved():
+    rng = np.random.default_rng(2)
+    x0, tri = stacked_sheets(2, 4, gap=0.02)
+    v = rng.normal(scale=4.0, size=x0.shape)
+    cfg = CollisionConfig(thickness=0.004, repulsion=False, ccd=False, impact_zones=False)
+    v_new, st = CollisionPipeline(tri, config=cfg).resolve(x0, v, np.ones(len(x0)), DT)
+    assert np.array_equal(v_new, v) and st.unresolved > 0 and not st.touched.any()
+    cfg = CollisionConfig(thickness=0.004, self_collision=False)
+    v_new, st = CollisionPipeline(tri, config=cfg).resolve(x0, v, np.ones(len(x0)), DT)
+    assert np.array_equal(v_new, v) and st.unresolved == 0
+
+
+def test_culling_statistics_on_a_draped_sheet():
+    x0, tri = grid(10, 10)
+    v = np.zeros_like(x0)
+    v[:, 2] = -1.0
+    cfg = CollisionConfig(thickness=0.005, measure_culling=True)
+    _, st = CollisionPipeline(tri, config=cfg).resolve(x0, v, np.ones(len(x0)), DT)
+    assert st.pair_tests == 0 < st.pair_tests_unculled and st.culled_fraction == 1.0
+
+
+@pytest.mark.parametrize(
+    "obstacle",
+    [Plane([0, 0, -0.01], [0, 0, 1]), Plane([0, 0, -0.01], [0, 0, 1], velocity=[0, 0, 2.0]),
+     Sphere([0.5, 0.5, -0.3], 0.29), Sphere([0.5, 0.5, -0.3], 0.29, velocity=[0, 0, 3.0], angular_velocity=[0, 5, 0])],
+)
+def test_analytic_obstacles_are_not_crossed(obstacle):
+    x0, tri = grid(6, 6)
+    rng = np.random.default_rng(0)
+    v = rng.normal(scale=0.5, size=x0.shape)
+    v[:, 2] -= 5.0
+    pipe = CollisionPipeline(tri, config=CollisionConfig(thickness=0.004), obstacles=[obstacle])
+    assert pipe.check_initial(x0) == 0
+    v_new, st = pipe.resolve(x0, v, np.ones(len(x0)), DT)
+    assert st.unresolved == 0
+    assert (obstacle.signed_distance(x0 + DT * v_new, DT) >= 0).all()
+    assert _crossings(x0, x0 + DT * v_new, tri) == 0
+
+
+def test_repulsion_stops_approach_with_bounded_friction():
+    x0, tri = grid(4, 4)
+    x0[:, 2] = 0.002
+    v = np.zeros_like(x0)
+    v[:, 2] = -0.05
+    v[:, 0] = 1.0
+    cfg = CollisionConfig(thickness=0.004, friction=0.3)
+    v_new, st = CollisionPipeline(tri, config=cfg, obstacles=[Plane([0, 0, 0], [0, 0, 1])]).resolve(
+        x0, v, np.ones(len(x0)), DT)
+    assert st.proximities == len(x0)
+    dvn = v_new[:, 2] - v[:, 2]
+    assert (v_new[:, 2] >= 0).all()
+    assert (v_new[:, 0] <= 1.0).all() and (v_new[:, 0] >= 1.0 - 0.3 * dvn - 1e-12).all()
+
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_triangle_mesh_obstacle_static_and_moving(moving):
+    ox, otri = grid(3, 3, size=1.2, z=-0.02, origin=(-0.1, -0.1))
+    ox[4, 2] += 0.01  # a bump
+    ob = TriangleMeshObstacle(ox, otri, vertices_end=ox + [0, 0, 0.05] if moving else None, t_end=DT)
+    x0, tri = grid(5, 5)
+    rng = np.random.default_rng(4)
+    v = rng.normal(scale=0.5, size=x0.shape)
+    v[:, 2] -= 4.0
+    pipe = CollisionPipeline(tri, config=CollisionConfig(thickness=0.004), obstacles=[ob])
+    v_new, st = pipe.resolve(x0, v, np.ones(len(x0)), DT)
+    x1 = x0 + DT * v_new
+    assert st.unresolved == 0
+    assert len(intersecting_pairs(x1, tri, other_points=ob.positions(DT), other_triangles=otri)) == 0
+    assert _crossings(x0, x1, tri) == 0
+    # the exact CCD of every cloth primitive against every obstacle primitive over the step
+    X0 = np.concatenate([x0, ob.positions(0.0)])
+    X1 = np.concatenate([x1, ob.positions(DT)])
+    vf, ee = _all_pairs(np.concatenate([tri, otri + len(x0)]))
+    cloth = lambda q: q < len(x0)
+    vf = vf[cloth(vf[:, 0]) != cloth(vf[:, 1])]
+    ee = ee[cloth(ee[:, 0]) != cloth(ee[:, 2])]
+    assert not vertex_face_ccd(X0[vf], X1[vf])[0].any()
+    assert not edge_edge_ccd(X0[ee], X1[ee])[0].any()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(12))
+def test_many_adversarial_steps_with_obstacles_and_pins(seed):
+    rng = np.random.default_rng(100 + seed)
+    x0, tri = stacked_sheets(int(rng.integers(2, 4)), int(rng.integers(3, 6)), gap=0.02, seed=seed)
+    x0[:, 2] += 0.03
+    v = rng.normal(scale=rng.uniform(1, 6), size=x0.shape)
+    masses = rng.uniform(0.2, 2.0, len(x0))
+    pinned = rng.choice(len(x0), int(rng.integers(0, 4)), replace=False)
+    masses[pinned] = np.inf
+    v[pinned] = 0.0
+    floor = Plane([0, 0, 0], [0, 0, 1])
+    cfg = CollisionConfig(thickness=0.004, repulsion=bool(seed % 2), ccd_passes=int(seed % 3))
+    v_new, st = CollisionPipeline(tri, config=cfg, obstacles=[floor]).resolve(x0, v, masses, DT)
+    x1 = x0 + DT * v_new
+    assert st.unresolved == 0
+    assert np.array_equal(v_new[pinned], v[pinned])
+    assert (floor.signed_distance(x1, DT) >= 0).all()
+    assert len(intersecting_pairs(x1, tri)) == 0
+    assert _crossings(x0, x1, tri) == 0
+
+
+def test_starting_intersection_warns_with_count_or_raises():
+    x0, tri = grid(2, 2)
+    x0 = np.vstack([x0, [[0.3, 0.1, -0.5], [0.4, 0.1, 0.5], [0.3, 0.15, 0.5]]])
+    tri = np.vstack([tri, [[9, 10, 11]]])
+    pipe = CollisionPipeline(tri, config=CollisionConfig(thickness=0.01))
+    with pytest.warns(UserWarning, match="1 intersecting pairs"):
+        assert pipe.check_initial(x0) == 1
+    with pytest.raises(SceneError, match="starts in intersection"):
+        pipe.check_initial(x0, strict=True)
+
+
+def test_bad_input_is_a_clear_error():
+    x0, tri = grid(2, 2)
+    with pytest.raises(InputError):
+        CollisionConfig(thickness=0.0)
+    with pytest.raises(InputError):
+        CollisionPipeline(tri, config=CollisionConfig(thickness=0.01), obstacles=["floor"])
+    with pytest.raises(InputError):
+        CollisionPipeline(tri[:, :2], config=CollisionConfig(thickness=0.01))
+    pipe = CollisionPipeline(tri, config=CollisionConfig(thickness=0.01))
+    m = np.ones(len(x0))
+    with pytest.raises(InputError):
+        pipe.resolve(x0[:-1], np.zeros_like(x0), m, DT)
+    with pytest.raises(SimulationError):
+        pipe.resolve(x0, np.zeros_like(x0), m, 0.0)
+    with pytest.raises(SimulationError):
+        pipe.resolve(x0, np.full_like(x0, np.nan), m, DT)
+    with pytest.raises(SimulationError):
+        pipe.resolve(x0, np.zeros_like(x0), 0 * m, DT)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pipe.resolve(x0, np.zeros_like(x0), m, DT)
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_folded_sheet_with_culling_ends_collision_free(seed):
+    x0, tri, rest = _meshes.folded_sheet(4, gap=0.05)
+    assert len(intersecting_pairs(x0, tri)) == 0
+    rng = np.random.default_rng(seed)
+    v = rng.normal(scale=3.0, size=x0.shape)
+    v[:, 2] -= np.where(x0[:, 2] > 0.04, 8.0, 0.0)  # the upper half is thrown through the lower
+    assert _crossings(x0, x0 + DT * v, tri) > 0
+    cfg = CollisionConfig(thickness=0.004, measure_culling=True)
+    pipe = CollisionPipeline(tri, config=cfg, reference_positions=rest)
+    v_new, st = pipe.resolve(x0, v, np.ones(len(x0)), DT)
+    assert st.unresolved == 0 and st.pair_tests <= st.pair_tests_unculled
+    assert _crossings(x0, x0 + DT * v_new, tri) == 0
+    assert len(intersecting_pairs(x0 + DT * v_new, tri)) == 0
+
+
+def test_obstacle_and_option_validation():
+    x0, tri = grid(2, 2)
+    with pytest.raises(InputError):
+        CollisionPipeline(tri, config=CollisionConfig(thickness=0.01), reference_positions=x0[:-1])
+    with pytest.raises(InputError):
+        CollisionPipeline(tri, config=CollisionConfig(thickness=0.01), n_vertices=3)
+    with pytest.raises(InputError):
+        Sphere([0, 0, 0], 0.0)
+    with pytest.raises(InputError):
+        Plane([0, 0, 0], [0, 0, 0])
+    with pytest.raises(InputError):
+        TriangleMeshObstacle(x0, tri, vertices_end=x0[:-1])
+    with pytest.raises(InputError):
+        TriangleMeshObstacle(x0, tri + 100)
+    moving = TriangleMeshObstacle(x0, tri, motion=lambda t: x0 + [0, 0, t])
+    assert np.allclose(moving.positions(0.5)[:, 2], x0[:, 2] + 0.5)
+    keyed = TriangleMeshObstacle(x0, tri, vertices_end=x0 + 1.0, t_start=1.0, t_end=3.0)
+    assert np.allclose(keyed.positions(2.0), x0 + 0.5) and np.allclose(keyed.positions(9.0), x0 + 1.0)
