@@ -99,8 +99,9 @@ def _section(rows: list[tuple], command: str, seconds: float) -> str:
     scene = ("Scene: clamped soft bar (E = 1 MPa, nu = 0.3, rho = 1000 kg/m^3) sagging under gravity, "
              "dt = 1/30 s, `energy=\"stable\"`, backward Euler on the incremental potential with projected "
              "element Hessians. `newton+cg`: up to 8 Newton iterations (tol 1e-6 x body size) with a "
-             "backtracking line search, PCG (rtol 1e-4) with the two-level preconditioner (Jacobi + rigid "
-             "motions of ~48 vertex aggregates); `linearised`: one Newton step per time "
+             "backtracking line search, PCG (rtol 1e-3, warm-started from the previous step's velocity "
+             "change) with the two-level preconditioner (Jacobi + rigid motions of ~48 vertex aggregates, "
+             "coarse space reused for up to 4 solves); `linearised`: one Newton step per time "
              "step (Baraff-Witkin); `splu`: SuperLU factorisation per solve. Median of the measured steps "
              "after 2 warm-up steps; `CPU ms/step` is the process CPU time of a step (less sensitive to other "
              f"load on the machine). Goal: >= {GOAL_STEPS_PER_S:.0f} steps/s at 10k tets on one core.")

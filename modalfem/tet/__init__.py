@@ -14,7 +14,9 @@ API::
 Only the effects passed to the solver are evaluated. Pieces: ``kinematics`` (F, dF/dx, rotation-variant
 SVD, polar), ``energies`` (isotropic densities with analytic, projectable Hessians), ``model``,
 ``assembly`` (fixed CSR pattern), ``effects``, ``solver`` (backward Euler / BDF2, Newton, PCG or
-SuperLU), ``modal_compare`` (exact linear modal reference), ``frames`` (PNG frame sheets).
+SuperLU), ``precond`` (two-level preconditioner), ``modal_compare`` (linear modal references: the
+real-time ``modalfem.runtime`` driven by an impulse, and an exact superposition with rigid modes),
+``frames`` (PNG frame sheets).
 """
 
 from modalfem.tet.effects import (

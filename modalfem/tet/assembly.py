@@ -34,12 +34,31 @@ class HessianPattern:
         self.rows = (keys // N).astype(np.int64)
         self.indptr = np.searchsorted(self.rows, np.arange(N + 1)).astype(np.int32)
         self.element_index = inv[: 144 * len(cells)]
+        # upper triangles (78, m) of the element blocks, element index last: scattered to their CSR
+        # positions, then the matrix is symmetrised with the transpose permutation of the pattern
+        iu = np.triu_indices(12)
+        self.upper_index = np.ascontiguousarray(self.element_index.reshape(-1, 12, 12)[:, iu[0], iu[1]].T).ravel()
+        self.transpose = np.searchsorted(keys, (keys % N) * np.int64(N) + keys // N)
         self.diag_index = inv[144 * len(cells):]
+        self._dirichlet = None  # (fixed mask, zeroed positions, diagonal positions) of the last call
 
-    def assemble(self, blocks: np.ndarray | None = None, diag: np.ndarray | None = None) -> np.ndarray:
-        """CSR ``data`` (nnz,) from element blocks (m, 12, 12) and a diagonal (3n,) (either may be None)."""
+    def assemble(self, blocks: np.ndarray | None = None, diag: np.ndarray | None = None, *,
+                 upper: bool = False) -> np.ndarray:
+        """CSR ``data`` (nnz,) from symmetric element blocks and a diagonal (3n,) (either may be None).
+
+        Args:
+            blocks: element matrices (m, 12, 12), or with ``upper`` their upper triangles (78, m) in the
+                order of ``np.triu_indices(12)`` (``element_hessians(..., upper=True)``; about half the
+                scatter work).
+            diag: added to the diagonal (3n,).
+            upper: the layout of ``blocks``.
+        """
         if blocks is None:
             data = np.zeros(self.nnz)
+        elif upper:
+            half = np.bincount(self.upper_index, weights=np.ravel(blocks), minlength=self.nnz)
+            data = half + half[self.transpose]
+            data[self.diag_index] -= half[self.diag_index]  # the diagonal was counted twice
         else:
             data = np.bincount(self.element_index, weights=blocks.ravel(), minlength=self.nnz)
         if diag is not None:
@@ -50,8 +69,12 @@ class HessianPattern:
         """Copy of ``data`` with rows and columns of DOFs ``fixed`` (3n,) bool replaced by the identity."""
         out = data.copy()
         if fixed.any():
-            out[fixed[self.rows] | fixed[self.indices]] = 0.0
-            out[self.diag_index[fixed]] = 1.0
+            cached = self._dirichlet
+            if cached is None or not np.array_equal(cached[0], fixed):  # positions of the last mask are kept
+                zero = np.flatnonzero(fixed[self.rows] | fixed[self.indices])
+                cached = self._dirichlet = (fixed.copy(), zero, self.diag_index[fixed])
+            out[cached[1]] = 0.0
+            out[cached[2]] = 1.0
         return out
 
     def diagonal(self, data: np.ndarray) -> np.ndarray:

@@ -29,11 +29,13 @@ import numpy as np
 
 __all__ = [
     "PAIRS",
+    "TRIU",
     "Corotated",
     "SigmaDerivs",
     "StableCorotated",
     "VolumeBarrierDensity",
     "VolumeSpringDensity",
+    "element_forces_and_hessians",
     "element_hessians",
     "first_piola",
 ]
@@ -43,6 +45,10 @@ PAIRS = ((1, 2), (0, 2), (0, 1))
 _I = np.array([p[0] for p in PAIRS])
 _J = np.array([p[1] for p in PAIRS])
 _EPS = 1e-12
+_CHUNK = 1024  # elements per chunk of element_hessians (its temporaries then fit in cache)
+#: (rows, columns) of the upper triangle of a 12x12 element Hessian: the order of ``upper=True`` values
+TRIU = np.triu_indices(12)
+_ROW_START = np.concatenate([[0], np.cumsum(np.arange(12, 0, -1))])  # first upper entry of each row
 
 
 @dataclass
@@ -157,10 +163,32 @@ class StableCorotated:
 
     def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
         """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2."""
+        if order >= 2 and np.ndim(self.mu) == 0 and np.ndim(self.lam) == 0:
+            return self._derivs2(s)
         d = _det(s) - 1.0
         lam = np.asarray(self.lam, dtype=float)
         e2 = np.broadcast_to(lam, d.shape).astype(float)
         return _arap(s, self.mu, order) + _volumetric(s, 0.5 * lam * d * d, lam * d, e2, order)
+
+    def _derivs2(self, s: np.ndarray) -> SigmaDerivs:
+        """Order 2 for scalar moduli in one pass: the sum of ``_arap`` and ``_volumetric`` written out."""
+        mu, lam = float(self.mu), float(self.lam)
+        e = s - 1.0
+        dJ = np.empty_like(s)  # d J / d sigma
+        np.multiply(s[:, 1], s[:, 2], out=dJ[:, 0])
+        np.multiply(s[:, 0], s[:, 2], out=dJ[:, 1])
+        np.multiply(s[:, 0], s[:, 1], out=dJ[:, 2])
+        jm = s[:, 0] * dJ[:, 0] - 1.0
+        e1 = lam * jm
+        psi = mu * np.einsum("mi,mi->m", e, e) + 0.5 * lam * jm * jm
+        d1 = 2.0 * mu * e + e1[:, None] * dJ
+        off = e1[:, None] * s  # e1 times the Hessian of J: pair k = (i, j) couples with sigma_k
+        d2 = lam * (dJ[:, :, None] * dJ[:, None, :])
+        for k, (i, j) in enumerate(PAIRS):
+            d2[:, i, j] += off[:, k]
+            d2[:, j, i] += off[:, k]
+        d2[:, (0, 1, 2), (0, 1, 2)] += 2.0 * mu
+        return SigmaDerivs(psi, d1, d2, 2.0 * mu - 4.0 * mu / _pair_sum(s) + off, 2.0 * mu - off)
 
 
 @dataclass(frozen=True)
@@ -221,7 +249,7 @@ def _psd3(A: np.ndarray) -> np.ndarray:
 
 
 def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndarray, vol: np.ndarray, *,
-                     project: bool = True) -> np.ndarray:
+                     project: bool = True, upper: bool = False) -> np.ndarray:
     """Element Hessians ``V0 B^T (d^2 psi / d F^2) B`` (m, 12, 12) [N/m] from the analytic eigensystem.
 
     ``d^2 psi / d F^2 = sum_pq (d2)_pq D_p D_q^T + sum_pairs twist T T^T + flip L L^T`` with
@@ -229,15 +257,22 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
     flip at 0 and replaces the 3x3 block ``d2`` by its positive part (an eigen-decomposition only for
     the elements where ``d2`` is not already positive semi-definite).
 
+    Computed in chunks of elements with the element index last (long vector operations that stay in
+    cache, no batched small matrix products): only the 9x9 block of vertices 1..3 is formed by dot
+    products over the 9 modes (its upper triangle, 45 of them); the rows and columns of vertex 0
+    follow from translation invariance (``grad_0 = -(grad_1 + grad_2 + grad_3)``, so ``H 1 = 0``).
+
     Args:
         U, V: rotations of the rotation-variant SVD (m, 3, 3).
         d: ``SigmaDerivs`` of order 2.
         grad: shape-function gradients (m, 4, 3) [1/m].
         vol: rest volumes (m,) [m^3].
         project: make every element Hessian positive semi-definite.
+        upper: return only the upper triangles, (78, m) in the order of ``np.triu_indices(12)`` (what
+            ``HessianPattern.assemble(..., upper=True)`` takes), instead of (m, 12, 12).
 
     Returns:
-        Hessians (m, 12, 12), local DOF order ``3 a + k`` (vertex a, component k).
+        Hessians (m, 12, 12) (or (78, m)), local DOF order ``3 a + k`` (vertex a, component k).
     """
     m = len(U)
     d2 = d.d2
@@ -249,12 +284,65 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
             w, W = np.linalg.eigh(d2[bad])
             d2 = d2.copy()
             d2[bad] = np.einsum("mik,mk,mjk->mij", W, np.maximum(w, 0.0), W)
-    # pattern e_p e_q^T in the SVD frame, U E V^T, maps to the 12-vector b[a, i] = U_ip (grad_a . v_q).
-    # Built with the element index last (long inner loops), then transposed once for the batched matmul.
-    Gv = np.ascontiguousarray(np.moveaxis(np.matmul(grad, V), 0, -1))[:, :, None, :]  # (4 a, 3 q, 1, m)
+    H = _hessians_upper(U, V, d2, lam, grad, vol)
+    if upper:
+        return H
+    full = np.empty((12, 12, m))
+    full[TRIU] = H
+    full[TRIU[::-1]] = H
+    return np.ascontiguousarray(np.moveaxis(full, -1, 0))
+
+
+def element_forces_and_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndarray,
+                                vol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Element forces and projected Hessians in one pass (what an implicit step needs), element index last.
+
+    Args:
+        U, V: rotations of the rotation-variant SVD (m, 3, 3).
+        d: ``SigmaDerivs`` of order 2.
+        grad: shape-function gradients (m, 4, 3) [1/m].
+        vol: rest volumes (m,) [m^3].
+
+    Returns:
+        ``(f, H)``: ``f`` (4, 3, m) [N] with ``f[a, :, e] = V0 P grad_a`` (the energy gradient w.r.t. vertex
+        a of element e; ``P = U diag(d psi / d sigma) V^T``), and ``H`` (78, m) [N/m] the upper triangles
+        of the projected element Hessians as ``element_hessians(..., project=True, upper=True)``.
+    """
+    m = len(U)
+    d2 = d.d2
+    lam = np.maximum(np.concatenate([d.twist, d.flip], axis=1), 0.0)
+    bad = ~_psd3(d2)
+    if bad.any():
+        w, W = np.linalg.eigh(d2[bad])
+        d2 = d2.copy()
+        d2[bad] = np.einsum("mik,mk,mjk->mij", W, np.maximum(w, 0.0), W)
+    f = np.empty((4, 3, m))
+    H = _hessians_upper(U, V, d2, lam, grad, vol, d.d1 * vol[:, None], f)
+    return f, H
+
+
+def _hessians_upper(U, V, d2, lam, grad, vol, w=None, f=None) -> np.ndarray:
+    """Upper triangles (78, m) of the element Hessians from the (projected) eigensystem, in cache-sized
+    element chunks; with ``w = V0 d psi / d sigma`` (m, 3) also the element forces into ``f`` (4, 3, m)."""
+    m = len(U)
+    H = np.empty((78, m))
+    for lo in range(0, m, _CHUNK):
+        hi = min(lo + _CHUNK, m)
+        _hessian_chunk(U[lo:hi], V[lo:hi], d2[lo:hi], lam[lo:hi], grad[lo:hi], vol[lo:hi], H[:, lo:hi],
+                       None if w is None else w[lo:hi], None if f is None else f[:, :, lo:hi])
+    return H
+
+
+def _hessian_chunk(U, V, d2, lam, grad, vol, out, w=None, f=None) -> None:
+    """Projected-eigensystem Hessians of a chunk of elements: upper triangles into ``out`` (78, k); with
+    ``w`` (k, 3) = V0 d psi / d sigma also the forces ``f`` (4, 3, k) = V0 U diag(d psi / d sigma) V^T grad_a."""
+    m = len(U)
+    # pattern e_p e_q^T in the SVD frame, U E V^T, maps to the 12-vector b[a, i] = U_ip (grad_a . v_q);
+    # formed for a = 1..3 only, modes first: b (9 modes, 9 = 3 a + i, m)
+    Gv = np.ascontiguousarray(np.moveaxis(np.matmul(grad[:, 1:], V), 0, -1))[:, :, None, :]  # (3 a, 3 q, 1, m)
     Ut = np.ascontiguousarray(np.moveaxis(U, 0, -1))[None]  # (1, 3 i, 3 p, m)
     r = np.sqrt(0.5)
-    b = np.empty((9, 4, 3, m))
+    b = np.empty((9, 3, 3, m))
     for p in range(3):
         np.multiply(Gv[:, p], Ut[:, :, p], out=b[p])
     for k, (i, j) in enumerate(PAIRS):
@@ -262,15 +350,30 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
         bji = Gv[:, i] * Ut[:, :, j]
         np.subtract(bij, bji, out=b[3 + k])
         np.add(bij, bji, out=b[6 + k])
+    if f is not None:  # b[p] (a, i) = U_ip (grad_a . v_p): f_a = sum_p w_p b[p] for a = 1..3
+        wt = np.ascontiguousarray(w.T)  # (3, k)
+        fa = b[0] * wt[0]
+        fa += b[1] * wt[1]
+        fa += b[2] * wt[2]
+        f[1:] = fa
+        np.negative(fa[0] + fa[1] + fa[2], out=f[0])
     b[3:] *= r
-    b = b.reshape(9, 12, m)
-    c = np.empty_like(b)
+    b = b.reshape(9, 9, m)
+    c = np.empty_like(b)  # c = (modal eigenvalues, d2 block mixing the first 3 modes) b, times V0
     d2t = np.moveaxis(d2, 0, -1) * vol  # (3, 3, m), contiguous (a new array)
     for p in range(3):
         np.multiply(d2t[p, 0], b[0], out=c[p])
         c[p] += d2t[p, 1] * b[1]
         c[p] += d2t[p, 2] * b[2]
     np.multiply(b[3:], (lam * vol[:, None]).T[:, None, :], out=c[3:])
-    b = np.ascontiguousarray(b.transpose(2, 1, 0))  # (m, 12, 9)
-    c = np.ascontiguousarray(c.transpose(2, 0, 1))  # (m, 9, 12)
-    return np.matmul(b, c)
+    K = np.empty((9, 9, m))  # block of vertices 1..3: K[3 (a - 1) + i, 3 (b - 1) + k]
+    for row in range(9):
+        np.einsum("km,ksm->sm", b[:, row], c[:, row:], out=K[row, row:])
+        K[row + 1:, row] = K[row, row + 1:]
+        out[_ROW_START[3 + row]:_ROW_START[4 + row]] = K[row, row:]
+    R = K[0:3] + K[3:6] + K[6:9]  # (i, 9, m): sum over a of rows (a, i) = minus the rows of vertex 0
+    for i in range(3):
+        row = out[_ROW_START[i]:_ROW_START[i + 1]]  # H[i, i:] (vertex 0, component i)
+        R0 = R[i].reshape(3, 3, m)  # (b, k)
+        np.add(R0[0, i:] + R0[1, i:], R0[2, i:], out=row[:3 - i])  # H[0i, 0k] = sum_{a, b} K[ai, bk]
+        np.negative(R[i], out=row[3 - i:])

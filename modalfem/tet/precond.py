@@ -38,34 +38,57 @@ class TwoLevel:
         self.agg = agg.ravel()
         self.count = int(self.agg.max()) + 1
         self.n = n
-        rows = 3 * np.arange(n)[:, None] + np.arange(3)  # (n, 3)
-        # column of (vertex, component, mode): translations k -> 6g + k, rotations a -> 6g + 3 + a
-        self._rows = np.concatenate([rows, np.repeat(rows, 3, axis=1)], axis=1).ravel()
-        cols_t = 6 * self.agg[:, None] + np.arange(3)
-        cols_r = np.tile(6 * self.agg[:, None] + 3 + np.arange(3), (1, 3))
-        self._cols = np.concatenate([cols_t, cols_r], axis=1).ravel()
+        # CSR of P built directly: row 3 i + k holds the translation k and the two rotations a != k of
+        # vertex i's group (component k of e_k x r is zero, so it is not stored)
+        g6 = 6 * self.agg
+        cols = np.empty((n, 3, 3), dtype=np.int32)
+        for k, (a, b) in enumerate(((1, 2), (0, 2), (0, 1))):
+            cols[:, k, 0] = g6 + k
+            cols[:, k, 1] = g6 + 3 + a
+            cols[:, k, 2] = g6 + 3 + b
+        self._indices = cols.ravel()
+        self._indptr = (3 * np.arange(3 * n + 1)).astype(np.int32)
         self._mass = np.bincount(self.agg, minlength=self.count).astype(float)
+        self._coarse = None  # (free mask, P, P^T, Cholesky factor) of the last setup
+        self.rebuilt = False  # whether the last setup made a new coarse space
 
     def prolongation(self, x: np.ndarray, free: np.ndarray) -> sp.csr_matrix:
         """P (3n, 6g) at positions ``x`` (n, 3) [m]; rows of held DOFs (``free`` False) are zero."""
         c = np.stack([np.bincount(self.agg, weights=x[:, k], minlength=self.count) for k in range(3)], axis=1)
         r = x - c[self.agg] / self._mass[self.agg, None]
-        vals = np.empty((self.n, 12))
-        vals[:, :3] = 1.0
-        # component k of e_a x r, for a = 0..2 (columns), k = 0..2 (rows): block laid out as (k, a)
-        rot = np.zeros((self.n, 3, 3))
-        rot[:, 1, 0], rot[:, 2, 0] = -r[:, 2], r[:, 1]  # e_x x r = (0, -r_z, r_y)
-        rot[:, 0, 1], rot[:, 2, 1] = r[:, 2], -r[:, 0]  # e_y x r = (r_z, 0, -r_x)
-        rot[:, 0, 2], rot[:, 1, 2] = -r[:, 1], r[:, 0]  # e_z x r = (-r_y, r_x, 0)
-        vals[:, 3:] = rot.reshape(self.n, 9)
-        vals[:, :3] *= free.reshape(self.n, 3)
-        vals[:, 3:] *= np.repeat(free.reshape(self.n, 3), 3, axis=1)
-        return sp.csr_matrix((vals.ravel(), (self._rows, self._cols)), shape=(3 * self.n, 6 * self.count))
+        vals = np.empty((self.n, 3, 3))  # (vertex, component k, [translation, rotation a, rotation b])
+        vals[:, :, 0] = 1.0
+        vals[:, 0, 1], vals[:, 0, 2] = r[:, 2], -r[:, 1]  # e_y x r, e_z x r: x components
+        vals[:, 1, 1], vals[:, 1, 2] = -r[:, 2], r[:, 0]  # e_x x r, e_z x r: y components
+        vals[:, 2, 1], vals[:, 2, 2] = r[:, 1], -r[:, 0]  # e_x x r, e_y x r: z components
+        vals *= free.reshape(self.n, 3, 1)
+        return sp.csr_matrix((vals.ravel(), self._indices, self._indptr), shape=(3 * self.n, 6 * self.count))
 
-    def setup(self, A: sp.csr_matrix, diag: np.ndarray, x: np.ndarray, free: np.ndarray):
+    def setup(self, A: sp.csr_matrix, diag: np.ndarray, x: np.ndarray, free: np.ndarray, *, reuse: bool = False):
         """The preconditioner ``r -> M^-1 r`` for matrix ``A`` at positions ``x``; Jacobi if the coarse
-        matrix cannot be factorised."""
+        matrix cannot be factorised.
+
+        With ``reuse`` the coarse part (``P`` and the factorised ``P^T A P``) of the previous call is kept
+        if it was made for the same held DOFs (a lagged coarse space: still SPD, so CG still converges to
+        the same tolerance; only the Jacobi part follows ``A``). This saves the two sparse products and
+        the factorisation, which cost as much as several CG iterations.
+        """
         inv = 1.0 / diag
+        coarse = self._coarse
+        self.rebuilt = not (reuse and coarse is not None and np.array_equal(coarse[0], free))
+        if self.rebuilt:
+            coarse = self._coarse = (free.copy(), *self._coarse_space(A, x, free))
+        _, P, Pt, cf = coarse
+        if cf is None:
+            return lambda r: inv * r
+
+        def apply(r: np.ndarray) -> np.ndarray:
+            return inv * r + P @ sla.cho_solve(cf, Pt @ r, check_finite=False)
+
+        return apply
+
+    def _coarse_space(self, A: sp.csr_matrix, x: np.ndarray, free: np.ndarray):
+        """``(P, P^T, Cholesky factor of P^T A P or None)``."""
         P = self.prolongation(x, free)
         Pt = P.T.tocsr()
         Ac = (Pt @ (A @ P)).toarray()
@@ -75,11 +98,6 @@ class TwoLevel:
         Ac[empty, empty] = 1.0
         Ac[np.diag_indices_from(Ac)] += 1e-10 * dmax  # dependent columns (collinear groups) stay factorisable
         try:
-            cf = sla.cho_factor(Ac, check_finite=False)
+            return P, Pt, sla.cho_factor(Ac, check_finite=False)
         except (np.linalg.LinAlgError, ValueError):
-            return lambda r: inv * r
-
-        def apply(r: np.ndarray) -> np.ndarray:
-            return inv * r + P @ sla.cho_solve(cf, Pt @ r, check_finite=False)
-
-        return apply
+            return P, Pt, None

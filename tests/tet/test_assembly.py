@@ -37,3 +37,28 @@ def test_dirichlet_rows_become_identity():
     np.testing.assert_array_equal(A[fixed][:, fixed], np.eye(3))
     assert not A[fixed][:, ~fixed].any() and not A[~fixed][:, fixed].any()
     np.testing.assert_array_equal(A[~fixed][:, ~fixed], pat.matrix(data).toarray()[~fixed][:, ~fixed])
+
+
+def test_upper_triangle_assembly_matches_full_blocks():
+    mesh = box(size=(0.2, 0.1, 0.1), cells=(2, 2, 1))
+    rng = np.random.default_rng(1)
+    blocks = rng.standard_normal((mesh.cell_count, 12, 12))
+    blocks = blocks + np.swapaxes(blocks, 1, 2)  # element Hessians are symmetric
+    diag = rng.standard_normal(3 * mesh.point_count)
+    pat = HessianPattern(mesh.cells, mesh.point_count)
+    iu = np.triu_indices(12)
+    upper = np.ascontiguousarray(blocks[:, iu[0], iu[1]].T)  # (78, m)
+    np.testing.assert_allclose(pat.assemble(upper, diag, upper=True), pat.assemble(blocks, diag), atol=1e-12)
+
+
+def test_dirichlet_mask_is_recomputed_when_it_changes():
+    mesh = box(size=(0.1, 0.1, 0.1), cells=(1, 1, 1))
+    pat = HessianPattern(mesh.cells, mesh.point_count)
+    data = pat.assemble(np.ones((mesh.cell_count, 12, 12)))
+    for held in ([0, 4], [5], [0, 4]):
+        fixed = np.zeros(3 * mesh.point_count, dtype=bool)
+        fixed[held] = True
+        A = pat.matrix(pat.apply_dirichlet(data, fixed)).toarray()
+        np.testing.assert_array_equal(A[fixed][:, fixed], np.eye(len(held)))
+        assert not A[fixed][:, ~fixed].any()
+        np.testing.assert_array_equal(A[~fixed][:, ~fixed], pat.matrix(data).toarray()[~fixed][:, ~fixed])

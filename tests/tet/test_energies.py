@@ -141,3 +141,58 @@ def test_barrier_goes_to_infinity_as_volume_vanishes():
     assert psi[0] == 0 and np.all(np.diff(psi) > 0) and psi[-1] > 20 * 3.0
     bad = TERMS["barrier"].derivs(np.array([[1.0, 1.0, 0.0], [1.0, 1.0, -0.5]]), 2)
     assert np.all(np.isinf(bad.psi))
+
+
+def test_chunked_and_upper_hessians_are_the_same_matrices(monkeypatch):
+    """Many elements in several chunks: the (m, 12, 12) blocks are symmetric, equal whatever the chunk
+    size, and the ``upper`` layout holds exactly their upper triangles."""
+    rng = np.random.default_rng(3)
+    X, grad1, vol1 = _rest(3)
+    m = 23
+    grad, vol = np.repeat(grad1, m, axis=0), np.repeat(vol1, m)
+    x = X[None] + 0.3 * rng.standard_normal((m, 4, 3))
+    F = np.einsum("mai,maj->mij", x, grad)
+    U, s, V = kin.svd_rv(F)
+    d = TERMS["stable"].derivs(s, 2)
+    whole = en.element_hessians(U, V, d, grad, vol, project=False)
+    monkeypatch.setattr(en, "_CHUNK", 5)
+    chunked = en.element_hessians(U, V, d, grad, vol, project=False)
+    np.testing.assert_allclose(chunked, whole, rtol=0, atol=1e-13 * np.abs(whole).max())
+    np.testing.assert_allclose(whole, np.swapaxes(whole, 1, 2), atol=1e-13 * np.abs(whole).max())
+    upper = en.element_hessians(U, V, d, grad, vol, project=True, upper=True)
+    projected = en.element_hessians(U, V, d, grad, vol, project=True)
+    np.testing.assert_array_equal(upper, projected[:, en.TRIU[0], en.TRIU[1]].T)
+    ref = np.stack([en.element_hessians(U[i:i + 1], V[i:i + 1], en.SigmaDerivs(
+        d.psi[i:i + 1], d.d1[i:i + 1], d.d2[i:i + 1], d.twist[i:i + 1], d.flip[i:i + 1]), grad[i:i + 1],
+        vol[i:i + 1], project=False)[0] for i in range(m)])
+    np.testing.assert_allclose(whole, ref, atol=1e-13 * np.abs(whole).max())
+
+
+def test_forces_and_hessians_in_one_pass_match_the_separate_ones(monkeypatch):
+    rng = np.random.default_rng(4)
+    X, grad1, vol1 = _rest(4)
+    m = 17
+    grad, vol = np.repeat(grad1, m, axis=0), np.repeat(vol1, m)
+    x = X[None] + 0.3 * rng.standard_normal((m, 4, 3))
+    U, s, V = kin.svd_rv(np.einsum("mai,maj->mij", x, grad))
+    d = TERMS["stable"].derivs(s, 2)
+    monkeypatch.setattr(en, "_CHUNK", 6)  # three chunks
+    f, H = en.element_forces_and_hessians(U, V, d, grad, vol)
+    P = en.first_piola(U, V, d.d1)
+    f_ref = vol[:, None, None] * np.einsum("mij,maj->mai", P, grad)  # (m, 4, 3)
+    np.testing.assert_allclose(np.moveaxis(f, -1, 0), f_ref, atol=1e-13 * np.abs(f_ref).max())
+    np.testing.assert_allclose(f.sum(axis=0), 0.0, atol=1e-13 * np.abs(f_ref).max())  # no net force
+    np.testing.assert_array_equal(H, en.element_hessians(U, V, d, grad, vol, project=True, upper=True))
+
+
+def test_stable_corotated_one_pass_derivatives_match_the_sum_of_terms():
+    rng = np.random.default_rng(5)
+    s = 1 + 0.3 * rng.standard_normal((40, 3))
+    s[:5, 2] = -np.abs(s[:5, 2])  # inverted elements
+    term = TERMS["stable"]
+    d = term.derivs(s, 2)
+    J1 = np.prod(s, axis=1) - 1.0
+    lam = term.lam
+    ref = en._arap(s, term.mu, 2) + en._volumetric(s, 0.5 * lam * J1**2, lam * J1, np.full(len(s), lam), 2)
+    for name in ("psi", "d1", "d2", "twist", "flip"):
+        np.testing.assert_allclose(getattr(d, name), getattr(ref, name), rtol=1e-13, atol=1e-13)

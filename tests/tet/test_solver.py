@@ -153,9 +153,9 @@ def test_terms_are_opt_in(model, monkeypatch):
     damping_calls = []
     original = TetSolver._elastic
 
-    def spy_elastic(self, x, order):
+    def spy_elastic(self, x, order, **kwargs):
         damping_calls.append(order)
-        return original(self, x, order)
+        return original(self, x, order, **kwargs)
 
     monkeypatch.setattr(TetSolver, "_elastic", spy_elastic)
     s = TetState.at_rest(model)
@@ -243,3 +243,29 @@ def test_barrier_refuses_inverted_start(model):
     s.x[:, 2] *= -1.0  # every element inverted
     with pytest.raises(SimulationError, match="VolumeBarrier"):
         solver.step(s, s, 0.01)
+
+
+def test_step_caches_do_not_change_the_result(model):
+    """The SVD kept from the line search, the CG warm start and the lagged coarse space are caches: a
+    solver stepping on (caches warm) matches a fresh solver per step (cold), and a state changed between
+    steps is not mistaken for the cached one."""
+    effects = [fx.Gravity(), fx.Pins(np.flatnonzero(model.rest_points[:, 0] < 1e-9))]
+    warm = TetSolver(model, effects=effects, newton_max=1, linear_solver="splu")
+    a = TetState.at_rest(model)
+    b = TetState.at_rest(model)
+    for k in range(6):
+        if k == 3:  # an outside change of the positions between steps
+            a.x[:, 2] += 1e-3
+            b.x[:, 2] += 1e-3
+        warm.step(a, a, 0.01)
+        TetSolver(model, effects=effects, newton_max=1, linear_solver="splu").step(b, b, 0.01)
+        np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
+    cg = TetSolver(model, effects=effects, newton_max=1, cg_rtol=1e-12)
+    c = TetState.at_rest(model)
+    for _ in range(6):
+        cg.step(c, c, 0.01)
+    d = TetState.at_rest(model)
+    direct = TetSolver(model, effects=effects, newton_max=1, linear_solver="splu")
+    for _ in range(6):
+        direct.step(d, d, 0.01)
+    np.testing.assert_allclose(c.x, d.x, rtol=0, atol=1e-10)
