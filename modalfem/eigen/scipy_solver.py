@@ -196,7 +196,7 @@ def _use_pardiso(factor: str) -> bool:
 
 
 def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: int | None = None,
-                factor: str = "auto", interior: float | None = None) -> RawModes:
+                factor: str = "auto", interior: float | None = None, start: np.ndarray | None = None) -> RawModes:
     """Lowest ``nev`` (+ a few) eigenpairs of K x = lam M x by shift-invert ARPACK at a negative shift.
 
     Args:
@@ -211,6 +211,7 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
             otherwise): K - sigma M is factorised once, its inertia c is the certificate's count, and
             ARPACK returns the c most negative 1 / (lambda - sigma), i.e. every eigenvalue below sigma.
             Raises ``InteriorShiftUnusable`` (nothing computed) when c < nev or the count is unproven.
+        start: optional ARPACK start vector (n,), e.g. approximate eigenvectors from a coarser space.
 
     Returns:
         RawModes with m = nev + ``extra_count(nev)`` eigenpairs (fewer if n is tiny: then a dense
@@ -287,7 +288,8 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
             mu, X = eigsh(
                 K, k=m, M=M, sigma=shift if interior is None else interior,
                 which="LM" if interior is None else "SA", OPinv=op, ncv=ncv,
-                tol=0.0 if tol < 1e-8 else tol * 1e-2, v0=rng.standard_normal(n), maxiter=max(1000, 50 * m),
+                tol=0.0 if tol < 1e-8 else tol * 1e-2, maxiter=max(1000, 50 * m),
+                v0=rng.standard_normal(n) if start is None else np.asarray(start, dtype=np.float64),
             )
         except ArpackNoConvergence as exc:
             raise SolverError(

@@ -382,6 +382,7 @@ def solve_slepc(
     tol: float = 1e-10,
     options: SlepcOptions | None = None,
     interior: float | None = None,
+    start: np.ndarray | None = None,
 ) -> RawModes:
     """Lowest ``nev`` eigenpairs of K x = lambda M x with SLEPc, and the certificate numbers.
 
@@ -405,6 +406,8 @@ def solve_slepc(
             they converge like the usual ones), until all c are found. The count at sigma is then
             the certificate's inertia count: no second factorisation. Raises ``InteriorShiftUnusable``
             (nothing computed) when c < nev, a pivot is zero or perturbed: call again without it.
+        start: optional Krylov start vector (n,) in the canonical free order (serial only), e.g.
+            approximate eigenvectors from a coarser space; default SLEPc's random vector.
 
     Returns:
         ``RawModes`` with nev + extra (or every converged, if SLEPc returns more) eigenpairs in
@@ -512,6 +515,11 @@ def solve_slepc(
         else:  # smallest lambda first: the negative end of 1 / (lambda - sigma)
             eps.setEigenvalueComparison(_ascending)
         eps.setPurify(bool(opt.purify))
+        v0 = None
+        if start is not None and nproc == 1:
+            v0 = K.createVecRight()
+            v0.setArray(np.asarray(start, dtype=np.float64)[rows])
+            eps.setInitialSpace([v0])
         st = eps.getST()
         st.setType(SLEPc.ST.Type.SINVERT)
         st.setShift(target)
@@ -550,7 +558,9 @@ def solve_slepc(
                 )
             nreq = int(neg)
             ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
-            eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)  # SLEPc's K - shift M, factorised above
+            eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
+            if v0 is not None:  # new dimensions re-run the set-up, which consumes the initial space
+                eps.setInitialSpace([v0])  # SLEPc's K - shift M, factorised above
         struct = PETSc.Mat.Structure.SAME if _same_pattern(A, M, mpi_comm) else PETSc.Mat.Structure.SUBSET
         from modalfem.eigen.certify import choose_inertia_shift
 
