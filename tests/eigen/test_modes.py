@@ -131,8 +131,10 @@ def test_interior_shift_from_p1_bounds_lies_above_the_wanted_p2_eigenvalues(make
     mesh = make_box((1.0, 0.1, 0.1), (10, 2, 2))
     mask = fixed_mask(mesh, 2, fixed)
     nev = 8 + expected_rigid_count(mesh, 2, mask)
-    sigma = interior_shift(mesh, steel, fixed, nev=nev, shift=-1e4, lumped=False, backend_module=skfem_backend)
-    assert sigma is not None
+    found = interior_shift(mesh, steel, fixed, nev=nev, shift=-1e4, lumped=False, backend_module=skfem_backend)
+    assert found is not None
+    sigma, start = found
+    assert start.shape == (3 * mesh.node_count(2),) and np.all(start[mask] == 0) and np.linalg.norm(start) > 0
     K, M = assemble_km(mesh, steel, degree=2)
     free = ~mask
     w = sla.eigh(K[free][:, free].toarray(), M[free][:, free].toarray(), eigvals_only=True)
