@@ -47,6 +47,31 @@ SHIFT_FRACTION = 0.5
 _ALPHA_FLOOR = 1e-9
 
 
+def restrict(A, keep: np.ndarray):
+    """A[keep][:, keep] as CSR with sorted indices, in one vectorised pass over the entries (scipy's
+    two fancy-indexing passes cost ~0.3 s at 11M entries).
+
+    Args:
+        A: square scipy sparse matrix (n, n).
+        keep: boolean mask (n,) of the rows and columns kept.
+    """
+    import scipy.sparse as sp
+
+    A = sp.csr_matrix(A)
+    keep = np.asarray(keep, dtype=bool)
+    new = np.cumsum(keep) - 1
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    sel = keep[rows] & keep[A.indices]
+    r = new[rows[sel]]
+    m = int(keep.sum())
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    np.cumsum(np.bincount(r, minlength=m), out=indptr[1:])
+    out = sp.csr_matrix((A.data[sel], new[A.indices[sel]], indptr), shape=(m, m))
+    if not A.has_sorted_indices:
+        out.sort_indices()
+    return out
+
+
 def _trial_fields(mesh, degree: int, fixed: np.ndarray) -> np.ndarray:
     """30 admissible smooth fields (n_dof, 30): component x (quadratic polynomial) x distance-to-held."""
     from scipy.spatial import cKDTree
@@ -226,7 +251,7 @@ def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped
     if int(free1.sum()) < max(3 * m, 200):
         return None
     K1, M1 = backend_module.assemble(mesh, material, degree=1, lumped=lumped)
-    K1, M1 = K1[free1][:, free1].tocsr(), M1[free1][:, free1].tocsr()
+    K1, M1 = restrict(K1, free1), restrict(M1, free1)
     A = (K1 - shift * M1).tocsr()
     A.sort_indices()
     try:
@@ -390,8 +415,7 @@ def modes(
         K_ff, M_ff, rows = mod.assemble_petsc(mesh, material, degree=degree, free=free, lumped=lumped, comm=comm)
     else:
         K, M = mod.assemble(mesh, material, degree=degree, lumped=lumped)
-        K_ff = K[free][:, free].tocsr()
-        M_ff = M[free][:, free].tocsr()
+        K_ff, M_ff = restrict(K, free), restrict(M, free)
         del K, M
     timings["assembly"] = time.perf_counter() - t
 

@@ -105,13 +105,14 @@ class PardisoLDLT:
     Args:
         A: symmetric scipy.sparse matrix (n, n); only its upper triangle is read. Its sparsity
             pattern is fixed for the life of the object (``refactor`` takes new values).
-        ordering: fill-reducing ordering, ``"metis"`` (default), ``"metis-parallel"`` or ``"amd"``.
+        ordering: fill-reducing ordering, ``"metis-parallel"`` (default, OpenMP nested dissection),
+            ``"metis"`` or ``"amd"``.
 
     Raises:
         SolverError: PARDISO is not available, or a phase failed (named, with PARDISO's reason).
     """
 
-    def __init__(self, A, *, ordering: str = "metis") -> None:
+    def __init__(self, A, *, ordering: str = "metis-parallel") -> None:
         import scipy.sparse as sp
 
         lib = _library()

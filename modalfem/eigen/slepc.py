@@ -31,6 +31,7 @@ factorisation only (PETSc's MatGetInertia requires it).
 
 from __future__ import annotations
 
+import functools
 import itertools
 import time
 from dataclasses import dataclass, field
@@ -100,7 +101,9 @@ class SlepcOptions:
             singular, which a mass matrix is not).
         petsc_options: extra PETSc/SLEPc options (name without prefix -> value), e.g.
             ``{"st_mat_mumps_icntl_35": 1}``; applied under this solve's private prefix.
-        pardiso_ordering: PARDISO's fill-reducing ordering (``"metis"``, ``"metis-parallel"``, ``"amd"``).
+        pardiso_ordering: PARDISO's fill-reducing ordering (``"metis-parallel"``, ``"metis"``, ``"amd"``);
+            at 139k DOFs the OpenMP nested dissection analysed in 2.7 s against 3.6-4.3 s for serial
+            METIS (same fill, 75M entries) and AMD took 2.3 s but left 11 % more fill and 2x slower solves.
     """
 
     factor: str = "auto"
@@ -115,7 +118,7 @@ class SlepcOptions:
     max_it: int = 200
     purify: bool = False
     tol_factor: float = 1e-2
-    pardiso_ordering: str = "metis"
+    pardiso_ordering: str = "metis-parallel"
     petsc_options: dict = field(default_factory=dict)
 
 
@@ -274,6 +277,33 @@ def _pair_stats(K, Kabs, X, MX, PETSc):
     for v in (kx, r, ax, kax):
         v.destroy()
     return lam, res, floor
+
+
+class _SerialStats:
+    """``_pair_stats`` for one process, vectorised over the pairs with scipy (one sparse product with
+    K and one with |K| for all pairs instead of two PETSc products per pair: 0.56 -> ~0.1 s at 61k DOFs)."""
+
+    def __init__(self, K) -> None:
+        import scipy.sparse as sp
+
+        indptr, indices, data = K.getValuesCSR()
+        n = K.getSize()[0]
+        self.K = sp.csr_matrix((data, indices, indptr), shape=(n, n))
+        self.Kabs = sp.csr_matrix((np.abs(data), indices, indptr), shape=(n, n))
+        self.knorm = float(np.max(self.Kabs @ np.ones(n))) if n else 0.0
+        self.eps = np.finfo(float).eps * np.sqrt(int(np.max(np.diff(indptr))) if n else 0)
+
+    def __call__(self, X, MX):
+        Xa = np.column_stack([x.getArray(readonly=True) for x in X])
+        MXa = np.column_stack([mx.getArray(readonly=True) for mx in MX])
+        KX = self.K @ Xa
+        lam = np.einsum("ij,ij->j", Xa, KX)
+        kxn, xn = np.linalg.norm(KX, axis=0), np.linalg.norm(Xa, axis=0)
+        den = np.where(kxn > RIGID_KX_RTOL * self.knorm * xn, kxn, self.knorm * xn)
+        safe = np.where(den > 0, den, 1.0)
+        res = np.where(den > 0, np.linalg.norm(KX - MXa * lam, axis=0) / safe, np.inf)
+        floor = np.where(den > 0, self.eps * np.linalg.norm(self.Kabs @ np.abs(Xa), axis=0) / safe, np.inf)
+        return lam, res, floor
 
 
 def _short_of_floor(lam, res, floor, nev: int, tol: float) -> bool:
@@ -497,7 +527,7 @@ def solve_slepc(
     for k, v in settings.items():
         db[prefix + k] = v
     eps = SLEPc.EPS()
-    Kabs = None
+    Kabs = stats = None
     pardiso = _PardisoPC(opt.pardiso_ordering) if factor == "pardiso" else None
     stage = "setting up the eigensolver"
     try:
@@ -620,9 +650,13 @@ def solve_slepc(
 
             stage = "computing residuals and M-orthonormality"
             t1 = time.perf_counter()
-            if Kabs is None:
-                Kabs = _abs_matrix(K, PETSc)
-            lam, res, floor = _pair_stats(K, Kabs, X, MX, PETSc)
+            if stats is None:
+                if nproc == 1:
+                    stats = _SerialStats(K)
+                else:
+                    Kabs = _abs_matrix(K, PETSc)
+                    stats = functools.partial(_pair_stats, K, Kabs, PETSc=PETSc)
+            lam, res, floor = stats(X, MX)
             timings["residuals"] += time.perf_counter() - t1
             # (not in interior mode: inverse iteration at an interior sigma amplifies the modes just
             # above sigma over the lowest ones, so it would not refine them)
@@ -634,7 +668,7 @@ def solve_slepc(
                 stage = "refining the eigenpairs (one inverse-iteration + Rayleigh-Ritz step)"
                 t1 = time.perf_counter()
                 X, MX = _refine(st.getKSP(), K, M, X, MX)
-                lam, res, floor = _pair_stats(K, Kabs, X, MX, PETSc)
+                lam, res, floor = stats(X, MX)
                 refinements += 1
                 timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t1
             t1 = time.perf_counter()

@@ -7,7 +7,12 @@ import pytest
 
 from modalfem.constraints import fixed_mask
 from modalfem.eigen.base import RawModes
-from modalfem.eigen.certify import PAIR_RTOL, build_certificate, choose_inertia_shift, degenerate_pairs
+from modalfem.eigen.certify import (
+    PAIR_RTOL,
+    build_certificate,
+    choose_inertia_shift,
+    degenerate_pairs,
+)
 from modalfem.eigen.scipy_solver import solve_scipy
 from modalfem.errors import SolverError
 

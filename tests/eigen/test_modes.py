@@ -150,3 +150,19 @@ def test_serial_slepc_p2_uses_one_factorisation_at_the_interior_shift(beam, stee
     assert si["which"] == "smallest_real" and si["interior_shift"] == res.certificate.inertia_shift
     assert res.certificate.passed and res.certificate.inertia_count == res.certificate.computed_below_shift
     assert si["factorisations"] == 1  # the solve's LDL^T gave the count: no second factorisation
+
+
+def test_restrict_equals_fancy_indexing():
+    import scipy.sparse as sp
+
+    from modalfem.modes import restrict
+
+    rng = np.random.default_rng(5)
+    A = sp.random(60, 60, density=0.2, random_state=5, format="csr")
+    A = A + A.T
+    keep = rng.random(60) > 0.3
+    B = restrict(A, keep)
+    ref = A[keep][:, keep].tocsr()
+    assert B.shape == ref.shape and B.has_sorted_indices
+    np.testing.assert_array_equal(B.toarray(), ref.toarray())
+    assert restrict(A, np.zeros(60, bool)).shape == (0, 0)

@@ -53,7 +53,7 @@ def test_solve_and_inertia_match_dense(shift):
         assert (neg, zero, pos) == (int(np.sum(lam < 0)), 0, int(np.sum(lam > 0)))
         assert f.perturbed_pivots == 0
         info = f.info()
-        assert info["pardiso_ordering"] == "metis" and info["pardiso_factor_flops"] > 0
+        assert info["pardiso_ordering"] == "metis-parallel" and info["pardiso_factor_flops"] > 0
 
 
 @needs_pardiso
