@@ -51,6 +51,8 @@ __all__ = ["RIGID_KX_RTOL", "InteriorShiftUnusable", "SlepcOptions", "solve_slep
 RIGID_KX_RTOL = 1e-10
 #: a pair is refined when its residual exceeds max(tol, REFINE_FLOOR_FACTOR * its roundoff floor)
 REFINE_FLOOR_FACTOR = 10.0
+#: interior mode: refine down to this fraction of the floor, else fall back to the negative shift
+INTERIOR_FLOOR_FACTOR = 0.05
 
 _ORDERINGS = {0: "AMD", 1: "user", 2: "AMF", 3: "SCOTCH", 4: "PORD", 5: "METIS", 6: "QAMD", 7: "auto"}
 _counter = itertools.count()
@@ -306,33 +308,46 @@ class _SerialStats:
         return lam, res, floor
 
 
-def _short_of_floor(lam, res, floor, nev: int, tol: float) -> bool:
-    """True if one of the lowest ``nev`` pairs has a residual above max(tol, 10 x its floor)."""
+def _short_of_floor(lam, res, floor, nev: int, tol: float, *, factor: float = REFINE_FLOOR_FACTOR) -> bool:
+    """True if one of the lowest ``nev`` pairs has a residual above max(tol, factor x its floor)."""
     low = np.argsort(lam, kind="stable")[:nev]
-    return bool(np.any(res[low] > np.maximum(tol, REFINE_FLOOR_FACTOR * floor[low])))
+    return bool(np.any(res[low] > np.maximum(tol, factor * floor[low])))
 
 
-def _refine(ksp, K, M, X, MX):
-    """One block inverse-iteration step Y = (K - shift M)^{-1} M X, then Rayleigh-Ritz on span(Y)."""
+def _refine(ksp, K, M, X, MX, *, augment: bool = False):
+    """One block inverse-iteration step Y = (K - shift M)^{-1} M X, then Rayleigh-Ritz on span(Y), or
+    with ``augment`` on span(X, Y) keeping the lowest len(X) Ritz pairs: at an interior shift the
+    inverse iteration alone amplifies the modes just above it, but the two-block space contains X,
+    so its lowest Ritz pairs are never worse than X's and the new directions remove X's errors."""
     Y = []
     for mx in MX:
         y = mx.duplicate()
         ksp.solve(mx, y)
         Y.append(y)
     m = len(Y)
-    KY = [K.createVecLeft() for _ in range(m)]
-    MY = [K.createVecLeft() for _ in range(m)]
-    for y, ky, my in zip(Y, KY, MY):
-        K.mult(y, ky)
-        M.mult(y, my)
-    Kr, Mr = np.empty((m, m)), np.empty((m, m))
-    for j in range(m):
+    B = (list(X) + Y) if augment else Y
+    nb = len(B)
+    KB = [K.createVecLeft() for _ in range(nb)]
+    MB = [K.createVecLeft() for _ in range(nb)]
+    for b, kb, mb in zip(B, KB, MB):
+        K.mult(b, kb)
+        M.mult(b, mb)
+    Kr, Mr = np.empty((nb, nb)), np.empty((nb, nb))
+    for j in range(nb):
         for i in range(j + 1):
-            Kr[i, j] = Kr[j, i] = Y[i].dot(KY[j])
-            Mr[i, j] = Mr[j, i] = Y[i].dot(MY[j])
+            Kr[i, j] = Kr[j, i] = B[i].dot(KB[j])
+            Mr[i, j] = Mr[j, i] = B[i].dot(MB[j])
     from scipy.linalg import eigh
 
-    _, V = eigh(Kr, Mr)
+    # M-orthonormalise the (possibly nearly dependent) block first, then a standard eigenproblem
+    d = 1.0 / np.sqrt(np.abs(np.diag(Mr)))
+    sm, U = np.linalg.eigh(Mr * d[:, None] * d[None, :])
+    keep = sm > 1e-13 * sm.max()
+    T = (d[:, None] * U[:, keep]) / np.sqrt(sm[keep])
+    _, Q = eigh(T.T @ Kr @ T)
+    V = T @ Q[:, :m]
+    Y = B
+    MY = MB
     Xn, MXn = [], []
     for j in range(m):
         x, mx = Y[0].duplicate(), Y[0].duplicate()
@@ -345,7 +360,7 @@ def _refine(ksp, K, M, X, MX):
         mx.scale(1.0 / np.sqrt(s))
         Xn.append(x)
         MXn.append(mx)
-    for v in Y + KY + MY:
+    for v in (B[m:] if augment else B) + KB + MB:
         v.destroy()
     return Xn, MXn
 
@@ -607,7 +622,9 @@ def solve_slepc(
                 eps.solve()
                 nconv = eps.getConverged()
                 its += eps.getIterationNumber()
-                if nconv + len(X) <= nev:
+                # (classical: one more than nev, for the certificate's gap; interior: the count at sigma
+                # itself bounds the spectrum, so nev suffice)
+                if nconv + len(X) < nev + (interior is None):
                     raise SolverError(
                         f"SLEPc Krylov-Schur converged only {nconv + len(X)} of the {nreq + len(X)} eigenpairs "
                         f"requested (nev = {nev}) after {its} restarts (tol {slepc_tol:g}, ncv {ncv}); "
@@ -658,19 +675,28 @@ def solve_slepc(
                     stats = functools.partial(_pair_stats, K, Kabs, PETSc=PETSc)
             lam, res, floor = stats(X, MX)
             timings["residuals"] += time.perf_counter() - t1
-            # (not in interior mode: inverse iteration at an interior sigma amplifies the modes just
-            # above sigma over the lowest ones, so it would not refine them)
-            while (_short_of_floor(lam, res, floor, nev, tol) and factor_is_solve_operator and refinements < 2
-                   and interior is None):
+            # (in interior mode over span(X, Y): inverse iteration at an interior sigma alone would
+            # amplify the modes just above sigma over the lowest ones)
+            # (interior mode: the lowest pairs, far below sigma, converge to a few x their floor only,
+            # so they are refined down to the floor itself)
+            while (_short_of_floor(lam, res, floor, nev, tol, factor=REFINE_FLOOR_FACTOR if interior is None else INTERIOR_FLOOR_FACTOR)
+                   and factor_is_solve_operator and refinements < 2):
                 # one of the lowest nev pairs stopped short of what double precision allows (SLEPc's
                 # criterion is on the shift-inverted problem): one block inverse-iteration step with
                 # the factorisation in hand, then Rayleigh-Ritz over all pairs (keeps M-orthonormality)
                 stage = "refining the eigenpairs (one inverse-iteration + Rayleigh-Ritz step)"
                 t1 = time.perf_counter()
-                X, MX = _refine(st.getKSP(), K, M, X, MX)
+                X, MX = _refine(st.getKSP(), K, M, X, MX, augment=interior is not None)
                 lam, res, floor = stats(X, MX)
                 refinements += 1
                 timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t1
+            if interior is not None and _short_of_floor(lam, res, floor, nev, tol, factor=INTERIOR_FLOOR_FACTOR):
+                # ill-conditioned bodies (slender beams: lambda_max / lambda_1 ~ 1e10) keep the lowest
+                # pairs a few x above what the negative-shift path reaches: solve that way instead
+                raise InteriorShiftUnusable(
+                    f"lowest pairs' residual {np.max(res[np.argsort(lam)[:nev]]):.1e} stays above "
+                    f"{INTERIOR_FLOOR_FACTOR} x its roundoff floor after {refinements} refinement(s)"
+                )
             t1 = time.perf_counter()
             m = len(X)
             perm = np.argsort(lam, kind="stable")

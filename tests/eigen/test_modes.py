@@ -143,9 +143,14 @@ def test_interior_shift_from_p1_bounds_lies_above_the_wanted_p2_eigenvalues(make
     assert INTERIOR_GAP > 0
 
 
-def test_serial_slepc_p2_uses_one_factorisation_at_the_interior_shift(beam, steel):
+def test_serial_slepc_p2_uses_one_factorisation_at_the_interior_shift(make_box, steel, monkeypatch):
+    """With ``INTERIOR_SHIFT`` on (off by default, see modalfem.modes) and a tolerance the interior path
+    reaches (it falls back to the negative shift otherwise), one factorisation serves everything."""
+    import sys
+
     pytest.importorskip("slepc4py")
-    res = modes(beam, steel, k=8, fixed="x0", solver="slepc")
+    monkeypatch.setattr(sys.modules["modalfem.modes"], "INTERIOR_SHIFT", True)
+    res = modes(make_box((1.0, 0.1, 0.1), (20, 2, 2)), steel, k=8, fixed="x0", solver="slepc", tol=1e-8)
     si = res.info["solver_info"]
     assert si["which"] == "smallest_real" and si["interior_shift"] == res.certificate.inertia_shift
     assert res.certificate.passed and res.certificate.inertia_count == res.certificate.computed_below_shift
