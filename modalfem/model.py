@@ -26,13 +26,13 @@ import hashlib
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 
+from modalfem.atomic import write_atomic
 from modalfem.errors import InputError, ModelFileError
 
 __all__ = ["ModalModel", "payload_checksum", "storage_report"]
@@ -328,28 +328,7 @@ class ModalModel:
                   for k, a in self._arrays().items()}
         payload = dict(arrays, schema_version=np.array(self.SCHEMA_VERSION, dtype="<i8"), meta=np.array(meta),
                        checksum=np.array(payload_checksum(self.SCHEMA_VERSION, arrays, meta)))
-        directory = path.parent if str(path.parent) else Path(".")
-        try:
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-        except OSError as exc:
-            raise ModelFileError(f"cannot write model file {str(path)!r}: {exc.strerror or exc}") from None
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **payload)
-                f.flush()
-                os.fsync(f.fileno())
-            mask = os.umask(0o022)
-            os.umask(mask)
-            os.chmod(tmp, 0o666 & ~mask)  # mkstemp creates 0600; give the file ordinary permissions
-            os.replace(tmp, path)
-        except BaseException as exc:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            if isinstance(exc, OSError):
-                raise ModelFileError(f"cannot write model file {str(path)!r}: {exc.strerror or exc}") from None
-            raise
+        write_atomic(path, lambda f: np.savez(f, **payload), error=ModelFileError, kind="model")
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> ModalModel:

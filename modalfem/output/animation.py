@@ -19,13 +19,11 @@ spectrogram of a sound.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from modalfem.atomic import write_atomic
 from modalfem.errors import InputError
 
 __all__ = ["Camera", "fit_camera", "plot_spectrum", "render_frames", "write_frame_sheet", "write_gif"]
@@ -378,24 +376,4 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def _atomic(path, write, kind: str) -> None:
     """Call ``write(file object)`` on a temporary file next to ``path``, then rename it to ``path``."""
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    except OSError as exc:
-        raise InputError(f"cannot write {kind} file {str(path)!r}: {exc.strerror or exc}") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-        mask = os.umask(0o022)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(exc, OSError):
-            raise InputError(f"cannot write {kind} file {str(path)!r}: {exc.strerror or exc}") from None
-        raise
+    write_atomic(path, write, error=InputError, kind=kind)

@@ -6,13 +6,11 @@ Standard library ``wave`` and numpy only (the runtime must not import scipy).
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 import wave
-from pathlib import Path
 
 import numpy as np
 
+from modalfem.atomic import write_atomic
 from modalfem.errors import InputError
 from modalfem.runtime.synthesis import SAMPLE_RATE, _sample_rate
 
@@ -58,33 +56,15 @@ def write_wav(path, signal, *, sample_rate: int = SAMPLE_RATE, headroom_db: floa
     peak = float(np.abs(x).max())
     gain = 10 ** (-headroom_db / 20) / peak if peak > 0 else 0.0
     pcm = np.round(np.clip(x * gain, -1.0, 1.0) * 32767).astype("<i2")
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    except OSError as exc:
-        raise InputError(f"cannot write WAV file {str(path)!r}: {exc.strerror or exc}") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            with wave.open(f, "wb") as w:
-                w.setnchannels(1)
-                w.setsampwidth(2)
-                w.setframerate(fs)
-                w.writeframes(pcm.tobytes())
-            f.flush()
-            os.fsync(f.fileno())
-        mask = os.umask(0o022)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(exc, OSError):
-            raise InputError(f"cannot write WAV file {str(path)!r}: {exc.strerror or exc}") from None
-        raise
+
+    def write(f) -> None:
+        with wave.open(f, "wb") as w:
+            w.setnchannels(1)
+            w.setsampwidth(2)
+            w.setframerate(fs)
+            w.writeframes(pcm.tobytes())
+
+    write_atomic(path, write, error=InputError, kind="WAV")
     return gain
 
 
