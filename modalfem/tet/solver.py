@@ -31,7 +31,7 @@ from modalfem.tet.energies import (
     element_hessians,
     first_piola,
 )
-from modalfem.tet.kinematics import deformation_gradient, scatter_vertices, svd_rv
+from modalfem.tet.kinematics import deformation_gradient_t, scatter_vertices, svd_rv
 from modalfem.tet.model import TetModel
 from modalfem.tet.precond import TwoLevel
 
@@ -208,6 +208,7 @@ class TetSolver:
                 self.pin_targets[p.vertices] = p.positions
         self.pattern = HessianPattern(model.cells, n)
         self._V = None
+        self._grad_t = np.ascontiguousarray(np.moveaxis(model.grad, 0, -1))  # (4, 3, m)
         # DOF of each entry of element forces laid out (4 vertices, 3 components, m)
         self._force_index = np.moveaxis(3 * model.cells[:, :, None] + np.arange(3), 0, -1).ravel()
         self._svd_cache = None  # (x, (U, s, V)) of the last evaluated positions
@@ -231,7 +232,7 @@ class TetSolver:
         if cache is not None and np.array_equal(cache[0], x):
             U, s, V = cache[1]
         else:
-            U, s, V = svd_rv(deformation_gradient(x, m.cells, m.grad), self._V)
+            U, s, V = svd_rv(deformation_gradient_t(x, m.cells, self._grad_t), self._V, element_last=True)
             self._V = V  # warm start of the next SVD (a cache; results do not depend on it beyond roundoff)
             self._svd_cache = (np.array(x, dtype=float), (U, s, V))
         d = self.element_terms[0].derivs(s, order)

@@ -125,3 +125,27 @@ def test_svd_warm_start_gives_the_same_decomposition():
     np.testing.assert_allclose(np.einsum("mik,mk,mjk->mij", U, s, V), F2, atol=1e-13)
     np.testing.assert_allclose(np.linalg.det(U), 1.0, atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(V), 1.0, atol=1e-12)
+
+
+def test_element_last_forms_match_the_batched_ones(mesh):
+    rng = np.random.default_rng(11)
+    grad, _ = kin.shape_gradients(mesh.points, mesh.cells)
+    x = mesh.points + 0.02 * rng.standard_normal(mesh.points.shape)
+    F = kin.deformation_gradient(x, mesh.cells, grad)
+    Ft = kin.deformation_gradient_t(x, mesh.cells, np.ascontiguousarray(np.moveaxis(grad, 0, -1)))
+    np.testing.assert_allclose(np.moveaxis(Ft, -1, 0), F, rtol=1e-13, atol=1e-13)
+    for a, b in zip(kin.svd_rv(F), kin.svd_rv(Ft, element_last=True)):
+        np.testing.assert_allclose(a, b, atol=1e-13)
+
+
+def test_svd_warm_start_with_few_elements_changed():
+    # most elements start converged, so the last sweeps rotate only a few of them (the subset update)
+    rng = np.random.default_rng(12)
+    F = np.eye(3) + 0.4 * rng.standard_normal((400, 3, 3))
+    _, _, V_cold = kin.svd_rv(F)
+    F2 = F.copy()
+    F2[::37] += 0.05 * rng.standard_normal(F2[::37].shape)
+    U, s, V = kin.svd_rv(F2, V_cold)
+    np.testing.assert_allclose(np.abs(s), np.linalg.svd(F2, compute_uv=False), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(np.einsum("mik,mk,mjk->mij", U, s, V), F2, atol=1e-13)
+    np.testing.assert_allclose(np.einsum("mki,mkj->mij", V, V), np.broadcast_to(np.eye(3), V.shape), atol=1e-13)
