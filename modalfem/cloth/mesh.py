@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from modalfem.errors import InputError, MeshError
+from modalfem.mesh.core import check_simplices
 
 __all__ = ["ClothMesh", "Hinges", "grid", "read_cloth"]
 
@@ -51,26 +52,8 @@ class ClothMesh:
     triangles: np.ndarray
 
     def __post_init__(self) -> None:
-        p = np.asarray(self.points, dtype=np.float64)
-        t = np.asarray(self.triangles)
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise MeshError(f"cloth points must have shape (n, 3), got {p.shape}")
-        if t.ndim != 2 or t.shape[1] != 3:
-            raise MeshError(f"cloth triangles must have shape (m, 3), got {t.shape}")
-        if len(p) == 0 or len(t) == 0:
-            raise MeshError(f"cloth mesh is empty: {len(p)} points, {len(t)} triangles")
-        if not np.issubdtype(t.dtype, np.integer):
-            if not np.all(np.isfinite(t)) or np.any(t != np.round(t)):
-                raise MeshError("cloth triangles must hold integer point indices")
-        t = t.astype(np.int64)
-        bad = ~np.all(np.isfinite(p), axis=1)
-        if bad.any():
-            first = int(np.flatnonzero(bad)[0])
-            raise MeshError(f"cloth has {int(bad.sum())} points with NaN/inf coordinates (first: point {first})")
-        out = (t < 0) | (t >= len(p))
-        if out.any():
-            c = int(np.flatnonzero(out.any(axis=1))[0])
-            raise MeshError(f"triangle {c} references a missing point: {t[c].tolist()} (mesh has {len(p)} points)")
+        p, t = check_simplices(self.points, self.triangles, corners=3, noun="cloth", cell="triangle",
+                               cells_name="triangles")
         rep = (t[:, 0] == t[:, 1]) | (t[:, 1] == t[:, 2]) | (t[:, 0] == t[:, 2])
         if rep.any():
             c = int(np.flatnonzero(rep)[0])

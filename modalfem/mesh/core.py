@@ -16,7 +16,7 @@ import numpy as np
 
 from modalfem.errors import MeshError
 
-__all__ = ["Mesh", "TET_EDGES", "signed_volumes"]
+__all__ = ["TET_EDGES", "Mesh", "signed_volumes"]
 
 #: local vertex pairs of the 6 edges of a tetrahedron
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
@@ -29,6 +29,37 @@ def signed_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     p = points[cells]
     d = p[:, 1:] - p[:, :1]
     return np.einsum("ij,ij->i", d[:, 0], np.cross(d[:, 1], d[:, 2])) / 6.0
+
+
+def check_simplices(points, cells, *, corners: int, noun: str, cell: str, cells_name: str):
+    """Shared checks of a simplex mesh (tetrahedra or cloth triangles): shapes, non-empty, integer
+    indices in range, finite coordinates. Returns (points float64 (n, 3) [m], cells int64 (m, corners)).
+
+    Raises:
+        MeshError: the first problem found, naming the offending point or cell.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    cells = np.asarray(cells)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise MeshError(f"{noun} points must have shape (n, 3), got {points.shape}")
+    if cells.ndim != 2 or cells.shape[1] != corners:
+        raise MeshError(f"{noun} {cells_name} must have shape (m, {corners}), got {cells.shape}")
+    if len(points) == 0 or len(cells) == 0:
+        raise MeshError(f"{noun} is empty: {len(points)} points, {len(cells)} {cells_name}")
+    if not np.issubdtype(cells.dtype, np.integer):
+        if not np.all(np.isfinite(cells)) or np.any(cells != np.round(cells)):
+            raise MeshError(f"{noun} {cells_name} must hold integer point indices")
+    cells = cells.astype(np.int64)
+    bad = ~np.all(np.isfinite(points), axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise MeshError(f"{noun} has {int(bad.sum())} points with NaN/inf coordinates (first: point {i} = {points[i]})")
+    out = (cells < 0) | (cells >= len(points))
+    if out.any():
+        c = int(np.flatnonzero(out.any(axis=1))[0])
+        raise MeshError(f"{cell} {c} references a missing point: {cells[c].tolist()} ({noun} has {len(points)} points)")
+    return points, cells
+
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,30 +83,8 @@ class Mesh:
     tags: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        points = np.asarray(self.points, dtype=np.float64)
-        cells = np.asarray(self.cells)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise MeshError(f"mesh points must have shape (n, 3), got {points.shape}")
-        if cells.ndim != 2 or cells.shape[1] != 4:
-            raise MeshError(f"mesh cells must be tetrahedra with shape (m, 4), got {cells.shape}")
-        if len(points) == 0 or len(cells) == 0:
-            raise MeshError(f"mesh is empty: {len(points)} points, {len(cells)} tetrahedra")
-        if not np.issubdtype(cells.dtype, np.integer):
-            if not np.all(np.isfinite(cells)) or np.any(cells != np.round(cells)):
-                raise MeshError("mesh cells must hold integer point indices")
-        cells = cells.astype(np.int64)
-        bad = ~np.all(np.isfinite(points), axis=1)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise MeshError(
-                f"mesh has {int(bad.sum())} points with NaN/inf coordinates (first: point {i} = {points[i]})"
-            )
-        out = (cells < 0) | (cells >= len(points))
-        if out.any():
-            c = int(np.flatnonzero(out.any(axis=1))[0])
-            raise MeshError(
-                f"cell {c} references a missing point: {cells[c].tolist()} (mesh has {len(points)} points)"
-            )
+        points, cells = check_simplices(self.points, self.cells, corners=4, noun="mesh", cell="cell",
+                                        cells_name="tetrahedra")
         vols = signed_volumes(points, cells)
         p = points[cells]
         edge_len = np.linalg.norm(p[:, TET_EDGES[:, 0]] - p[:, TET_EDGES[:, 1]], axis=2).max(axis=1)
