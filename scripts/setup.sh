@@ -60,5 +60,26 @@ else
     > "$VENV/constraints.txt"
   "$VENV/bin/python" -m pip install -q -c "$VENV/constraints.txt" -e ".[test]"
 fi
+if [ "$PIP_ONLY" != "1" ]; then
+  # Debian 12's OpenBLAS 0.3.21 does not know recent Intel cores (e.g. model 207) and falls back to
+  # its SSE3 "Prescott" kernels: 2-4x slower small GEMMs (measured; see README "BLAS"). Pin the core
+  # type the newer OpenBLAS of the PyPI wheels picks, for every process of this venv (a .pth runs at
+  # interpreter start, before numpy/PETSc load OpenBLAS; an OPENBLAS_CORETYPE already set wins).
+  core=$(OPENBLAS_VERBOSE=2 "$VENV/bin/python" -c "import numpy" 2>&1 | sed -n 's/^Core: //p' | head -1)
+  want=""
+  if [ "$core" = "Prescott" ] || [ "$core" = "Core2" ] || [ "$core" = "Nehalem" ]; then
+    flags=$(grep -m1 '^flags' /proc/cpuinfo || true)
+    if echo "$flags" | grep -qw avx512bw && echo "$flags" | grep -qw avx512vl && echo "$flags" | grep -qw avx512dq; then
+      want=SkylakeX
+    elif echo "$flags" | grep -qw avx2 && echo "$flags" | grep -qw fma; then
+      want=Haswell
+    fi
+  fi
+  if [ -n "$want" ]; then
+    site=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
+    echo "import os; os.environ.setdefault('OPENBLAS_CORETYPE', '$want')" > "$site/modalfem_openblas_coretype.pth"
+    echo "setup: Debian OpenBLAS detected this CPU as $core; pinned OPENBLAS_CORETYPE=$want in $VENV"
+  fi
+fi
 "$VENV/bin/python" -c "import modalfem, numpy, scipy; print('setup: modalfem ready in $VENV (numpy', numpy.__version__, ', scipy', scipy.__version__, ', fenicsx:', modalfem.have_fenicsx(), ')')"
 touch "$STAMP"

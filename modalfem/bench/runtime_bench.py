@@ -61,7 +61,7 @@ def _timeit(fn, *, repeats: int = 5, min_time: float = 0.05) -> float:
     return float(np.median(times))
 
 
-def _synthetic_body(vertices: np.ndarray, triangles: np.ndarray, r: int, *, order: str = "C", dtype=np.float64):
+def _synthetic_body(vertices: np.ndarray, triangles: np.ndarray, r: int, *, dtype=None):
     from types import SimpleNamespace
 
     from modalfem.runtime import ModalBody
@@ -72,7 +72,7 @@ def _synthetic_body(vertices: np.ndarray, triangles: np.ndarray, r: int, *, orde
                             shapes=rng.standard_normal((3 * nv, r)) * 1e-3, omega=np.linspace(1e3, 1e5, r),
                             mass=1.0, center_of_mass=vertices.mean(axis=0), inertia=np.diag([1.0, 1.2, 1.4]),
                             damping=(0.0, 1e-7))
-    return ModalBody(model, dtype=dtype)
+    return ModalBody(model) if dtype is None else ModalBody(model, dtype=dtype)
 
 
 def _torus_surface(nv: int):
@@ -121,22 +121,25 @@ def measure_case(nv: int, r: int, *, layouts: bool = False) -> dict:
     st, step, recon, both, buf = _step_and_recon(body)
     Phi = body.shapes_t  # the layout the runtime uses: modes-major (r, 3 nv)
     dst = np.empty_like(Phi)
-    u = np.empty(3 * nv)
-    out = {"nv": nv, "r": r, "phi_mb": Phi.nbytes / 2**20,
+    u = np.empty(3 * nv, dtype=Phi.dtype)
+    q = st.q.astype(Phi.dtype)
+    out = {"nv": nv, "r": r, "phi_mb": Phi.nbytes / 2**20, "dtype": str(Phi.dtype),
            "step": _timeit(step), "recon": _timeit(recon), "both": _timeit(both),
            "copy": _timeit(lambda: np.copyto(dst, Phi)),
-           "gemv": _timeit(lambda: np.dot(st.q, Phi, out=u)),
+           "gemv": _timeit(lambda: np.dot(q, Phi, out=u)),
            "normals": _timeit(lambda: body.normals(buf), repeats=3)}
     if layouts:
         PhiC = np.ascontiguousarray(Phi.T)  # vertex-major (3 nv, r), C order
-        out["gemv_vertex_major"] = _timeit(lambda: np.matmul(PhiC, st.q, out=u))
+        out["gemv_vertex_major"] = _timeit(lambda: np.matmul(PhiC, q, out=u))
         PhiF = np.asfortranarray(PhiC)
-        out["gemv_fortran"] = _timeit(lambda: np.matmul(PhiF, st.q, out=u))
-        del PhiF, PhiC
-        b32 = _synthetic_body(verts, tris, r, dtype=np.float32)
-        _, _, recon32, both32, _ = _step_and_recon(b32)
-        out["recon_f32"] = _timeit(recon32)
-        out["both_f32"] = _timeit(both32)
+        out["gemv_fortran"] = _timeit(lambda: np.matmul(PhiF, q, out=u))
+        del PhiF, PhiC, dst
+        b64 = _synthetic_body(verts, tris, r, dtype=np.float64)
+        _, _, recon64, both64, _ = _step_and_recon(b64)
+        dst64 = np.empty_like(b64.shapes_t)
+        out["recon_f64"] = _timeit(recon64)
+        out["both_f64"] = _timeit(both64)
+        out["copy_f64"] = _timeit(lambda: np.copyto(dst64, b64.shapes_t))
     return out
 
 
@@ -192,7 +195,8 @@ def _child(argv: list[str]) -> int:
         import scipy
 
         res = {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
-               "threads": ", ".join(f"{k}={os.environ.get(k, '-')}" for k in sorted(_ONE_THREAD))}
+               "threads": ", ".join(f"{k}={os.environ.get(k, '-')}" for k in sorted(_ONE_THREAD)),
+               "coretype": os.environ.get("OPENBLAS_CORETYPE", "-")}
     with open(a.json_out, "w") as f:
         json.dump(res, f)
     return 0
@@ -223,7 +227,8 @@ def render(cases: list[dict], fem: list[dict], info: dict, *, command: str, date
     """The markdown section (starts with ``SECTION``)."""
     intro = ("One step of `ModalSolver.step` with no effects (exact modal update of r modes + free rigid "
              "update) and the reconstruction `ModalBody.positions` (world surface vertices, one (3 nv x r) "
-             "matrix-vector product + O(nv)), float64, mode matrix modes-major (r, 3 nv), C-ordered. The memory-bandwidth "
+             "matrix-vector product + O(nv)) with the runtime's default storage: float32 mode matrix, modes-major "
+             "(r, 3 nv), C-ordered, the rest shape as one more row (the dynamics stay float64). The memory-bandwidth "
              "floor is a plain copy of the same mode matrix (`np.copyto`), timed in the same process. "
              "Each case in a fresh child process on one thread (OMP/OpenBLAS/MKL_NUM_THREADS=1); medians of 5 "
              "timed loops. Shapes are random (the cost does not depend on their values) on a grid-ordered "
@@ -231,7 +236,8 @@ def render(cases: list[dict], fem: list[dict], info: dict, *, command: str, date
     machine_line = (f"- Machine: {machine} (shared with other jobs while measured: compare the ratios, "
                     "measured side by side in one process, more than the absolute times)")
     versions = (f"- Versions: Python {info.get('python', '?')}, numpy {info.get('numpy', '?')}, "
-                f"scipy {info.get('scipy', '?')} (offline side only); threads {info.get('threads', '?')}")
+                f"scipy {info.get('scipy', '?')} (offline side only); threads {info.get('threads', '?')}; "
+                f"OPENBLAS_CORETYPE={info.get('coretype', '-')}")
     header = ("| surface vertices | modes | Phi MB | step us | positions ms | step + positions ms | steps/s | "
               "q @ Phi_t ms | copy of Phi ms | (step + positions) / copy | normals ms |")
     L = [SECTION, "", intro, "", f"- Date: {date}", f"- Command: `{command}`", machine_line, versions, "",
@@ -258,14 +264,14 @@ def render(cases: list[dict], fem: list[dict], info: dict, *, command: str, date
         L.append(f"- Floor: (step + positions) / copy = {ratio:.2f} -> "
                  f"**{'met' if ratio <= GOAL_FLOOR_RATIO else 'NOT met'}**")
         if "gemv_fortran" in goal:
-            L += ["", (f"Layouts of the mode matrix at {GOAL[0]} x {GOAL[1]} (same process): modes-major "
-                       f"(r, 3 nv) `q @ Phi_t` (the runtime's) {_ms(goal['gemv'])} ms; vertex-major (3 nv, r) "
-                       f"C-ordered `Phi @ q` {_ms(goal['gemv_vertex_major'])} ms; the same Fortran-ordered "
-                       f"{_ms(goal['gemv_fortran'])} ms. float32 copy of the shapes "
-                       f"(`ModalBody(model, dtype=np.float32)`, ~1e-7 relative): positions "
-                       f"{_ms(goal['recon_f32'])} ms, step + positions {_ms(goal['both_f32'])} ms = "
-                       f"{1 / goal['both_f32']:.0f} steps/s, {goal['both_f32'] / goal['copy']:.2f}x the float64 "
-                       "copy floor.")]
+            L += ["", (f"Layouts of the mode matrix at {GOAL[0]} x {GOAL[1]} (same process, {goal['dtype']}): "
+                       f"modes-major (r, 3 nv) `q @ Phi_t` (the runtime's) {_ms(goal['gemv'])} ms; vertex-major "
+                       f"(3 nv, r) C-ordered `Phi @ q` {_ms(goal['gemv_vertex_major'])} ms; the same "
+                       f"Fortran-ordered {_ms(goal['gemv_fortran'])} ms. With float64 storage "
+                       f"(`ModalBody(model, dtype=np.float64)`, the model's exact values): positions "
+                       f"{_ms(goal['recon_f64'])} ms, step + positions {_ms(goal['both_f64'])} ms = "
+                       f"{1 / goal['both_f64']:.0f} steps/s, {goal['both_f64'] / goal['copy_f64']:.2f}x the copy "
+                       f"of the float64 matrix ({_ms(goal['copy_f64'])} ms).")]
     fem_intro = ("Versus one implicit full-FEM step of the same body (steel box "
                  f"{FEM_SIZE[0]} x {FEM_SIZE[1]} x {FEM_SIZE[2]} m, P1 linear elasticity assembled by scikit-fem, "
                  "backward Euler `(M + dt^2 K) v1 = M v0 - dt K u0`, SuperLU factorisation done once beforehand "

@@ -187,8 +187,7 @@ class Contacts:
 
 
 def _positions64(body, state) -> np.ndarray:
-    x = body.positions(state)
-    return x if x.dtype == np.float64 else x.astype(np.float64)
+    return body.positions(state, precise=True)
 
 
 def find_contacts(solver, state, effects, dt=None) -> Contacts:

@@ -8,6 +8,7 @@ from it with ``ModalModel.from_modes``; ``small_body`` the runtime ``ModalBody``
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import modalfem
@@ -40,7 +41,7 @@ def small_model(small_modes):
 def small_body(small_model):
     from modalfem.runtime import ModalBody
 
-    return ModalBody(small_model)
+    return ModalBody(small_model, dtype=np.float64)  # exact reconstruction: tests compare to 1e-14
 
 
 @pytest.fixture(scope="session")

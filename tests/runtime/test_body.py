@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from modalfem.errors import SimulationError
+from modalfem.errors import InputError, SimulationError
 from modalfem.runtime import ModalBody, State
 from modalfem.runtime.rotation import quat_from_axis_angle, quat_to_matrix
 
@@ -31,10 +31,16 @@ def test_positions_are_c_plus_R_times_rest_plus_shapes_q(small_body, small_model
 
 def test_float32_reconstruction_agrees_to_single_precision(small_model):
     rng = np.random.default_rng(1)
-    b64, b32 = ModalBody(small_model), ModalBody(small_model, dtype=np.float32)
+    b64, b32 = ModalBody(small_model, dtype=np.float64), ModalBody(small_model)  # float32 is the default
     st = _state(b64, rng)
     x64, x32 = b64.positions(st), b32.positions(st)
     assert x32.dtype == np.float32 and np.allclose(x32, x64, rtol=0, atol=1e-6 * np.abs(x64).max())
+    # precise: only the deformation carries the float32 rounding of the shapes
+    xp = b32.positions(st, precise=True)
+    u = (x64 - st.position) @ st.rotation() - b64.rest  # body-axes deformation
+    assert xp.dtype == np.float64
+    assert np.abs(xp - x64).max() <= 1e-6 * np.abs(u).max() + 1e-15 * np.abs(x64).max()
+    assert np.abs(xp - x64).max() < np.abs(x32 - x64).max()
 
 
 def test_normals_are_outward_unit_and_face_normals_on_flat_faces(small_body, small_model):
@@ -115,3 +121,24 @@ def test_locate_refuses_points_off_the_surface(small_body, where):
     st = State.rest(small_body)
     with pytest.raises(SimulationError, match="off the surface|finite"):
         small_body.locate(st, where)
+
+
+@pytest.mark.parametrize("nv", [1, 2, 3, 255, 256, 257, 513, 1001])
+def test_rotate_translate_blocks_equal_the_plain_formula(nv):
+    from modalfem.runtime.body import _rotate_translate
+
+    rng = np.random.default_rng(nv)
+    u = rng.standard_normal(3 * nv)
+    Rt = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    c = rng.standard_normal(3)
+    out = np.full((nv, 3), np.nan)
+    _rotate_translate(u, Rt, c, out)
+    np.testing.assert_allclose(out, u.reshape(-1, 3) @ Rt + c, rtol=0, atol=1e-14)
+
+
+def test_positions_refuses_a_wrong_out_buffer(small_body):
+    st = State.rest(small_body)
+    with pytest.raises(InputError, match="C-contiguous"):
+        small_body.positions(st, out=np.empty((small_body.vertex_count, 3), dtype=np.float32))
+    with pytest.raises(InputError, match="C-contiguous"):
+        small_body.positions(st, out=np.empty((3, small_body.vertex_count)).T)

@@ -36,9 +36,12 @@ def test_loading_and_stepping_a_model_file_loads_no_fem_or_sparse_library(tmp_pa
 def test_load_returns_a_body_of_the_file(tmp_path, small_model):
     path = tmp_path / "block.npz"
     small_model.save(path)
-    body = rt.load(path, damping=(1.0, 1e-7))
+    body = rt.load(path, damping=(1.0, 1e-7), dtype=np.float64)
     assert body.mode_count == small_model.mode_count and body.vertex_count == small_model.vertex_count
     assert np.array_equal(body.shapes, small_model.shapes)
+    light = rt.load(path)  # default: float32 shapes for the reconstruction
+    assert light.shapes.dtype == np.float32
+    assert np.allclose(light.shapes, small_model.shapes, rtol=1e-6, atol=1e-7 * np.abs(small_model.shapes).max())
     assert np.allclose(body.mu, 1.0 + 1e-7 * small_model.omega**2)
 
 
