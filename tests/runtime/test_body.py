@@ -142,3 +142,28 @@ def test_positions_refuses_a_wrong_out_buffer(small_body):
         small_body.positions(st, out=np.empty((small_body.vertex_count, 3), dtype=np.float32))
     with pytest.raises(InputError, match="C-contiguous"):
         small_body.positions(st, out=np.empty((3, small_body.vertex_count)).T)
+
+
+def test_modal_normals_are_exact_at_rest_and_second_order_in_the_deformation(small_model):
+    body = ModalBody(small_model, dtype=np.float64)
+    rng = np.random.default_rng(5)
+    st = _state(body, rng)
+    q0 = rng.normal(size=body.mode_count)
+    q0 *= 0.02 / np.abs(body.shapes @ q0).max()  # 2 cm peak displacement on a 0.2 m block
+    errors = []
+    for scale in (0.0, 1.0, 0.1):
+        st.q[:] = scale * q0
+        exact = body.normals(body.positions(st))
+        modal = body.modal_normals(st)
+        assert np.allclose(np.linalg.norm(modal, axis=1), 1.0)
+        errors.append(np.abs(modal - exact).max())
+    assert errors[0] < 1e-12  # rest normals, rotated into the world
+    assert errors[1] > 1e-6  # the deformation is large enough to see the linearisation
+    assert 50 < errors[1] / errors[2] < 200  # error ~ q^2: 10x smaller q, ~100x smaller error
+
+
+def test_modal_normals_in_float32_match_float64(small_model):
+    b64, b32 = ModalBody(small_model, dtype=np.float64), ModalBody(small_model)
+    st = _state(b64, np.random.default_rng(6))
+    n32 = b32.modal_normals(st)
+    assert n32.dtype == np.float32 and np.abs(n32 - b64.modal_normals(st)).max() < 1e-5
