@@ -418,6 +418,8 @@ def modes(
     mod = get_backend(backend)
     if comm is not None:
         K_ff, M_ff, rows = mod.assemble_petsc(mesh, material, degree=degree, free=free, lumped=lumped, comm=comm)
+    elif hasattr(mod, "assemble_free"):  # the backend restricts while it converts (less data movement)
+        K_ff, M_ff = mod.assemble_free(mesh, material, degree=degree, free=free, lumped=lumped)
     else:
         K, M = mod.assemble(mesh, material, degree=degree, lumped=lumped)
         K_ff, M_ff = restrict(K, free), restrict(M, free)

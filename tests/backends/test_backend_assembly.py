@@ -34,6 +34,28 @@ def test_backends_agree(degree, lumped):
 
 
 @pytest.mark.fenicsx
+@pytest.mark.parametrize("degree", [1, 2])
+@pytest.mark.parametrize("lumped", [False, True])
+def test_fenicsx_assemble_free_is_the_restricted_scikit_fem_matrix(degree, lumped):
+    """The fast free-DOF path (PETSc sub-matrix) gives the restricted matrices of the other backend."""
+    from modalfem.modes import restrict
+
+    fx, sk = load_backend("fenicsx"), load_backend("skfem")
+    mesh = jittered(seed=3)
+    n = 3 * mesh.node_count(degree)
+    free = np.random.default_rng(degree).random(n) > 0.3  # scattered held DOFs, not just a face
+    K_ff, M_ff = fx.assemble_free(mesh, STEEL, degree=degree, free=free, lumped=lumped)
+    K, M = sk.assemble(mesh, STEEL, degree=degree, lumped=lumped)
+    m = int(free.sum())
+    for A in (K_ff, M_ff):
+        assert isinstance(A, sp.csr_matrix) and A.shape == (m, m) and A.has_sorted_indices
+    assert rel_diff(restrict(K, free), K_ff) < 1e-10
+    assert rel_diff(restrict(M, free), M_ff) < 1e-10
+    with pytest.raises(InputError, match="free must be a bool mask"):
+        fx.assemble_free(mesh, STEEL, degree=degree, free=free[:-1])
+
+
+@pytest.mark.fenicsx
 def test_fenicsx_second_material():
     """Material constants are runtime dolfinx Constants: a second material must not reuse the first."""
     fx = load_backend("fenicsx")
