@@ -20,7 +20,7 @@ import scipy.sparse as sp
 
 from modalfem.errors import InputError
 
-__all__ = ["assemble", "assemble_free", "assemble_petsc", "create_function_space", "node_of_block", "canonical_dofs"]
+__all__ = ["assemble", "assemble_free", "assemble_petsc", "canonical_dofs", "create_function_space", "node_of_block"]
 
 
 def _check_degree(degree: int) -> int:
