@@ -244,17 +244,18 @@ class ModalBody:
             x += state.position
             return x
         dtype = self._basis.dtype
-        nv = self.vertex_count
-        if out is None:
-            out = np.empty((nv, 3), dtype=dtype)
-        elif out.shape != (nv, 3) or out.dtype != dtype or not out.flags.c_contiguous:
-            raise InputError(f"positions out must be a C-contiguous ({nv}, 3) {dtype} array, "
-                             f"got {out.shape} {out.dtype}")
-        coef = np.empty(len(self._basis), dtype=dtype)
-        coef[:-1] = state.q
-        coef[-1] = 1.0
-        u = np.dot(coef, self._basis)  # X + Phi q, (3 nv,), the one pass over the basis
+        out = self._output(out, "positions")
+        u = np.dot(_coefficients(state.q, dtype), self._basis)  # X + Phi q, (3 nv,), one pass over the basis
         _rotate_translate(u, state.rotation().T.astype(dtype), state.position.astype(dtype), out)
+        return out
+
+    def _output(self, out: np.ndarray | None, what: str) -> np.ndarray:
+        """A (nv, 3) C-contiguous output array of the body's dtype: ``out`` checked, or a new one."""
+        nv, dtype = self.vertex_count, self._basis.dtype
+        if out is None:
+            return np.empty((nv, 3), dtype=dtype)
+        if out.shape != (nv, 3) or out.dtype != dtype or not out.flags.c_contiguous:
+            raise InputError(f"{what} out must be a C-contiguous ({nv}, 3) {dtype} array, got {out.shape} {out.dtype}")
         return out
 
     def local_positions(self, q: np.ndarray) -> np.ndarray:
@@ -300,16 +301,8 @@ class ModalBody:
         if self._normal_basis is None:
             self._normal_basis = self._build_normal_basis()
         dtype = self._normal_basis.dtype
-        nv = self.vertex_count
-        if out is None:
-            out = np.empty((nv, 3), dtype=dtype)
-        elif out.shape != (nv, 3) or out.dtype != dtype or not out.flags.c_contiguous:
-            raise InputError(f"modal_normals out must be a C-contiguous ({nv}, 3) {dtype} array, "
-                             f"got {out.shape} {out.dtype}")
-        coef = np.empty(len(self._normal_basis), dtype=dtype)
-        coef[:-1] = state.q
-        coef[-1] = 1.0
-        n = np.dot(coef, self._normal_basis)  # (3 nv,) unnormalised, body axes
+        out = self._output(out, "modal_normals")
+        n = np.dot(_coefficients(state.q, dtype), self._normal_basis)  # (3 nv,) unnormalised, body axes
         sq = n * n  # |n|^2 by strided sums: an inner axis of 3 is slow in numpy reductions
         inv = sq[0::3] + sq[1::3]
         inv += sq[2::3]
@@ -362,6 +355,14 @@ class ModalBody:
         """Inverse world inertia ``R I^-1 R^T`` (3, 3) [1/(kg m^2)]."""
         R = state.rotation()
         return R @ self.inertia_inv @ R.T
+
+
+def _coefficients(q: np.ndarray, dtype) -> np.ndarray:
+    """[q, 1] in ``dtype``: the weights of a basis whose last row is the rest term."""
+    coef = np.empty(len(q) + 1, dtype=dtype)
+    coef[:-1] = q
+    coef[-1] = 1.0
+    return coef
 
 
 _PAIR = 2  # vertices per row of the block-diagonal rotation product
