@@ -263,6 +263,8 @@ def _versions() -> dict:
     except Exception:  # noqa: BLE001, S110 - best effort (optional library, probe, sampling)
         pass
     v["BLAS (libblas.so.3)"] = blas
+    # Debian 12's OpenBLAS misdetects recent Intel cores as "Prescott" (SSE3); setup pins the type
+    v["OPENBLAS_CORETYPE"] = os.environ.get("OPENBLAS_CORETYPE", "autodetected")
     threads = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS") if k in os.environ}
     v["BLAS threads"] = ", ".join(f"{k}={x}" for k, x in threads.items()) or "library default"
     return v
