@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-__all__ = ["QUICK_SIZES", "SECTION", "SIZES", "VARIANTS", "command", "run_case_here"]
+__all__ = ["QUICK_SIZES", "SECTION", "SIZES", "VARIANTS", "command", "openblas_core", "run_case_here"]
 
 SECTION = "## Tet soft body: implicit step"
 #: hexahedra per axis (6 tets each): ~1k, ~10k, ~50k tetrahedra; cell size 0.05 m
@@ -39,6 +39,33 @@ VARIANTS = {
 GOAL_STEPS_PER_S = 30.0
 DT = 1.0 / 30.0
 _THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def openblas_core() -> str | None:
+    """The core type the loaded OpenBLAS runs its kernels for (e.g. ``"SkylakeX"``, or ``"Prescott"`` when
+    a generic build misdetects the CPU; ``OPENBLAS_CORETYPE`` overrides it), or None if not found.
+
+    Asks the library itself (``openblas_get_corename``) among the shared objects this process has mapped.
+    """
+    import ctypes
+
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = sorted({ln.split()[-1] for ln in fh if "openblas" in ln.lower() and ln.split()[-1].startswith("/")})
+    except OSError:
+        return None
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for name in ("openblas_get_corename", "openblas_get_corename64_", "scipy_openblas_get_corename64_"):
+            fn = getattr(lib, name, None)
+            if fn is not None:
+                fn.restype = ctypes.c_char_p
+                core = fn()
+                return core.decode() if core else None
+    return None
 
 
 def run_case_here(cells, variant: str, steps: int) -> dict:
@@ -72,6 +99,7 @@ def run_case_here(cells, variant: str, steps: int) -> dict:
         "cg_per_step": float(np.mean([i.linear_iterations for i in infos])),
         "solve_share": float(sum(i.solve_s for i in infos) / total.sum()),
         "finite": bool(np.all(np.isfinite(state.x))),
+        "openblas_core": openblas_core(), "openblas_coretype_env": os.environ.get("OPENBLAS_CORETYPE"),
     }
 
 
@@ -93,9 +121,14 @@ def _section(rows: list[tuple], command: str, seconds: float) -> str:
     from modalfem.bench.cli import _machine
 
     today = _dt.datetime.now(_dt.timezone.utc).date().isoformat()
+    cores = sorted({(r.get("openblas_core"), r.get("openblas_coretype_env")) for _, _, r, _ in rows if "error" not in r},
+                   key=str)
+    blas = "; ".join(f"OpenBLAS core {c or 'unknown'} (`OPENBLAS_CORETYPE` {'unset' if e is None else repr(e)})"
+                     for c, e in cores)
     head = (f"Command: `{command}` ({today}, {seconds:.0f} s). Machine: {_machine()}. "
-            f"Python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}; "
-            "one thread per case (`OPENBLAS_NUM_THREADS=1`), each case a fresh process.")
+            f"Python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}"
+            f"{'; ' + blas if blas else ''}; one thread per case (`OPENBLAS_NUM_THREADS=1`), each case a fresh "
+            "process.")
     scene = ("Scene: clamped soft bar (E = 1 MPa, nu = 0.3, rho = 1000 kg/m^3) sagging under gravity, "
              "dt = 1/30 s, `energy=\"stable\"`, backward Euler on the incremental potential with projected "
              "element Hessians. `newton+cg`: up to 8 Newton iterations (tol 1e-6 x body size) with a "

@@ -73,9 +73,10 @@ class HessianPattern:
             data[self.diag_index] += diag
         return data
 
-    def apply_dirichlet(self, data: np.ndarray, fixed: np.ndarray) -> np.ndarray:
-        """Copy of ``data`` with rows and columns of DOFs ``fixed`` (3n,) bool replaced by the identity."""
-        out = data.copy()
+    def apply_dirichlet(self, data: np.ndarray, fixed: np.ndarray, *, copy: bool = True) -> np.ndarray:
+        """``data`` with rows and columns of DOFs ``fixed`` (3n,) bool replaced by the identity: a copy, or
+        ``data`` itself changed with ``copy=False``."""
+        out = data.copy() if copy else data
         if fixed.any():
             cached = self._dirichlet
             if cached is None or not np.array_equal(cached[0], fixed):  # positions of the last mask are kept

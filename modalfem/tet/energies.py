@@ -163,32 +163,61 @@ class StableCorotated:
 
     def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
         """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2."""
-        if order >= 2 and np.ndim(self.mu) == 0 and np.ndim(self.lam) == 0:
-            return self._derivs2(s)
+        if np.ndim(self.mu) == 0 and np.ndim(self.lam) == 0:
+            if order >= 2:
+                return self._derivs2(s)
+            if order == 0:  # the line search's energies: psi only, on whole columns
+                st = np.ascontiguousarray(np.asarray(s, dtype=float).T)
+                e = st - 1.0
+                psi = e[0] * e[0]
+                psi += e[1] * e[1]
+                psi += e[2] * e[2]
+                psi *= float(self.mu)
+                jm = st[0] * st[1] * st[2] - 1.0
+                psi += 0.5 * float(self.lam) * jm * jm
+                return SigmaDerivs(psi)
         d = _det(s) - 1.0
         lam = np.asarray(self.lam, dtype=float)
         e2 = np.broadcast_to(lam, d.shape).astype(float)
         return _arap(s, self.mu, order) + _volumetric(s, 0.5 * lam * d * d, lam * d, e2, order)
 
     def _derivs2(self, s: np.ndarray) -> SigmaDerivs:
-        """Order 2 for scalar moduli in one pass: the sum of ``_arap`` and ``_volumetric`` written out."""
+        """Order 2 for scalar moduli in one pass: the sum of ``_arap`` and ``_volumetric`` written out,
+        as operations on whole columns (m,) (no (m, 3, 3) broadcasting)."""
         mu, lam = float(self.mu), float(self.lam)
-        e = s - 1.0
-        dJ = np.empty_like(s)  # d J / d sigma
-        np.multiply(s[:, 1], s[:, 2], out=dJ[:, 0])
-        np.multiply(s[:, 0], s[:, 2], out=dJ[:, 1])
-        np.multiply(s[:, 0], s[:, 1], out=dJ[:, 2])
-        jm = s[:, 0] * dJ[:, 0] - 1.0
+        m = len(s)
+        st = np.ascontiguousarray(np.asarray(s, dtype=float).T)  # (3, m)
+        e = st - 1.0
+        dJ = np.empty((3, m))  # d J / d sigma
+        np.multiply(st[1], st[2], out=dJ[0])
+        np.multiply(st[0], st[2], out=dJ[1])
+        np.multiply(st[0], st[1], out=dJ[2])
+        jm = st[0] * dJ[0] - 1.0
         e1 = lam * jm
-        psi = mu * np.einsum("mi,mi->m", e, e) + 0.5 * lam * jm * jm
-        d1 = 2.0 * mu * e + e1[:, None] * dJ
-        off = e1[:, None] * s  # e1 times the Hessian of J: pair k = (i, j) couples with sigma_k
-        d2 = lam * (dJ[:, :, None] * dJ[:, None, :])
+        psi = e[0] * e[0]
+        psi += e[1] * e[1]
+        psi += e[2] * e[2]
+        psi *= mu
+        psi += 0.5 * lam * jm * jm
+        # stored with the element index last (what the Hessians read), returned as (m, ...) views
+        d1 = np.empty((3, m))
+        d2 = np.empty((3, 3, m))
+        off = e1 * st  # (3, m): e1 times the Hessian of J: pair k = (i, j) couples with sigma_k
+        for i in range(3):
+            np.multiply(e[i], 2.0 * mu, out=d1[i])
+            d1[i] += e1 * dJ[i]
+            np.multiply(dJ[i], dJ[i], out=d2[i, i])
+            d2[i, i] *= lam
+            d2[i, i] += 2.0 * mu
         for k, (i, j) in enumerate(PAIRS):
-            d2[:, i, j] += off[:, k]
-            d2[:, j, i] += off[:, k]
-        d2[:, (0, 1, 2), (0, 1, 2)] += 2.0 * mu
-        return SigmaDerivs(psi, d1, d2, 2.0 * mu - 4.0 * mu / _pair_sum(s) + off, 2.0 * mu - off)
+            np.multiply(dJ[i], dJ[j], out=d2[i, j])
+            d2[i, j] *= lam
+            d2[i, j] += off[k]
+            d2[j, i] = d2[i, j]
+        pair = np.maximum(st[_I] + st[_J], _EPS)  # sigma_i + sigma_j per pair (3, m)
+        twist = 2.0 * mu - 4.0 * mu / pair + off
+        flip = 2.0 * mu - off
+        return SigmaDerivs(psi, d1.T, np.moveaxis(d2, -1, 0), twist.T, flip.T)
 
 
 @dataclass(frozen=True)
@@ -248,6 +277,16 @@ def _psd3(A: np.ndarray) -> np.ndarray:
     return (np.minimum(np.minimum(a, b), c) >= 0) & (minors2 >= tol) & (det >= tol * np.abs(a + b + c))
 
 
+def _project_d2(d2: np.ndarray) -> np.ndarray:
+    """``d2`` (m, 3, 3) with its positive part where it is not positive semi-definite (a copy if changed)."""
+    bad = ~_psd3(d2)
+    if bad.any():
+        w, W = np.linalg.eigh(d2[bad])
+        d2 = d2.copy()
+        d2[bad] = np.einsum("mik,mk,mjk->mij", W, np.maximum(w, 0.0), W)
+    return d2
+
+
 def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndarray, vol: np.ndarray, *,
                      project: bool = True, upper: bool = False) -> np.ndarray:
     """Element Hessians ``V0 B^T (d^2 psi / d F^2) B`` (m, 12, 12) [N/m] from the analytic eigensystem.
@@ -279,12 +318,9 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
     lam = np.concatenate([d.twist, d.flip], axis=1)
     if project:
         lam = np.maximum(lam, 0.0)
-        bad = ~_psd3(d2)
-        if bad.any():
-            w, W = np.linalg.eigh(d2[bad])
-            d2 = d2.copy()
-            d2[bad] = np.einsum("mik,mk,mjk->mij", W, np.maximum(w, 0.0), W)
-    H = _hessians_upper(U, V, d2, lam, grad, vol)
+        d2 = _project_d2(d2)
+    H = _hessians_upper(np.moveaxis(U, 0, -1), np.moveaxis(V, 0, -1), d2, lam,
+                        np.moveaxis(grad, 0, -1), vol)
     if upper:
         return H
     full = np.empty((12, 12, m))
@@ -294,98 +330,125 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
 
 
 def element_forces_and_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndarray,
-                                vol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                                vol: np.ndarray, *, element_last: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Element forces and projected Hessians in one pass (what an implicit step needs), element index last.
 
     Args:
-        U, V: rotations of the rotation-variant SVD (m, 3, 3).
+        U, V: rotations of the rotation-variant SVD (m, 3, 3), or (3, 3, m) with ``element_last``
+            (``svd_rv_t``).
         d: ``SigmaDerivs`` of order 2.
-        grad: shape-function gradients (m, 4, 3) [1/m].
+        grad: shape-function gradients (m, 4, 3) [1/m], or (4, 3, m) with ``element_last``.
         vol: rest volumes (m,) [m^3].
+        element_last: the layout of ``U``, ``V`` and ``grad`` (saves their transposes).
 
     Returns:
         ``(f, H)``: ``f`` (4, 3, m) [N] with ``f[a, :, e] = V0 P grad_a`` (the energy gradient w.r.t. vertex
         a of element e; ``P = U diag(d psi / d sigma) V^T``), and ``H`` (78, m) [N/m] the upper triangles
         of the projected element Hessians as ``element_hessians(..., project=True, upper=True)``.
     """
-    m = len(U)
-    d2 = d.d2
+    if not element_last:
+        U, V, grad = np.moveaxis(U, 0, -1), np.moveaxis(V, 0, -1), np.moveaxis(grad, 0, -1)
+    m = U.shape[-1]
     lam = np.maximum(np.concatenate([d.twist, d.flip], axis=1), 0.0)
-    bad = ~_psd3(d2)
-    if bad.any():
-        w, W = np.linalg.eigh(d2[bad])
-        d2 = d2.copy()
-        d2[bad] = np.einsum("mik,mk,mjk->mij", W, np.maximum(w, 0.0), W)
+    d2 = _project_d2(d.d2)
     f = np.empty((4, 3, m))
-    H = _hessians_upper(U, V, d2, lam, grad, vol, d.d1 * vol[:, None], f)
+    H = _hessians_upper(U, V, d2, lam, grad, vol, d.d1, f)
     return f, H
 
 
-def _hessians_upper(U, V, d2, lam, grad, vol, w=None, f=None) -> np.ndarray:
+def _hessians_upper(Ut, Vt, d2, lam, gt, vol, d1=None, f=None) -> np.ndarray:
     """Upper triangles (78, m) of the element Hessians from the (projected) eigensystem, in cache-sized
-    element chunks; with ``w = V0 d psi / d sigma`` (m, 3) also the element forces into ``f`` (4, 3, m)."""
-    m = len(U)
+    element chunks; with ``d1 = d psi / d sigma`` (m, 3) also the element forces into ``f`` (4, 3, m).
+
+    Element index last throughout: ``Ut``, ``Vt`` (3, 3, m) are U and V, ``gt`` (4, 3, m) the shape
+    gradients (views are fine: everything used per chunk is first made contiguous here).
+    """
+    m = Ut.shape[-1]
     H = np.empty((78, m))
-    # element index last for all elements at once: grad_a . v_q for a = 1..3 as long vector products
-    # (faster than a batched 3x3 matmul), and U
-    gt = np.moveaxis(grad[:, 1:], 0, -1)  # (3 a, 3 k, m) view
-    Vt = np.ascontiguousarray(np.moveaxis(V, 0, -1))  # (3 k, 3 q, m)
+    Ut = np.ascontiguousarray(Ut)
+    Vt = np.ascontiguousarray(Vt)
+    gt = np.ascontiguousarray(gt[1:])  # (3 a, 3 k, m), vertices 1..3
+    # per-element factors, element index last and contiguous (a strided operand slows every use below):
+    # V0 d2 (3, 3, m); V0 lambda / 2 for the six pair modes (the 1/sqrt 2 of T and L squared); V0 d psi/d sigma
+    Dv = np.empty((3, 3, m))
+    np.multiply(np.moveaxis(d2, 0, -1), vol, out=Dv)
+    Lv = np.empty((6, m))
+    np.multiply(lam.T, 0.5 * vol, out=Lv)
+    w = None
+    if d1 is not None:
+        w = np.empty((3, m))
+        np.multiply(d1.T, vol, out=w)
+    # grad_a . v_q for a = 1..3 as long vector products (faster than a batched 3x3 matmul)
     Gv = np.empty((3, 3, m))
+    tmp = np.empty(m)
     for a in range(3):
         for q in range(3):
-            np.multiply(gt[a, 0], Vt[0, q], out=Gv[a, q])
-            Gv[a, q] += gt[a, 1] * Vt[1, q]
-            Gv[a, q] += gt[a, 2] * Vt[2, q]
-    Ut = np.ascontiguousarray(np.moveaxis(U, 0, -1))  # (3 i, 3 p, m)
-    for lo in range(0, m, _CHUNK):
-        hi = min(lo + _CHUNK, m)
-        _hessian_chunk(Ut[:, :, lo:hi], Gv[:, :, lo:hi], d2[lo:hi], lam[lo:hi], vol[lo:hi], H[:, lo:hi],
-                       None if w is None else w[lo:hi], None if f is None else f[:, :, lo:hi])
+            o = Gv[a, q]
+            np.multiply(gt[a, 0], Vt[0, q], out=o)
+            for k in (1, 2):
+                np.multiply(gt[a, k], Vt[k, q], out=tmp)
+                o += tmp
+    ch = max(1, min(_CHUNK, m))
+    work = (np.empty((9, 3, 3, ch)), np.empty((9, 9, ch)), np.empty((9, 9, ch)), np.empty((2, 3, 3, ch)),
+            np.empty((9, ch)))
+    for lo in range(0, m, ch):
+        hi = min(lo + ch, m)
+        k = hi - lo
+        _hessian_chunk(Ut[:, :, lo:hi], Gv[:, :, lo:hi], Dv[:, :, lo:hi], Lv[:, lo:hi], H[:, lo:hi],
+                       [a[..., :k] for a in work], None if w is None else w[:, lo:hi],
+                       None if f is None else f[:, :, lo:hi])
     return H
 
 
-def _hessian_chunk(Ut, Gv, d2, lam, vol, out, w=None, f=None) -> None:
-    """Projected-eigensystem Hessians of a chunk of elements: upper triangles into ``out`` (78, k); with
-    ``w`` (k, 3) = V0 d psi / d sigma also the forces ``f`` (4, 3, k) = V0 U diag(d psi / d sigma) V^T grad_a.
-    ``Ut`` (3 i, 3 p, k) is U and ``Gv`` (3 a, 3 q, k) holds grad_a . v_q for a = 1..3, element index last."""
+def _hessian_chunk(Ut, Gv, Dv, Lv, out, work, w=None, f=None) -> None:
+    """Projected-eigensystem Hessians of a chunk of k elements: upper triangles into ``out`` (78, k).
+
+    ``Ut`` (3 i, 3 p, k) is U, ``Gv`` (3 a, 3 q, k) holds grad_a . v_q for a = 1..3, ``Dv`` (3, 3, k) is
+    V0 d2, ``Lv`` (6, k) V0 lambda / 2 of the twist and flip modes; ``work`` scratch arrays; with ``w``
+    (3, k) = V0 d psi / d sigma also the forces ``f`` (4, 3, k) = V0 U diag(d psi / d sigma) V^T grad_a.
+    """
+    b, c, K, t, t9 = work
     m = Ut.shape[-1]
     # pattern e_p e_q^T in the SVD frame, U E V^T, maps to the 12-vector b[a, i] = U_ip (grad_a . v_q);
-    # formed for a = 1..3 only, modes first: b (9 modes, 9 = 3 a + i, m)
-    Gv = Gv[:, :, None, :]  # (3 a, 3 q, 1, m)
-    Ut = Ut[None]  # (1, 3 i, 3 p, m)
-    r = np.sqrt(0.5)
-    b = np.empty((9, 3, 3, m))
+    # formed for a = 1..3 only, modes first: b (9 modes, 9 = 3 a + i, k); the pair modes are
+    # u_i v_j^T -+ u_j v_i^T without their 1/sqrt 2 (folded into Lv)
+    G = Gv[:, :, None, :]  # (3 a, 3 q, 1, k)
+    U = Ut[None]  # (1, 3 i, 3 p, k)
     for p in range(3):
-        np.multiply(Gv[:, p], Ut[:, :, p], out=b[p])
-    for k, (i, j) in enumerate(PAIRS):
-        bij = Gv[:, j] * Ut[:, :, i]
-        bji = Gv[:, i] * Ut[:, :, j]
-        np.subtract(bij, bji, out=b[3 + k])
-        np.add(bij, bji, out=b[6 + k])
+        np.multiply(G[:, p], U[:, :, p], out=b[p])
+    for kk, (i, j) in enumerate(PAIRS):
+        np.multiply(G[:, j], U[:, :, i], out=t[0])
+        np.multiply(G[:, i], U[:, :, j], out=t[1])
+        np.subtract(t[0], t[1], out=b[3 + kk])
+        np.add(t[0], t[1], out=b[6 + kk])
     if f is not None:  # b[p] (a, i) = U_ip (grad_a . v_p): f_a = sum_p w_p b[p] for a = 1..3
-        wt = np.ascontiguousarray(w.T)  # (3, k)
-        fa = b[0] * wt[0]
-        fa += b[1] * wt[1]
-        fa += b[2] * wt[2]
-        f[1:] = fa
-        np.negative(fa[0] + fa[1] + fa[2], out=f[0])
-    b[3:] *= r
+        fa = f[1:]
+        np.multiply(b[0], w[0], out=fa)
+        for p in (1, 2):
+            np.multiply(b[p], w[p], out=t[0])
+            fa += t[0]
+        np.add(fa[0], fa[1], out=f[0])
+        f[0] += fa[2]
+        np.negative(f[0], out=f[0])
     b = b.reshape(9, 9, m)
-    c = np.empty_like(b)  # c = (modal eigenvalues, d2 block mixing the first 3 modes) b, times V0
-    d2t = np.moveaxis(d2, 0, -1) * vol  # (3, 3, m), contiguous (a new array)
-    for p in range(3):
-        np.multiply(d2t[p, 0], b[0], out=c[p])
-        c[p] += d2t[p, 1] * b[1]
-        c[p] += d2t[p, 2] * b[2]
-    np.multiply(b[3:], (lam * vol[:, None]).T[:, None, :], out=c[3:])
-    K = np.empty((9, 9, m))  # block of vertices 1..3: K[3 (a - 1) + i, 3 (b - 1) + k]
+    for p in range(3):  # c = (modal eigenvalues, d2 block mixing the first 3 modes) b, times V0
+        np.multiply(b[0], Dv[p, 0], out=c[p])
+        for q in (1, 2):
+            np.multiply(b[q], Dv[p, q], out=t9)
+            c[p] += t9
+    np.multiply(b[3:], Lv[:, None, :], out=c[3:])
+    # block of vertices 1..3: K[3 (a - 1) + i, 3 (b - 1) + k]
     for row in range(9):
         np.einsum("km,ksm->sm", b[:, row], c[:, row:], out=K[row, row:])
         K[row + 1:, row] = K[row, row + 1:]
         out[_ROW_START[3 + row]:_ROW_START[4 + row]] = K[row, row:]
-    R = K[0:3] + K[3:6] + K[6:9]  # (i, 9, m): sum over a of rows (a, i) = minus the rows of vertex 0
+    # sum over a of rows (a, i) = minus the rows of vertex 0
+    R = c[:3]  # c is no longer needed: reuse it
+    np.add(K[0:3], K[3:6], out=R)
+    R += K[6:9]
     for i in range(3):
         row = out[_ROW_START[i]:_ROW_START[i + 1]]  # H[i, i:] (vertex 0, component i)
         R0 = R[i].reshape(3, 3, m)  # (b, k)
-        np.add(R0[0, i:] + R0[1, i:], R0[2, i:], out=row[:3 - i])  # H[0i, 0k] = sum_{a, b} K[ai, bk]
+        np.add(R0[0, i:], R0[1, i:], out=row[:3 - i])
+        row[:3 - i] += R0[2, i:]  # H[0i, 0k] = sum_{a, b} K[ai, bk]
         np.negative(R[i], out=row[3 - i:])

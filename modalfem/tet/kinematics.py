@@ -22,6 +22,7 @@ __all__ = [
     "scatter_vertices",
     "shape_gradients",
     "svd_rv",
+    "svd_rv_t",
 ]
 
 
@@ -105,6 +106,15 @@ def _unit_normal_to(u: np.ndarray) -> np.ndarray:
     return w / np.linalg.norm(w, axis=0)
 
 
+def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Cross products of the columns of ``a`` and ``b`` (3, m) into ``out`` (3, m) (no temporaries of
+    ``np.cross``'s axis moves)."""
+    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+        np.multiply(a[j], b[k], out=out[i])
+        out[i] -= a[k] * b[j]
+    return out
+
+
 def svd_rv(F: np.ndarray, V0: np.ndarray | None = None, *, element_last: bool = False
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotation-variant SVD ``F = U diag(s) V^T`` with ``det U = det V = +1``.
@@ -125,21 +135,36 @@ def svd_rv(F: np.ndarray, V0: np.ndarray | None = None, *, element_last: bool = 
         ``(U, s, V)``: rotations (m, 3, 3), signed singular values (m, 3), rotations (m, 3, 3).
     """
     F = np.asarray(F, dtype=float)
-    Ft = F if element_last else np.moveaxis(F, 0, -1)  # (3, 3, m): Ft[i, j] = F_ij
+    Ft = F if element_last else np.moveaxis(F, 0, -1)
+    U, s, V = svd_rv_t(Ft, None if V0 is None else np.moveaxis(np.asarray(V0, dtype=float), 0, -1))
+    return np.moveaxis(U, -1, 0).copy(), s, np.moveaxis(V, -1, 0).copy()
+
+
+def svd_rv_t(Ft: np.ndarray, V0t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`svd_rv` with the element index last for the rotations: ``Ft`` (3, 3, m) [-] (as from
+    ``deformation_gradient_t``), optional warm start ``V0t`` (3, 3, m); returns ``U`` (3, 3, m), ``s``
+    (m, 3), ``V`` (3, 3, m) (what ``element_forces_and_hessians(..., element_last=True)`` takes).
+    """
+    Ft = np.asarray(Ft, dtype=float)  # (3, 3, m): Ft[i, j] = F_ij
     m = Ft.shape[-1]
-    if V0 is None:
-        A = Ft.copy()  # C order
-        V = np.zeros((3, 3, m))
+    # A = F V (rows 0..2) and V (rows 3..5) in one array: a rotation of columns p, q updates both at once
+    AV = np.empty((6, 3, m))
+    A, V = AV[:3], AV[3:]
+    if V0t is None:
+        A[...] = Ft
+        V[...] = 0.0
         V[0, 0] = V[1, 1] = V[2, 2] = 1.0
     else:
-        V = np.moveaxis(np.asarray(V0, dtype=float), 0, -1).copy()
+        V[...] = V0t
         Ft = np.ascontiguousarray(Ft)
-        A = np.empty((3, 3, m))  # F V0 as long vector products (faster than a batched 3x3 matmul)
+        # F V0 as long vector products (faster than a batched 3x3 matmul)
+        tmp = np.empty(m)
         for i in range(3):
             for j in range(3):
                 np.multiply(Ft[i, 0], V[0, j], out=A[i, j])
-                A[i, j] += Ft[i, 1] * V[1, j]
-                A[i, j] += Ft[i, 2] * V[2, j]
+                for k in (1, 2):
+                    np.multiply(Ft[i, k], V[k, j], out=tmp)
+                    A[i, j] += tmp
     for _ in range(12):
         done = True
         for p, q in ((0, 1), (0, 2), (1, 2)):
@@ -158,50 +183,56 @@ def svd_rv(F: np.ndarray, V0: np.ndarray | None = None, *, element_last: bool = 
             if sel is not None:
                 al, be, ga, rot = al[sel], be[sel], ga[sel], True
             tau, g2 = be - al, 2.0 * np.where(rot, ga, 1.0)
-            t = np.where(rot, np.copysign(1.0, tau) * g2 / (np.abs(tau) + np.hypot(tau, g2)), 0.0)
+            r = np.sqrt(tau * tau + g2 * g2)  # hypot(tau, g2) (np.hypot is ~6x slower) ...
+            if not r.min() > 1e-140 or not r.max() < 1e140:  # ... unless the squares under/overflow
+                r = np.hypot(tau, g2)
+            t = np.where(rot, np.copysign(1.0, tau) * g2 / (np.abs(tau) + r), 0.0)
             c = 1.0 / np.sqrt(1.0 + t * t)
-            sn = c * t
-            for M in (A, V):
-                if sel is None:  # in place, same arithmetic as c mp - sn mq, sn mp + c mq
-                    mp, mq = M[:, p], M[:, q]
-                    new_p = c * mp
-                    new_p -= sn * mq
-                    sp = sn * mp
-                    mq *= c
-                    mq += sp
-                    mp[...] = new_p
-                else:
-                    mp, mq = M[:, p, sel], M[:, q, sel]
-                    M[:, p, sel], M[:, q, sel] = c * mp - sn * mq, sn * mp + c * mq
+            # (mp, mq) <- c (mp - t mq, mq + t mp): in place, and without the products by c once every
+            # angle is below ~1e-8 (c == 1 exactly: the last sweeps)
+            mp, mq = (AV[:, p], AV[:, q]) if sel is None else (AV[:, p, sel], AV[:, q, sel])
+            tq = t * mq
+            tp = t * mp
+            mp -= tq
+            mq += tp
+            if c.min() < 1.0:
+                mp *= c
+                mq *= c
+            if sel is not None:
+                AV[:, p, sel], AV[:, q, sel] = mp, mq
         if done:
             break
     n = np.sqrt(np.einsum("ijm,ijm->jm", A, A))
     for p, q in ((0, 1), (1, 2), (0, 1)):  # sorting network: column norms descending
         sw = np.flatnonzero(n[q] > n[p])
         if len(sw):
-            for arr in (A, V):
-                arr[:, p, sw], arr[:, q, sw] = arr[:, q, sw], arr[:, p, sw]
+            AV[:, p, sw], AV[:, q, sw] = AV[:, q, sw], AV[:, p, sw]
             n[p, sw], n[q, sw] = n[q, sw], n[p, sw]
-    flip = np.einsum("im,im->m", V[:, 0], np.cross(V[:, 1], V[:, 2], axis=0)) < 0
-    V[:, 2, flip] *= -1.0
-    A[:, 2, flip] *= -1.0
-    scale = np.maximum(n[0], 1e-300)
-    u0 = np.where(n[0] > 1e-300, A[:, 0] / scale, 0.0)
+    U = np.empty((3, 3, m))  # columns u0, u1, u2
+    u0, u1, u2 = U[:, 0], U[:, 1], U[:, 2]
+    flip = np.einsum("im,im->m", V[:, 0], _cross(V[:, 1], V[:, 2], u2)) < 0
+    if flip.any():
+        AV[:, 2, flip] *= -1.0
     bad0 = n[0] <= 1e-300
-    u0[0, bad0] = 1.0
-    w = A[:, 1] - u0 * np.einsum("im,im->m", u0, A[:, 1])
-    s1 = np.sqrt(np.einsum("im,im->m", w, w))
-    ok1 = s1 > 1e-14 * scale
+    np.divide(A[:, 0], np.maximum(n[0], 1e-300), out=u0)
+    if bad0.any():
+        u0[:, bad0] = 0.0
+        u0[0, bad0] = 1.0
+    np.multiply(u0, np.einsum("im,im->m", u0, A[:, 1]), out=u1)
+    np.subtract(A[:, 1], u1, out=u1)  # w = A_1 - u0 (u0 . A_1)
+    s1 = np.sqrt(np.einsum("im,im->m", u1, u1))
+    ok1 = s1 > 1e-14 * np.maximum(n[0], 1e-300)
     if ok1.all():
-        u1 = w / s1
+        u1 /= s1
     else:
-        u1 = np.empty_like(u0)
-        u1[:, ok1] = w[:, ok1] / s1[ok1]
+        u1[:, ok1] /= s1[ok1]
         u1[:, ~ok1] = _unit_normal_to(u0[:, ~ok1])
-    u2 = np.cross(u0, u1, axis=0)
-    s = np.stack([n[0], np.einsum("im,im->m", u1, A[:, 1]), np.einsum("im,im->m", u2, A[:, 2])], axis=1)
-    U = np.stack([u0, u1, u2], axis=1)  # (3 i, 3 column, m)
-    return np.moveaxis(U, -1, 0).copy(), s, np.moveaxis(V, -1, 0).copy()
+    _cross(u0, u1, u2)
+    s = np.empty((m, 3))
+    s[:, 0] = n[0]
+    s[:, 1] = np.einsum("im,im->m", u1, A[:, 1])
+    s[:, 2] = np.einsum("im,im->m", u2, A[:, 2])
+    return U, s, np.ascontiguousarray(V)
 
 
 def polar(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

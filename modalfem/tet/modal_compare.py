@@ -58,7 +58,8 @@ def modal_response(shapes: np.ndarray, omega: np.ndarray, masses: np.ndarray, u0
 def runtime_response(model, point, impulse, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Surface displacements of the real-time modal runtime after one point impulse at t = 0.
 
-    Builds ``modalfem.runtime.ModalBody(model)`` and a bare ``ModalSolver`` (no effects), applies
+    Builds ``modalfem.runtime.ModalBody(model, dtype=np.float64)`` (the model's exact shapes: this is
+    a comparison, not a render loop) and a bare ``ModalSolver`` (no effects), applies
     ``Control().add_impulse(point, impulse)`` in the first step and steps exactly to each time. The
     returned displacements are the modal part ``Phi q`` in body axes: the runtime's rigid-body state
     (which the impulse also moves) is left out, as it must be for a clamped model.
@@ -81,7 +82,7 @@ def runtime_response(model, point, impulse, times: np.ndarray) -> tuple[np.ndarr
     t = np.asarray(times, dtype=float)
     if t.ndim != 1 or not len(t) or t[0] <= 0 or np.any(np.diff(t) <= 0):
         raise InputError("runtime_response needs increasing times > 0 [s]")
-    body = rt.ModalBody(model)
+    body = rt.ModalBody(model, dtype=np.float64)
     solver = rt.ModalSolver(body)
     state = solver.state()
     J = np.asarray(impulse, dtype=float)

@@ -4,8 +4,8 @@ on the 6 rigid motions of each spatial aggregate of vertices (additive, so it st
 ``M^-1 r = D^-1 r + P (P^T A P)^-1 P^T r``. The vertices are grouped by a uniform grid over the rest
 bounding box into about ``aggregates`` groups; ``P`` (3n x 6g) holds, per group, the three translations
 and the three infinitesimal rotations about the group's current centroid (held DOFs zeroed). The
-coarse matrix is dense and Cholesky-factorised per solve. On the benchmark bar (10k tets, dt = 1/30 s)
-it cuts Jacobi-PCG from ~160 to ~30 iterations and halves the solve time.
+coarse matrix is dense, Cholesky-factorised and inverted per rebuild. On the benchmark bar (10k tets,
+dt = 1/30 s) it cuts Jacobi-PCG from ~160 to ~30 iterations and halves the solve time.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class TwoLevel:
         self._indices = cols.ravel()
         self._indptr = (3 * np.arange(3 * n + 1)).astype(np.int32)
         self._mass = np.bincount(self.agg, minlength=self.count).astype(float)
-        self._coarse = None  # (free mask, P, P^T, Cholesky factor) of the last setup
+        self._coarse = None  # (free mask, P, P^T, inverse coarse matrix) of the last setup
         self.rebuilt = False  # whether the last setup made a new coarse space
 
     def prolongation(self, x: np.ndarray, free: np.ndarray) -> sp.csr_matrix:
@@ -78,17 +78,24 @@ class TwoLevel:
         self.rebuilt = not (reuse and coarse is not None and np.array_equal(coarse[0], free))
         if self.rebuilt:
             coarse = self._coarse = (free.copy(), *self._coarse_space(A, x, free))
-        _, P, Pt, cf = coarse
-        if cf is None:
+        _, P, Pt, Ac_inv = coarse
+        if Ac_inv is None:
             return lambda r: inv * r
 
         def apply(r: np.ndarray) -> np.ndarray:
-            return inv * r + P @ sla.cho_solve(cf, Pt @ r, check_finite=False)
+            out = P @ (Ac_inv @ (Pt @ r))
+            out += inv * r
+            return out
 
         return apply
 
     def _coarse_space(self, A: sp.csr_matrix, x: np.ndarray, free: np.ndarray):
-        """``(P, P^T, Cholesky factor of P^T A P or None)``."""
+        """``(P, P^T, (P^T A P)^-1 or None)``.
+
+        The coarse matrix is inverted explicitly from its Cholesky factor (LAPACK ``potri``): one dense
+        matrix-vector product per CG iteration instead of two triangular solves (about 3x faster at the
+        ~300 coarse DOFs here; the inverse costs about one factorisation more per rebuild).
+        """
         P = self.prolongation(x, free)
         Pt = P.T.tocsr()
         Ac = (Pt @ (A @ P)).toarray()
@@ -98,6 +105,12 @@ class TwoLevel:
         Ac[empty, empty] = 1.0
         Ac[np.diag_indices_from(Ac)] += 1e-10 * dmax  # dependent columns (collinear groups) stay factorisable
         try:
-            return P, Pt, sla.cho_factor(Ac, check_finite=False)
+            c, _ = sla.cho_factor(Ac, lower=False, check_finite=False)
         except (np.linalg.LinAlgError, ValueError):
             return P, Pt, None
+        ci, info = sla.lapack.dpotri(c, lower=False)
+        if info != 0:
+            return P, Pt, None
+        Ac_inv = np.triu(ci)
+        Ac_inv += np.triu(ci, 1).T
+        return P, Pt, Ac_inv

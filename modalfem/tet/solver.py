@@ -31,7 +31,7 @@ from modalfem.tet.energies import (
     element_hessians,
     first_piola,
 )
-from modalfem.tet.kinematics import deformation_gradient_t, scatter_vertices, svd_rv
+from modalfem.tet.kinematics import deformation_gradient_t, scatter_vertices, svd_rv_t
 from modalfem.tet.model import TetModel
 from modalfem.tet.precond import TwoLevel
 
@@ -145,8 +145,8 @@ class TetSolver:
         cg_rtol: relative residual of the CG solves [-] (1e-3 keeps the linearised step within ~1 um of
             a 1e-6 solve on the 10k-tet benchmark bar, in ~15 iterations instead of ~30).
         integrator: ``"backward_euler"`` (default) or ``"bdf2"``.
-        coarse_lag: the two-level preconditioner's coarse space (its sparse products and Cholesky
-            factorisation) serves up to this many solves, >= 1; it is rebuilt sooner when the held
+        coarse_lag: the two-level preconditioner's coarse space (its sparse products and the inverse
+            of the coarse matrix) serves up to this many solves, >= 1; it is rebuilt sooner when the held
             DOFs change or CG needs over 1.5x the iterations of the solve right after the rebuild.
             (A lagged coarse space is still SPD: CG reaches the same tolerance.)
 
@@ -231,8 +231,8 @@ class TetSolver:
         cache = self._svd_cache
         if cache is not None and np.array_equal(cache[0], x):
             U, s, V = cache[1]
-        else:
-            U, s, V = svd_rv(deformation_gradient_t(x, m.cells, self._grad_t), self._V, element_last=True)
+        else:  # rotations with the element index last, (3, 3, m)
+            U, s, V = svd_rv_t(deformation_gradient_t(x, m.cells, self._grad_t), self._V)
             self._V = V  # warm start of the next SVD (a cache; results do not depend on it beyond roundoff)
             self._svd_cache = (np.array(x, dtype=float), (U, s, V))
         d = self.element_terms[0].derivs(s, order)
@@ -242,9 +242,10 @@ class TetSolver:
         if order == 0 or not math.isfinite(E):
             return E, None, None
         if order >= 2 and upper:  # forces and Hessians in one pass, element index last
-            f, H = element_forces_and_hessians(U, V, d, m.grad, m.rest_volumes)
+            f, H = element_forces_and_hessians(U, V, d, self._grad_t, m.rest_volumes, element_last=True)
             g = np.bincount(self._force_index, weights=f.ravel(), minlength=3 * m.point_count).reshape(-1, 3)
             return E, g, H
+        U, V = np.moveaxis(U, -1, 0), np.moveaxis(V, -1, 0)
         P = first_piola(U, V, d.d1)
         f = np.matmul(m.grad, np.swapaxes(P, 1, 2)) * m.rest_volumes[:, None, None]  # V0 P grad_a
         g = scatter_vertices(f, m.cells, m.point_count)
@@ -376,7 +377,8 @@ class TetSolver:
                 if prev is not None and prev[2] == h and np.array_equal(prev[0], x0):
                     guess -= h * prev[1]  # and the velocity keeps changing as in the previous step
                 guess[fixed_dofs] = 0.0
-            p = -self._solve(self.pattern.apply_dirichlet(data, fixed_dofs), g, info, guess, x=x, free=~fixed_dofs)
+            A = self.pattern.apply_dirichlet(data, fixed_dofs, copy=False)  # data is not used again
+            p = -self._solve(A, g, info, guess, x=x, free=~fixed_dofs)
             info.solve_s += time.perf_counter() - ts
             info.newton_iterations += 1
             slope = float(g @ p)

@@ -12,6 +12,7 @@ def test_run_case_here_measures_a_step():
     r = tb.run_case_here((2, 1, 1), "newton+cg", 2)
     assert r["tets"] == 12 and r["finite"]
     assert r["ms_per_step"] > 0 and 1 <= r["newton_per_step"] <= 8 and 0 <= r["solve_share"] <= 1
+    assert r["openblas_core"] is None or r["openblas_core"] == tb.openblas_core()
 
 
 def test_quick_bench_writes_its_section(tmp_path):
@@ -21,6 +22,7 @@ def test_quick_bench_writes_its_section(tmp_path):
     text = out.read_text()
     assert "keep me" in text and text.count(tb.SECTION) == 1
     section = text[text.index(tb.SECTION):]
+    assert "OpenBLAS core " in section  # the BLAS kernels in use are stated (or "unknown")
     rows = [line for line in section.splitlines() if re.match(r"\| \d+ \|", line)]
     assert [r.split("|")[3].strip() for r in rows] == list(tb.VARIANTS)
     for r in rows:

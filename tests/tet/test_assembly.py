@@ -62,3 +62,16 @@ def test_dirichlet_mask_is_recomputed_when_it_changes():
         np.testing.assert_array_equal(A[fixed][:, fixed], np.eye(len(held)))
         assert not A[fixed][:, ~fixed].any()
         np.testing.assert_array_equal(A[~fixed][:, ~fixed], pat.matrix(data).toarray()[~fixed][:, ~fixed])
+
+
+def test_dirichlet_in_place_changes_the_data_it_is_given():
+    mesh = box(size=(0.1, 0.1, 0.1), cells=(1, 1, 1))
+    pat = HessianPattern(mesh.cells, mesh.point_count)
+    data = pat.assemble(np.ones((mesh.cell_count, 12, 12)))
+    fixed = np.zeros(3 * mesh.point_count, dtype=bool)
+    fixed[[1, 7]] = True
+    copied = pat.apply_dirichlet(data, fixed)
+    assert copied is not data and not np.array_equal(copied, data)
+    same = pat.apply_dirichlet(data, fixed, copy=False)
+    assert same is data
+    np.testing.assert_array_equal(same, copied)

@@ -196,3 +196,25 @@ def test_stable_corotated_one_pass_derivatives_match_the_sum_of_terms():
     ref = en._arap(s, term.mu, 2) + en._volumetric(s, 0.5 * lam * J1**2, lam * J1, np.full(len(s), lam), 2)
     for name in ("psi", "d1", "d2", "twist", "flip"):
         np.testing.assert_allclose(getattr(d, name), getattr(ref, name), rtol=1e-13, atol=1e-13)
+    # the line search's order-0 path (psi only) is the same energy
+    np.testing.assert_allclose(term.derivs(s, 0).psi, ref.psi, rtol=1e-13, atol=1e-13)
+    assert term.derivs(s, 0).d1 is None
+
+
+def test_element_last_layout_gives_the_same_forces_and_hessians(monkeypatch):
+    """The solver passes U, V (3, 3, m) from ``svd_rv_t`` and gradients (4, 3, m): same results as (m, ...)."""
+    rng = np.random.default_rng(6)
+    X, grad1, vol1 = _rest(5)
+    m = 13
+    grad, vol = np.repeat(grad1, m, axis=0), np.repeat(vol1, m)
+    x = X[None] + 0.3 * rng.standard_normal((m, 4, 3))
+    F = np.einsum("mai,maj->mij", x, grad)
+    U, s, V = kin.svd_rv(F)
+    Ut, st, Vt = kin.svd_rv_t(np.moveaxis(F, 0, -1))
+    d = TERMS["stable"].derivs(s, 2)
+    monkeypatch.setattr(en, "_CHUNK", 4)  # uneven chunks
+    f, H = en.element_forces_and_hessians(U, V, d, grad, vol)
+    ft, Ht = en.element_forces_and_hessians(Ut, Vt, d, np.moveaxis(grad, 0, -1), vol, element_last=True)
+    np.testing.assert_array_equal(st, s)
+    np.testing.assert_array_equal(ft, f)
+    np.testing.assert_array_equal(Ht, H)

@@ -149,3 +149,28 @@ def test_svd_warm_start_with_few_elements_changed():
     np.testing.assert_allclose(np.abs(s), np.linalg.svd(F2, compute_uv=False), rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(np.einsum("mik,mk,mjk->mij", U, s, V), F2, atol=1e-13)
     np.testing.assert_allclose(np.einsum("mki,mkj->mij", V, V), np.broadcast_to(np.eye(3), V.shape), atol=1e-13)
+
+
+def test_svd_rv_t_is_svd_rv_with_the_element_index_last():
+    """The solver's layout: same U, s, V as ``svd_rv`` (cold and warm), for stretched, inverted, flat and
+    rotated elements, and at tiny and huge scales (where the fast form of hypot falls back)."""
+    rng = np.random.default_rng(13)
+    F = np.eye(3) + 0.4 * rng.standard_normal((300, 3, 3))
+    F[::7, :, 2] *= -1.0  # inverted
+    F[::11, 2] = 0.0  # flat
+    F[::13] = np.stack([_rot(rng) for _ in range(len(F[::13]))])  # pure rotations: repeated singular values
+    _, _, V0 = kin.svd_rv(F + 0.01)
+    for Fs in (F, 1e-100 * F, 1e75 * F):
+        Ft = np.ascontiguousarray(np.moveaxis(Fs, 0, -1))
+        for warm in (None, V0):
+            U, s, V = kin.svd_rv(Fs, warm)
+            Ut, st, Vt = kin.svd_rv_t(Ft, None if warm is None else np.moveaxis(warm, 0, -1))
+            assert Ut.shape == Vt.shape == (3, 3, len(F)) and st.shape == (len(F), 3)
+            np.testing.assert_array_equal(np.moveaxis(Ut, -1, 0), U)
+            np.testing.assert_array_equal(np.moveaxis(Vt, -1, 0), V)
+            np.testing.assert_array_equal(st, s)
+            scale = np.abs(Fs).max()
+            np.testing.assert_allclose(np.einsum("mik,mk,mjk->mij", U, s, V), Fs, atol=1e-13 * scale)
+            np.testing.assert_allclose(np.abs(s), np.linalg.svd(Fs, compute_uv=False), rtol=1e-11,
+                                       atol=1e-13 * scale)
+            assert np.all(np.sign(s[:, 2]) * np.sign(np.linalg.det(Fs)) >= 0)

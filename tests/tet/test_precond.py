@@ -75,3 +75,31 @@ def test_lagged_coarse_space_reaches_the_same_solutions():
     free[:3] = False
     tl.setup(A, np.ones(3 * mesh.point_count), mesh.points, free, reuse=True)
     assert tl.rebuilt
+
+
+def test_preconditioner_is_jacobi_plus_the_galerkin_coarse_solve():
+    """``M^-1 r = D^-1 r + P (P^T A P)^-1 P^T r`` (the coarse matrix is inverted explicitly): compared with a
+    dense solve; M^-1 is symmetric positive definite."""
+    mesh = box(size=(0.4, 0.1, 0.1), cells=(8, 2, 2))
+    K, M = assemble(mesh, MAT, degree=1)
+    A = (K + 900.0 * M).tocsr()  # a step matrix M / h^2 + K
+    n3 = 3 * mesh.point_count
+    free = np.ones(n3, dtype=bool)
+    free[:12] = False  # some held DOFs (their rows of P are zero)
+    tl = TwoLevel(mesh.points, aggregates=6)
+    diag = A.diagonal()
+    prec = tl.setup(A, diag, mesh.points, free)
+    P = tl.prolongation(mesh.points, free).toarray()
+    Ac = P.T @ (A @ P)
+    dmax = np.diag(Ac).max()
+    empty = np.diag(Ac) <= 1e-14 * dmax
+    Ac[empty, empty] = 1.0  # as TwoLevel: groups without free DOFs, and a 1e-10 relative diagonal shift
+    Ac[np.diag_indices_from(Ac)] += 1e-10 * dmax
+    rng = np.random.default_rng(7)
+    R = rng.standard_normal((n3, 4))
+    Z = np.stack([prec(r) for r in R.T], axis=1)
+    ref = R / diag[:, None] + P @ np.linalg.solve(Ac, P.T @ R)
+    np.testing.assert_allclose(Z, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    G = R.T @ Z
+    np.testing.assert_allclose(G, G.T, rtol=1e-9, atol=1e-12 * np.abs(G).max())
+    assert np.all(np.linalg.eigvalsh(0.5 * (G + G.T)) > 0)
