@@ -73,14 +73,30 @@ def test_refactor_on_the_same_analysis_counts_eigenvalues_of_a_pencil():
     f.close()  # idempotent
 
 
+def test_thread_count_is_one_for_small_matrices_and_on_a_busy_machine(monkeypatch):
+    import os
+
+    from modalfem.eigen.pardiso import thread_count
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.2, 0.2))
+    assert thread_count(SERIAL_BELOW - 1) == 1 and thread_count(SERIAL_BELOW) == 0
+    monkeypatch.setattr(os, "getloadavg", lambda: (3.0, 0.2, 0.2))  # other work on both cores
+    assert thread_count(10 * SERIAL_BELOW) == 1
+
+
 @needs_pardiso
-def test_solve_then_refactor_on_a_threaded_size():
+def test_solve_then_refactor_on_a_threaded_size(monkeypatch):
     """analysis -> numeric -> solve -> numeric at another shift, above the one-thread size: this order
     crashed MKL when the solve ran on fewer threads than the factorisation (now one count per handle)."""
+    import os
+
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # threaded even on a busy machine
     n = int(np.ceil(SERIAL_BELOW ** (1 / 3))) + 1
     A = laplacian_3d(n, shift=-0.1)
     B = laplacian_3d(n, shift=1.0)
     with PardisoLDLT(A) as f:
+        assert f.threads == 0
         b = np.ones(A.shape[0])
         x = f.solve(b)
         assert np.linalg.norm(A @ x - b) < 1e-10 * np.linalg.norm(b) * 1e3
