@@ -14,7 +14,7 @@ matrix-vector product plus O(nv)) are timed, side by side in the same child proc
 Every case runs in a fresh child process with ``OPENBLAS_NUM_THREADS=OMP_NUM_THREADS=MKL_NUM_THREADS=1``
 (one core). Mode shapes are random (the cost does not depend on their values) on a grid-ordered
 closed torus surface of nv vertices and 2 nv triangles. Times are medians of
-5 repeats, each long enough (>= 0.05 s) to be above the timer resolution.
+9 repeats, each long enough (>= 0.05 s) to be above the timer resolution.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ DT = 1e-3  # [s]
 _ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
 
 
-def _timeit(fn, *, repeats: int = 5, min_time: float = 0.05) -> float:
+def _timeit(fn, *, repeats: int = 9, min_time: float = 0.05) -> float:
     """Median seconds per call of ``fn()`` over ``repeats`` timed loops of >= ``min_time`` each."""
     fn()
     t0 = time.perf_counter()
@@ -233,7 +233,7 @@ def render(cases: list[dict], fem: list[dict], info: dict, *, command: str, date
              "matrix-vector product + O(nv)) with the runtime's default storage: float32 mode matrix, modes-major "
              "(r, 3 nv), C-ordered, the rest shape as one more row (the dynamics stay float64). The memory-bandwidth "
              "floor is a plain copy of the same mode matrix (`np.copyto`), timed in the same process. "
-             "Each case in a fresh child process on one thread (OMP/OpenBLAS/MKL_NUM_THREADS=1); medians of 5 "
+             "Each case in a fresh child process on one thread (OMP/OpenBLAS/MKL_NUM_THREADS=1); medians of 9 "
              "timed loops. Shapes are random (the cost does not depend on their values) on a grid-ordered "
              "closed torus surface (about nv vertices, 2 nv triangles). Normals: area-weighted vertex normals from "
              "the deformed triangles (`normals`), and the same linearised in the modes (`modal_normals`: one more "
