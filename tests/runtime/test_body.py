@@ -167,3 +167,24 @@ def test_modal_normals_in_float32_match_float64(small_model):
     st = _state(b64, np.random.default_rng(6))
     n32 = b32.modal_normals(st)
     assert n32.dtype == np.float32 and np.abs(n32 - b64.modal_normals(st)).max() < 1e-5
+
+
+def test_decayed_modes_are_left_out_so_no_product_is_subnormal(small_model):
+    """A mode rung down to q ~ 1e-40 would make q_i * phi subnormal (slow arithmetic): such modes are
+    dropped from the product (their displacement is below 1e-20 m); live modes are kept exactly."""
+    from modalfem.runtime.body import NEGLIGIBLE, _coefficients
+
+    for dtype in (np.float32, np.float64):
+        body = ModalBody(small_model, dtype=dtype)
+        st = State.rest(body)
+        st.q[:] = 1e-40
+        st.q[0] = 1e-3
+        coef = _coefficients(st.q, body.shapes_t.dtype, body._row_scale)
+        assert coef[0] == np.asarray(1e-3, dtype) and np.all(coef[1:-1] == 0) and coef[-1] == 1
+        prod = coef[:, None] * body._basis
+        tiny = np.finfo(dtype).tiny
+        assert not np.any((prod != 0) & (np.abs(prod) < tiny))  # no subnormal product
+        kept = ModalBody(small_model, dtype=np.float64)
+        st.q[:] = 1e-3  # every mode alive: the flushed basis entries change nothing visible
+        assert np.allclose(body.positions(st), kept.positions(st), rtol=0, atol=1e-6)
+        assert NEGLIGIBLE <= 1e-20
