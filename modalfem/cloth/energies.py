@@ -114,7 +114,7 @@ class Membrane:
     def energy(self, x: np.ndarray) -> float:
         """Membrane energy [J] at positions ``x`` (n, 3) [m]."""
         F = self._F(x)
-        R, S, _, tr_s = _polar(F)
+        R, _S, _, tr_s = _polar(F)
         psi = self.mu * np.sum((F - R) ** 2, axis=(1, 2)) + 0.5 * self.lam * (tr_s - 2.0) ** 2
         return float(np.sum(self._area * psi))
 

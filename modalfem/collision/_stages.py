@@ -7,12 +7,13 @@ import warnings
 
 import numpy as np
 
+from modalfem.collision._system import PairStore
 from modalfem.collision.ccd import edge_edge_ccd, vertex_face_ccd
 from modalfem.collision.obstacles import Plane
 from modalfem.collision.repulsion import (
     apply_pair_impulses,
     contact_frames,
-    repulsion_impulses,
+    repulsion_pairs,
 )
 from modalfem.collision.zones import UnionFind, rigid_zone_velocities
 from modalfem.errors import SimulationError
@@ -22,6 +23,10 @@ __all__ = ["PIPELINE_DEPTH", "analytic_hits", "ccd_hits", "resolve"]
 #: CCD bisection depth in the pipeline: a near miss within eta + L * 2**-20 counts as a hit (L: the
 #: pair's relative displacement over the step), a conservative answer that costs fewer levels
 PIPELINE_DEPTH = 20
+#: spare box margin of the candidate pairs as a fraction of the thickness, without culling: a vertex
+#: whose trajectory moves by up to about ``SLACK * thickness`` keeps its pairs (larger: fewer
+#: re-searches, more candidates)
+SLACK = 0.1
 
 
 def _analytic_contacts(ob, X0, V, dt, t, eta):
@@ -53,23 +58,46 @@ def analytic_hits(system, X0, V, dt, t, eta, n):
     return out
 
 
-def ccd_hits(system, X0, V, dt, cand, invm, eta, roots=None, only=None):
-    """Colliding candidate pairs: [("vf"|"ee", quads (k, 4), toi (k,))], skipping all-kinematic pairs,
-    pairs inside one zone (``roots``) and, if ``only`` ((N,) bool) is given, pairs without a flagged
-    vertex (their trajectories did not change since they were last found collision-free)."""
+def _near(q: np.ndarray, kind: str, lo: np.ndarray, hi: np.ndarray, margin: float) -> np.ndarray:
+    """(k,) bool: the two primitives of pairs ``q`` (k, 4) have boxes (vertex boxes ``lo``/``hi``
+    (N, 3) [m]) within ``margin`` [m] of each other."""
+    lo, hi = lo.T, hi.T
+    ok = np.ones(len(q), dtype=bool)
+    c0, c1, c2, c3 = q.T
+    for ax in range(3):
+        lx, hx = lo[ax], hi[ax]
+        if kind == "vf":
+            alo, ahi = lx[c0], hx[c0]
+            blo = np.minimum(np.minimum(lx[c1], lx[c2]), lx[c3])
+            bhi = np.maximum(np.maximum(hx[c1], hx[c2]), hx[c3])
+        else:
+            alo, ahi = np.minimum(lx[c0], lx[c1]), np.maximum(hx[c0], hx[c1])
+            blo, bhi = np.minimum(lx[c2], lx[c3]), np.maximum(hx[c2], hx[c3])
+        ok &= (alo <= bhi + margin) & (blo <= ahi + margin)
+    return ok
+
+
+def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
+    """Colliding candidate pairs of ``store`` (a ``PairStore``): [("vf"|"ee", quads (k, 4), toi (k,))],
+    skipping all-kinematic pairs, pairs inside one zone (``roots``) and, if ``only`` ((N,) bool) is
+    given, pairs without a flagged vertex (their trajectories did not change since they were last found
+    collision-free). The cheap index filters run first, then the trajectory boxes (within ``eta``),
+    then the CCD."""
     X1 = X0 + dt * V
-    cand = cand.subset(*cand.within(system, X0, X1, eta))
+    lo, hi = np.minimum(X0, X1), np.maximum(X0, X1)
+    movable = invm > 0
     out = []
-    for kind, q, fun in (("vf", cand.vf, vertex_face_ccd), ("ee", cand.ee, edge_edge_ccd)):
+    for kind, fun in (("vf", vertex_face_ccd), ("ee", edge_edge_ccd)):
+        q = store.pairs(kind, only)
         if len(q) == 0:
             continue
-        keep = (invm[q] > 0).any(axis=1)
-        if only is not None:
-            keep &= only[q].any(axis=1)
+        c0, c1, c2, c3 = q.T
+        ok = movable[c0] | movable[c1] | movable[c2] | movable[c3]
         if roots is not None:
-            r = roots[q]
-            keep &= ~(r == r[:, :1]).all(axis=1)
-        q = q[keep]
+            r0 = roots[c0]
+            ok &= ~((roots[c1] == r0) & (roots[c2] == r0) & (roots[c3] == r0))
+        q = q[ok]
+        q = q[_near(q, kind, lo, hi, eta)]
         if len(q) == 0:
             continue
         hit, toi = fun(X0[q], X1[q], eta=eta, max_depth=PIPELINE_DEPTH)
@@ -135,6 +163,17 @@ def _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n):
     return dV, count
 
 
+def _step_cache(system, cfg, X0, dt, t) -> dict:
+    """The broad-phase results kept between calls with the same start positions, step and config (the
+    pipeline call after smoothing re-uses those of the first call: same ``X0``, other velocities)."""
+    c = getattr(system, "step_cache", None)
+    if c is not None and c["cfg"] is cfg and c["dt"] == dt and c["t"] == t and np.array_equal(c["X0"], X0):
+        return c
+    system.step_cache = {"cfg": cfg, "dt": dt, "t": t, "X0": X0.copy(), "cand": None, "V": None, "lo": None, "hi": None,
+                         "near": None}
+    return system.step_cache
+
+
 def resolve(system, cfg, x0, v, masses, dt, t):
     """Run stages (a)-(c); see ``CollisionPipeline.resolve``."""
     from modalfem.collision.pipeline import CollisionStats
@@ -149,61 +188,71 @@ def resolve(system, cfg, x0, v, masses, dt, t):
     V = np.concatenate([v, (Xo1 - Xo0) / dt])
     invm = np.concatenate([1.0 / masses, np.zeros(len(Xo0))])
     eta = cfg.eta
-    slack = eta  # spare box margin [m] before a vertex counts as dirty
-    cache = {"cand": None, "V": None}
-
-    def tally(c, measured):
-        stats.pair_tests += c.tests
-        if measured:
-            stats.pair_tests_unculled = (stats.pair_tests_unculled or 0) + c.tests_unculled
-        stats.candidates_vf += len(c.vf)
-        stats.candidates_ee += len(c.ee)
-
-    def static_candidates():
-        """Pairs whose boxes at X0 come within the thickness (for repulsions)."""
-        t0 = time.perf_counter()
-        measured = cfg.measure_culling or not cfg.culling
-        c = system.candidates(X0, X0, margin=0.5 * cfg.thickness, self_collision=cfg.self_collision,
-                              culling=cfg.culling, count_unculled=cfg.measure_culling)
-        tally(c, measured)
-        sec["broad_phase"] += time.perf_counter() - t0
-        return c
+    # spare box margin [m] of the candidate pairs. With culling a vertex whose end position moves by more
+    # than eta is dirty anyway (the normal cones that culled its pairs were for the old trajectory), so a
+    # wider margin would only add candidates
+    culls = cfg.culling and cfg.self_collision
+    slack = eta if culls else max(eta, SLACK * cfg.thickness)
+    margin = 0.5 * eta + 2 * slack
+    cache = _step_cache(system, cfg, X0, dt, t)
 
     def candidates():
         """Pairs whose swept boxes come within eta, valid for the current V.
 
-        Boxes are grown by ``eta / 2 + 2 * slack``; a vertex whose velocity moved by more than ``slack /
-        dt`` from its reference (the velocity its pairs were found with) is dirty, and only the pairs
-        holding a dirty vertex are searched again (a restricted traversal); the others stay valid."""
+        Each vertex keeps the box its pairs were found with (trajectory grown by ``margin``); a vertex
+        whose trajectory grown by eta / 2 leaves that box is dirty, and only the pairs holding a dirty
+        vertex are searched again (for the dirty triangles only); the others stay valid."""
         t0 = time.perf_counter()
-        margin = 0.5 * eta + 2 * slack
         if cache["cand"] is None:
             measured = cfg.measure_culling or not cfg.culling
-            c = system.candidates(X0, X0 + dt * V, margin=margin, self_collision=cfg.self_collision,
-                                  culling=cfg.culling, count_unculled=cfg.measure_culling)
-            tally(c, measured)
-            cache["cand"], cache["V"] = c, V.copy()
+            X1 = X0 + dt * V
+            c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=cfg.culling,
+                                  count_unculled=cfg.measure_culling)
+            stats.pair_tests += c.tests
+            if measured:
+                stats.pair_tests_unculled = (stats.pair_tests_unculled or 0) + c.tests_unculled
+            stats.candidates_vf += len(c.vf)
+            stats.candidates_ee += len(c.ee)
+            cache["cand"], cache["store"], cache["V"] = c, PairStore(c), V.copy()
+            cache["lo"], cache["hi"] = system.vertex_boxes(X0, X1, margin)
         else:
-            dirty = dt * np.abs(V - cache["V"]).max(axis=1) > slack
+            # dirty: the trajectory grown by eta / 2 leaves the box its pairs were found with, or (with
+            # culling: the normal cones that culled pairs were for the old trajectories) the end
+            # position moved by more than eta
+            X1 = X0 + dt * V
+            lo, hi = cache["lo"], cache["hi"]
+            dirty = ((np.minimum(X0, X1) - 0.5 * eta < lo) | (np.maximum(X0, X1) + 0.5 * eta > hi)).any(axis=1)
+            if culls:
+                dirty |= dt * np.abs(V - cache["V"]).max(axis=1) > eta
             if dirty.any():
-                old = cache["cand"]
-                keep_v, keep_e = ~dirty[old.vf].any(axis=1), ~dirty[old.ee].any(axis=1)
-                new = system.candidates(X0, X0 + dt * V, margin=margin, self_collision=cfg.self_collision,
-                                        culling=cfg.culling, dirty=dirty)
-                cache["cand"] = old.subset(keep_v, keep_e).merged(new)
                 cache["V"][dirty] = V[dirty]
+                lo[dirty], hi[dirty] = system.vertex_boxes(X0[dirty], X1[dirty], margin)
+                cache["store"].drop(dirty)
+                cache["store"].add(system.dirty_candidates(lo, hi, dirty, self_collision=cfg.self_collision))
         sec["broad_phase"] += time.perf_counter() - t0
-        return cache["cand"]
+        return cache["store"]
 
     if cfg.repulsion:
-        cand = static_candidates()
         t0 = time.perf_counter()
-        near = cand.subset(*cand.within(system, X0, X0, cfg.thickness))
-        dV, count = repulsion_impulses(X0, V, invm, near.vf, near.ee, thickness=cfg.thickness, dt=dt,
-                                       friction=cfg.friction)
+        if cache["near"] is None:  # pairs closer than h at X0: independent of the velocities
+            # boxes at X0 grown by h / 2, normal cones of the static triangles (a traversal of its own)
+            t1 = time.perf_counter()
+            cand = system.candidates(X0, X0, margin=0.5 * cfg.thickness, self_collision=cfg.self_collision,
+                                     culling=cfg.culling, count_unculled=cfg.measure_culling)
+            stats.pair_tests += cand.tests
+            if cfg.measure_culling or not cfg.culling:
+                stats.pair_tests_unculled = (stats.pair_tests_unculled or 0) + cand.tests_unculled
+            sec["broad_phase"] += time.perf_counter() - t1
+            t0 += time.perf_counter() - t1
+            near = cand.subset(*cand.within(system, X0, X0, cfg.thickness))
+            cache["near"] = repulsion_pairs(X0, near.vf, near.ee, thickness=cfg.thickness, dt=dt)
+        quads, w, nrm, tv = cache["near"]
+        dV = np.zeros_like(V)
+        if len(quads):
+            dV, _ = apply_pair_impulses(V, invm, quads, w, nrm, tv, friction=cfg.friction)
         dA, acount = _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n)
         V = V + dV + dA
-        stats.proximities = count + acount
+        stats.proximities = len(quads) + acount
         sec["repulsion"] += time.perf_counter() - t0
     remaining = None
     only = None

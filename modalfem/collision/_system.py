@@ -16,7 +16,7 @@ from modalfem.collision.obstacles import Plane, Sphere, TriangleMeshObstacle
 from modalfem.collision.tritri import intersecting_pairs
 from modalfem.errors import InputError
 
-__all__ = ["Candidates", "System", "check_triangles", "count_intersections", "edges_of"]
+__all__ = ["Candidates", "PairStore", "System", "check_triangles", "count_intersections", "edges_of"]
 
 
 
@@ -74,6 +74,51 @@ class Candidates:
         return Candidates(self.vf[mv], self.ee[me], self.tests, self.tests_unculled, self.vf_ids[mv], self.ee_ids[me])
 
 
+class PairStore:
+    """The candidate pairs of one step as blocks of (4, k) vertex indices with an alive mask: pairs holding
+    a dirty vertex are dropped in place and their replacements added as a new block, so an update and a
+    selection cost a few vectorised gathers, without copying the untouched pairs."""
+
+    def __init__(self, cand: Candidates) -> None:
+        self.blocks: list = []
+        self.add(cand)
+
+    def add(self, cand: Candidates) -> None:
+        """Append the pairs of ``cand``."""
+        for kind, q in (("vf", cand.vf), ("ee", cand.ee)):
+            if len(q):
+                self.blocks.append((kind, np.ascontiguousarray(q.T), np.ones(len(q), dtype=bool)))
+        if len(self.blocks) > 24:
+            merged = []
+            for kind in ("vf", "ee"):
+                parts = [qT[:, alive] for k, qT, alive in self.blocks if k == kind]
+                if parts:
+                    q = np.concatenate(parts, axis=1)
+                    merged.append((kind, q, np.ones(q.shape[1], dtype=bool)))
+            self.blocks = merged
+
+    @staticmethod
+    def _incident(qT: np.ndarray, flags: np.ndarray) -> np.ndarray:
+        return flags[qT[0]] | flags[qT[1]] | flags[qT[2]] | flags[qT[3]]
+
+    def drop(self, dirty: np.ndarray) -> None:
+        """Drop the pairs holding a vertex flagged in ``dirty`` ((N,) bool)."""
+        for _, qT, alive in self.blocks:
+            alive &= ~self._incident(qT, dirty)
+
+    def pairs(self, kind: str, only: np.ndarray | None = None) -> np.ndarray:
+        """(k, 4) alive pairs of ``kind`` (``"vf"``/``"ee"``), only those holding a vertex flagged in
+        ``only`` ((N,) bool) if given."""
+        parts = []
+        for k, qT, alive in self.blocks:
+            if k == kind:
+                sel = alive if only is None else alive & self._incident(qT, only)
+                parts.append(qT[:, sel])
+        if not parts:
+            return np.zeros((0, 4), dtype=np.int64)
+        return np.concatenate(parts, axis=1).T
+
+
 class System:
     """Cloth triangles plus obstacle meshes, their edges and BVHs."""
 
@@ -100,6 +145,7 @@ class System:
         # (inside the owners' boxes) cannot be missed
         self.owned_verts = self._owned(self.tris, self.n_total)
         self.owned_edges = self._owned(self.tri_edges, len(self.edges))
+        self._own_v, self._own_e = _owned_lists(self.owned_verts), _owned_lists(self.owned_edges)
         self.cloth_bvh: BroadPhaseBVH | None = None
         self.obstacle_bvh: BroadPhaseBVH | None = None
         if self.meshes:
@@ -152,13 +198,45 @@ class System:
             tests += t2
             unculled += t2
         tp = np.concatenate(parts) if parts else np.zeros((0, 2), dtype=np.int64)
+        vlo, vhi = self.vertex_boxes(X0, X1, margin, static_margin)
+        vf, ee, vf_ids, ee_ids = self._primitive_pairs(tp, vlo, vhi, dirty)
+        return Candidates(vf, ee, tests, unculled, vf_ids, ee_ids)
+
+    def dirty_candidates(self, vlo: np.ndarray, vhi: np.ndarray, dirty: np.ndarray, *,
+                         self_collision: bool) -> Candidates:
+        """The candidate pairs holding a ``dirty`` vertex ((n_total,) bool), searched again with the vertex
+        boxes ``vlo``/``vhi`` ((n_total, 3) [m]; a clean vertex keeps the box of the last search). Only
+        the dirty triangles' boxes are refitted and queried (no culling: a superset of what a full
+        traversal would give for them), so the cost follows the dirty set."""
+        n, m = self.n_cloth, self.m_cloth
+        dtri = dirty[self.tris[:m]].any(axis=1)
+        ids = np.flatnonzero(dtri)
+        bvh = self.cloth_bvh
+        bvh.refit_triangles(ids, vlo[:n], vhi[:n])
+        qlo, qhi = bvh.tri_lo[ids], bvh.tri_hi[ids]
+        parts = []
+        if self_collision:
+            qi, other = bvh.query(qlo, qhi)
+            a = ids[qi]
+            ok = (a != other) & (~dtri[other] | (a < other))
+            parts.append(np.stack([a[ok], other[ok]], axis=1))
+        if self.obstacle_bvh is not None:
+            qi, other = self.obstacle_bvh.query(qlo, qhi)
+            parts.append(np.stack([ids[qi], other + m], axis=1))
+        tp = np.concatenate(parts) if parts else np.zeros((0, 2), dtype=np.int64)
+        vf, ee, vf_ids, ee_ids = self._primitive_pairs(tp, vlo, vhi, dirty)
+        return Candidates(vf, ee, 0, 0, vf_ids, ee_ids)
+
+    @staticmethod
+    def vertex_boxes(X0, X1, margin, static_margin=None):
+        """Vertex boxes (N, 3), (N, 3) [m]: the trajectory ``X0 -> X1`` grown by ``margin`` [m] and, if
+        given, the point at ``X0`` grown by ``static_margin`` [m]."""
         vlo = np.minimum(X0, X1) - margin
         vhi = np.maximum(X0, X1) + margin
         if static_margin is not None:
             vlo = np.minimum(vlo, X0 - static_margin)
             vhi = np.maximum(vhi, X0 + static_margin)
-        vf, ee, vf_ids, ee_ids = self._primitive_pairs(tp, vlo, vhi, dirty)
-        return Candidates(vf, ee, tests, unculled, vf_ids, ee_ids)
+        return vlo, vhi
 
     def _primitive_pairs(self, tp: np.ndarray, vlo: np.ndarray, vhi: np.ndarray, dirty=None) -> tuple:
         """Point-triangle and edge-edge pairs of triangle pairs ``tp`` whose boxes overlap (vertex boxes
@@ -168,30 +246,67 @@ class System:
         if len(tp) == 0:
             z4, z2 = np.zeros((0, 4), dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
             return z4, z4, z2, z2
-        flo, fhi = vlo[tris].min(axis=1).T.copy(), vhi[tris].max(axis=1).T.copy()
-        elo, ehi = vlo[self.edges].min(axis=1).T.copy(), vhi[self.edges].max(axis=1).T.copy()
+        vlo, vhi = vlo.T.copy(), vhi.T.copy()
+        t0, t1, t2 = tris.T
+        flo = np.minimum(np.minimum(vlo[:, t0], vlo[:, t1]), vlo[:, t2])
+        fhi = np.maximum(np.maximum(vhi[:, t0], vhi[:, t1]), vhi[:, t2])
+        e0, e1 = self.edges.T
+        elo, ehi = np.minimum(vlo[:, e0], vlo[:, e1]), np.maximum(vhi[:, e0], vhi[:, e1])
         A, B = tp[:, 0], tp[:, 1]
         # vertex-face: vertices owned by one triangle against the other triangle
-        v = np.concatenate([self.owned_verts[A].ravel(), self.owned_verts[B].ravel()])
-        f = np.concatenate([np.repeat(B, 3), np.repeat(A, 3)])
-        ok = v >= 0
+        va, fa = _expand(self._own_v, A, B)
+        vb, fb = _expand(self._own_v, B, A)
+        v, f = np.concatenate([va, vb]), np.concatenate([fa, fb])
         if dirty is not None:
-            ok &= dirty[np.maximum(v, 0)] | dirty[tris].any(axis=1)[f]
-        v, f = _overlapping(vlo.T.copy(), vhi.T.copy(), v[ok], flo, fhi, f[ok])
-        ok = (tris[f] != v[:, None]).all(axis=1)
+            ok = dirty[v] | (dirty[tris[f, 0]] | dirty[tris[f, 1]] | dirty[tris[f, 2]])
+            v, f = v[ok], f[ok]
+        v, f = _overlapping(vlo, vhi, v, flo, fhi, f)
+        ok = (tris[f, 0] != v) & (tris[f, 1] != v) & (tris[f, 2] != v)
         v, f = v[ok], f[ok]
         vf = np.concatenate([v[:, None], tris[f]], axis=1)
         # edge-edge: edges owned by one triangle against those owned by the other
-        ea = np.repeat(self.owned_edges[A], 3, axis=1).ravel()
-        eb = np.tile(self.owned_edges[B], (1, 3)).ravel()
-        ok = (ea >= 0) & (eb >= 0)
+        ea, eb = _expand_pairs(self._own_e, A, B)
         if dirty is not None:
-            de = dirty[self.edges].any(axis=1)
-            ok &= de[np.maximum(ea, 0)] | de[np.maximum(eb, 0)]
-        ea, eb = _overlapping(elo, ehi, ea[ok], elo, ehi, eb[ok])
-        quad = np.concatenate([self.edges[ea], self.edges[eb]], axis=1)
-        ok = (quad[:, :2, None] != quad[:, None, 2:]).all(axis=(1, 2))
-        return vf, quad[ok], np.stack([v, f], axis=1), np.stack([ea[ok], eb[ok]], axis=1)
+            de = dirty[self.edges[:, 0]] | dirty[self.edges[:, 1]]
+            ok = de[ea] | de[eb]
+            ea, eb = ea[ok], eb[ok]
+        ea, eb = _overlapping(elo, ehi, ea, elo, ehi, eb)
+        a0, a1 = self.edges[ea, 0], self.edges[ea, 1]
+        b0, b1 = self.edges[eb, 0], self.edges[eb, 1]
+        ok = (a0 != b0) & (a0 != b1) & (a1 != b0) & (a1 != b1)
+        quad = np.stack([a0[ok], a1[ok], b0[ok], b1[ok]], axis=1)
+        return vf, quad, np.stack([v, f], axis=1), np.stack([ea[ok], eb[ok]], axis=1)
+
+
+def _owned_lists(owned: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CSR form (counts (F,), starts (F,), items) of the -1 padded (F, 3) owned items."""
+    ok = owned >= 0
+    cnt = ok.sum(axis=1)
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    return cnt, start, owned[ok]
+
+
+def _ranks(cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For segments of lengths ``cnt``: the segment of every element and its rank inside it."""
+    seg = np.repeat(np.arange(len(cnt)), cnt)
+    rank = np.arange(len(seg)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    return seg, rank
+
+
+def _expand(own, A, B):
+    """(item owned by A[k], B[k]) for every k and every item owned by A[k]."""
+    cnt, start, items = own
+    seg, rank = _ranks(cnt[A])
+    return items[start[A][seg] + rank], B[seg]
+
+
+def _expand_pairs(own, A, B):
+    """(item owned by A[k], item owned by B[k]) for every k and every such combination."""
+    cnt, start, items = own
+    nb = cnt[B]
+    seg, rank = _ranks(cnt[A] * nb)
+    nb = nb[seg]
+    return items[start[A][seg] + rank // nb], items[start[B][seg] + rank % nb]
 
 
 def _overlapping(lo1, hi1, i, lo2, hi2, j):

@@ -7,12 +7,11 @@ trajectory from ``x0`` to ``x1`` (a swept box) grown by a margin, and a cone bou
 along the trajectory (the normal is quadratic in time; its three Bernstein control vectors bound it).
 
 Self-collision culling (Volino and Magnenat-Thalmann): a node whose triangles form one edge-connected
-patch and whose normal cone is narrower than a half-space cannot intersect itself during the step, so
-its self-test is skipped; likewise the test between two such patches that share an edge when the cone
-of their union is narrower than a half-space. (The paper's second condition, a contour that does not
-fold back in projection, is not checked: with connected patches from compact Morton groups it fails
-only for a helicoid-like patch winding around a point.) Build the tree from the rest shape
-(``x_ref``) so that nodes are compact patches.
+patch, whose normal cone is narrower than a half-space and whose contour projected on the plane normal
+to the cone axis does not cross itself cannot intersect itself during the step, so its self-test is
+skipped; likewise the test between two such patches that share an edge when their union passes both
+tests. The contour test runs on the positions at the step's start, middle and end (the cone bounds the
+normals at all times). Build the tree from the rest shape (``x_ref``) so that nodes are compact patches.
 """
 
 from __future__ import annotations
@@ -23,6 +22,10 @@ from modalfem.collision.distance import cross
 from modalfem.errors import InputError
 
 __all__ = ["BroadPhaseBVH"]
+
+#: longest projected contour [edges] checked for self-crossings; a longer one leaves its patch unculled
+#: (its sub-patches are still culled)
+CONTOUR_LIMIT = 4096
 
 
 def _morton(points: np.ndarray) -> np.ndarray:
@@ -60,15 +63,23 @@ class BroadPhaseBVH:
         self.slot_tri = slots.reshape(P, L)
         self.leaf_of_tri = np.empty(m, dtype=np.int64)
         self.leaf_of_tri[order] = P + np.arange(m) // L
+        self.slot_of_tri = np.empty(m, dtype=np.int64)
+        self.slot_of_tri[order] = np.arange(m) % L
         self.nonempty = np.zeros(2 * P, dtype=bool)
         self.nonempty[P:] = (self.slot_tri >= 0).any(axis=1)
         for lev in range(self.levels - 1, -1, -1):
             a = np.arange(1 << lev, 2 << lev)
             self.nonempty[a] = self.nonempty[2 * a] | self.nonempty[2 * a + 1]
         self.connected = self._connectivity()
+        self._boundary_lists()
+        #: check the contour condition when culling (off: the normal cone alone, as a comparison)
+        self.boundary_check = True
+        #: contours longer than this (edges) are not checked, and their patches not culled
+        self.contour_limit = CONTOUR_LIMIT
         self._leaf_count = (self.slot_tri >= 0).sum(axis=1)
         self.lo = self.hi = self.tri_lo = self.tri_hi = None
         self.cone_axis = self.cone_angle = None
+        self._x0 = self._x1 = None
 
     def _connectivity(self) -> np.ndarray:
         """(2P,) bool: the node's triangles form one edge-connected patch."""
@@ -82,26 +93,119 @@ class BroadPhaseBVH:
         t1, t2 = owner[o][:-1][same], owner[o][1:][same]
         connected = np.zeros(2 * self.P, dtype=bool)
         self._adjacency_keys(t1, t2)
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
         node = self.leaf_of_tri.copy()
         for _ in range(self.levels + 1):
             sel = node[t1] == node[t2]
-            a, b = t1[sel], t2[sel]
-            lab = np.arange(m)
-            while True:
-                low = np.minimum(lab[a], lab[b])
-                new = lab.copy()
-                np.minimum.at(new, a, low)
-                np.minimum.at(new, b, low)
-                new = new[new]
-                if np.array_equal(new, lab):
-                    break
-                lab = new
-            roots = np.unique(np.stack([node, lab], axis=1), axis=0)
-            comps = np.bincount(roots[:, 0], minlength=2 * self.P)
+            graph = coo_matrix((np.ones(int(sel.sum())), (t1[sel], t2[sel])), shape=(m, m))
+            lab = connected_components(graph, directed=False)[1]
+            comps = np.bincount(np.unique(node * m + lab) // m, minlength=2 * self.P)
             u = np.unique(node)
             connected[u] = comps[u] == 1
             node = node >> 1
         return connected
+
+    def _boundary_lists(self) -> None:
+        """Per node, its boundary edges (edges with exactly one triangle in the node) as CSR
+        ``_bnd_start`` (2P + 1,) into ``_bnd_edge`` (vertex pairs (E, 2))."""
+        tri = self.triangles
+        e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+        e.sort(axis=1)
+        owner = np.tile(np.arange(len(tri)), 3)
+        edges, inv = np.unique(e, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        # two triangles per interior edge (a non-manifold edge's extra triangles count as boundary)
+        o = np.argsort(inv, kind="stable")
+        starts = np.searchsorted(inv[o], np.arange(len(edges)))
+        cnt = np.bincount(inv, minlength=len(edges))
+        has2 = cnt >= 2
+        first, second = owner[o][starts], owner[o][np.minimum(starts + 1, len(o) - 1)]
+        node_a, node_b, eid = [], [], np.arange(len(edges))
+        la = self.leaf_of_tri[first]
+        lb = np.where(has2, self.leaf_of_tri[second], -1)
+        for shift in range(self.levels + 1):
+            a = la >> shift
+            b = np.where(has2, lb >> shift, -1)
+            bnd = (a != b) | (cnt > 2)
+            node_a.append(np.stack([a[bnd], eid[bnd]], 1))
+            two = bnd & has2
+            node_b.append(np.stack([b[two], eid[two]], 1))
+        ne = np.concatenate(node_a + node_b)
+        ne = ne[np.lexsort((ne[:, 1], ne[:, 0]))]
+        self._bnd_start = np.searchsorted(ne[:, 0], np.arange(2 * self.P + 1))
+        self._bnd_edge = edges[ne[:, 1]]
+        self._bnd_id = ne[:, 1]
+
+    def _contour_ok(self, na: np.ndarray, nb: np.ndarray, axes: np.ndarray) -> np.ndarray:
+        """(k,) bool: the contour of node ``na[k]`` (united with node ``nb[k]`` if >= 0: edges shared by
+        both are interior) projected on the plane normal to ``axes[k]`` has no self-intersection at the
+        step's start, middle and end positions (the second culling condition of Volino and
+        Magnenat-Thalmann). Edges sharing a vertex may touch; collinear overlaps count as crossings."""
+        k = len(na)
+        ok = np.ones(k, dtype=bool)
+        if k == 0 or not self.boundary_check:
+            return ok
+        st = self._bnd_start
+        items, ids = [], []
+        for nodes in (na, nb):
+            valid = nodes >= 0
+            nn = np.where(valid, nodes, 0)
+            cnt = np.where(valid, st[nn + 1] - st[nn], 0)
+            seg = np.repeat(np.arange(k), cnt)
+            rank = np.arange(len(seg)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+            items.append(seg)
+            ids.append(st[nn][seg] + rank)
+        item, pos = np.concatenate(items), np.concatenate(ids)
+        key = item * (int(self._bnd_id.max()) + 1) + self._bnd_id[pos]
+        _, first, cnt = np.unique(key, return_index=True, return_counts=True)
+        item, pos = item[first[cnt == 1]], pos[first[cnt == 1]]  # shared edges are interior
+        per = np.bincount(item, minlength=k)
+        ok[per > self.contour_limit] = False  # not checked: not culled
+        keep = per[item] <= self.contour_limit
+        item, E = item[keep], self._bnd_edge[pos[keep]]
+        # an orthonormal basis (u, w) of each plane
+        helper = np.where(np.abs(axes[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+        u = cross(axes, helper)
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        w = cross(axes, u)
+        for s in (0.0,) if self._x1 is self._x0 else (0.0, 0.5, 1.0):
+            x = self._x0 if s == 0.0 else self._x0 + s * (self._x1 - self._x0)
+            ok[self._crossing_items(item, E, x, u[item], w[item])] = False
+        return ok
+
+    @staticmethod
+    def _crossing_items(item: np.ndarray, E: np.ndarray, x: np.ndarray, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Items holding two edges (``E`` (N, 2) vertex pairs of item ``item`` (N,)) that do not share a
+        vertex and cross (or touch, or overlap collinearly) when projected on (``u``, ``w``) (N, 3):
+        sort and sweep along u over the 2D boxes, orientation tests on the overlapping pairs."""
+        a = np.stack([np.einsum("nei,ni->ne", x[E], u), np.einsum("nei,ni->ne", x[E], w)], axis=-1)  # (N, 2, 2)
+        lo, hi = a.min(axis=1), a.max(axis=1)
+        if len(item) == 0:
+            return item
+        span = float(hi[:, 0].max() - lo[:, 0].min()) + 1.0
+        base = lo[:, 0].min()
+        order = np.lexsort((lo[:, 0], item))
+        key = item[order] * span + (lo[order, 0] - base)
+        tol = 1e-9 * span
+        end = np.searchsorted(key, item[order] * span + (hi[order, 0] - base) + tol, side="right")
+        cnt = np.maximum(end - np.arange(len(order)) - 1, 0)
+        i = np.repeat(np.arange(len(order)), cnt)
+        j = i + 1 + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+        i, j = order[i], order[j]
+        near = (item[i] == item[j]) & (lo[i, 1] <= hi[j, 1]) & (lo[j, 1] <= hi[i, 1])
+        i, j = i[near], j[near]
+        ea, eb = E[i], E[j]
+        apart = (ea[:, :1] != eb).all(axis=1) & (ea[:, 1:] != eb).all(axis=1)
+        i, j = i[apart], j[apart]
+        A0, A1, B0, B1 = a[i, 0], a[i, 1], a[j, 0], a[j, 1]
+
+        def orient(o, d, q):
+            return (d[:, 0] - o[:, 0]) * (q[:, 1] - o[:, 1]) - (d[:, 1] - o[:, 1]) * (q[:, 0] - o[:, 0])
+
+        hit = (orient(A0, A1, B0) * orient(A0, A1, B1) <= 0) & (orient(B0, B1, A0) * orient(B0, B1, A1) <= 0)
+        return np.unique(item[i[hit]])
 
     def _adjacency_keys(self, t1: np.ndarray, t2: np.ndarray) -> None:
         """Sorted keys ``A * 2P + B`` of node pairs (any levels) holding two edge-adjacent triangles."""
@@ -134,6 +238,7 @@ class BroadPhaseBVH:
             static_margin: if given, each box also covers the triangle at ``x0`` grown by this [m].
         """
         tri = self.triangles
+        self._x0, self._x1 = x0, (x0 if x1 is None else x1)
         p0 = x0[tri]
         p1 = p0 if x1 is None else x1[tri]
         lo0 = np.minimum(np.minimum(p0[:, 0], p0[:, 1]), p0[:, 2])
@@ -145,7 +250,6 @@ class BroadPhaseBVH:
         if static_margin is not None:
             self.tri_lo = np.minimum(self.tri_lo, lo0 - static_margin)
             self.tri_hi = np.maximum(self.tri_hi, hi0 + static_margin)
-        self._tlo, self._thi = self.tri_lo.T.copy(), self.tri_hi.T.copy()
         P, L = self.P, self.leaf_size
         # triangles sit in slots order[0..m-1]; leaf k holds slots k*L..k*L+L-1: reduce per leaf
         m = len(tri)
@@ -199,6 +303,63 @@ class BroadPhaseBVH:
             ang = np.maximum(np.where(self.nonempty[l], spread_l, 0), np.where(self.nonempty[r], spread_r, 0))
             self.cone_axis[a] = ax
             self.cone_angle[a] = np.where(n[:, 0] > 0, ang, np.pi)
+
+    def refit_triangles(self, ids: np.ndarray, vlo: np.ndarray, vhi: np.ndarray) -> None:
+        """Set the boxes of triangles ``ids`` to the union of their vertices' boxes and refit their
+        ancestors only (normal cones are left as they are: :meth:`query` does not cull). Call
+        :meth:`refit` first.
+
+        Args:
+            ids: (k,) triangle indices.
+            vlo, vhi: (n, 3) vertex boxes [m] (e.g. a vertex's trajectory grown by the margin).
+        """
+        ids = np.asarray(ids, dtype=np.int64)
+        if len(ids) == 0:
+            return
+        t0, t1, t2 = self.triangles[ids].T
+        lo = np.minimum(np.minimum(vlo[t0], vlo[t1]), vlo[t2])
+        hi = np.maximum(np.maximum(vhi[t0], vhi[t1]), vhi[t2])
+        self.tri_lo[ids], self.tri_hi[ids] = lo, hi
+        leaf, col = self.leaf_of_tri[ids] - self.P, self.slot_of_tri[ids]
+        self._slo[:, leaf, col], self._shi[:, leaf, col] = lo.T, hi.T
+        node = np.unique(leaf)
+        self.lo[node + self.P] = self._slo[:, node].min(axis=2).T
+        self.hi[node + self.P] = self._shi[:, node].max(axis=2).T
+        node = node + self.P
+        while node[0] > 1:
+            node = np.unique(node >> 1)
+            self.lo[node] = np.minimum(self.lo[2 * node], self.lo[2 * node + 1])
+            self.hi[node] = np.maximum(self.hi[2 * node], self.hi[2 * node + 1])
+
+    def query(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """All (query, triangle) pairs whose boxes overlap, without culling (call :meth:`refit` first).
+
+        Args:
+            lo, hi: (k, 3) query boxes [m].
+
+        Returns:
+            ``(qi, tri)``: (p,) query indices and (p,) triangle indices of this tree.
+        """
+        qlo, qhi = lo.T.copy(), hi.T.copy()
+        nlo, nhi = self.lo.T.copy(), self.hi.T.copy()
+        qi = np.arange(len(lo))
+        node = np.ones(len(qi), dtype=np.int64)
+        for _ in range(self.levels + 1):
+            keep = self.nonempty[node]
+            for ax in range(3):
+                keep &= (qlo[ax][qi] <= nhi[ax][node]) & (nlo[ax][node] <= qhi[ax][qi])
+            qi, node = qi[keep], node[keep]
+            if len(qi) == 0 or node[0] >= self.P:
+                break
+            qi = np.repeat(qi, 2)
+            node = np.repeat(2 * node, 2)
+            node[1::2] += 1
+        leaf = node - self.P
+        ok = self.slot_tri[leaf] >= 0
+        for ax in range(3):
+            ok &= (qlo[ax][qi][:, None] <= self._shi[ax][leaf]) & (self._slo[ax][leaf] <= qhi[ax][qi][:, None])
+        r, c = np.nonzero(ok)
+        return qi[r], self.slot_tri[leaf[r], c]
 
     # ----------------------------------------------------------------------------------- traversal
     def _overlap(self, other: BroadPhaseBVH, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -266,6 +427,9 @@ class BroadPhaseBVH:
                 pa, pb = pa[keep], pb[keep]
             if culling:
                 flat = self.connected[singles] & (self.cone_angle[singles] < 0.5 * np.pi - 1e-9)
+                if flat.any():
+                    f = singles[flat]
+                    flat[flat] = self._contour_ok(f, np.full(len(f), -1), self.cone_axis[f])
                 singles = singles[~flat]
             is_leaf = singles >= P
             leaf_a.append(singles[is_leaf])
@@ -314,7 +478,11 @@ class BroadPhaseBVH:
                     np.arccos(np.clip(np.einsum("ki,ki->k", ax, a1), -1, 1)) + self.cone_angle[pa[c]],
                     np.arccos(np.clip(np.einsum("ki,ki->k", ax, a2), -1, 1)) + self.cone_angle[pb[c]],
                 )
-                c[c] = ang < 0.5 * np.pi - 1e-9
+                narrow = ang < 0.5 * np.pi - 1e-9
+                if narrow.any():
+                    ia, ib = pa[c][narrow], pb[c][narrow]
+                    narrow[narrow] = self._contour_ok(ia, ib, ax[narrow])
+                c[c] = narrow
                 pa, pb = pa[~c], pb[~c]
         la, lb = pa >= self.P, pb >= other.P
         both = la & lb

@@ -30,7 +30,6 @@ from __future__ import annotations
 import numpy as np
 
 from modalfem.collision.distance import (
-    cross,
     edge_edge_lower_bound,
     point_triangle_lower_bound,
 )
@@ -71,7 +70,7 @@ def vertex_face_ccd(
         tolerance (or the start of the first unresolved interval); inf if no hit.
     """
     x0, x1 = _check(x0, x1)
-    return _ccd(x0, x1, float(eta), _vf_lb, _vf_det, int(max_depth))
+    return _ccd(x0, x1, float(eta), _vf_lb, _VF_COLUMNS, int(max_depth))
 
 
 def edge_edge_ccd(
@@ -91,7 +90,7 @@ def edge_edge_ccd(
         tolerance (or the start of the first unresolved interval); inf if no hit.
     """
     x0, x1 = _check(x0, x1)
-    return _ccd(x0, x1, float(eta), _ee_lb, _ee_det, int(max_depth))
+    return _ccd(x0, x1, float(eta), _ee_lb, _EE_COLUMNS, int(max_depth))
 
 
 def _vf_lb(x: np.ndarray) -> np.ndarray:
@@ -102,69 +101,93 @@ def _ee_lb(x: np.ndarray) -> np.ndarray:
     return edge_edge_lower_bound(x[:, 0], x[:, 1], x[:, 2], x[:, 3])
 
 
-def _vf_det(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-    # polar form of det[b - a, c - a, p - a]: each column is taken at its own time (u, v, w), so the
-    # determinant is affine in each of them; f(s) = _vf_det(x(s), x(s), x(s))
-    return np.einsum(
-        "ki,ki->k", cross(u[:, 2] - u[:, 1], v[:, 3] - v[:, 1]), w[:, 0] - w[:, 1]
-    )
+#: columns (i, j) = x_i - x_j of det[e1, e2, e3]: vertex-face det[b - a, c - a, p - a], edge-edge
+#: det[a1 - a0, b1 - b0, b0 - a0]
+_VF_COLUMNS = ((2, 1), (3, 1), (0, 1))
+_EE_COLUMNS = ((1, 0), (3, 2), (2, 0))
 
 
-def _ee_det(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-    # polar form of det[a1 - a0, b1 - b0, b0 - a0]
-    return np.einsum(
-        "ki,ki->k", cross(u[:, 1] - u[:, 0], v[:, 3] - v[:, 2]), w[:, 2] - w[:, 0]
-    )
+def _bernstein(columns: tuple, x0: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(4, k) Bernstein coefficients on [0, 1] of ``f(s) = det[e1(s), e2(s), e3(s)]``, ``e(s) = e0 + s de``,
+    from the vertex positions ``x0`` and displacements ``d`` in (4, 3, k) layout.
+
+    The cubic's monomial coefficients come from expanding ``(A0 + s dA) x (B0 + s dB) . (C0 + s dC)``
+    component by component (each a few products of coordinate differences, rounding within a few ulps
+    of ``scale**3``)."""
+    (i, j), (k, m), (u, w) = columns
+    a0, a1, a2 = x0[i] - x0[j]
+    b0, b1, b2 = x0[k] - x0[m]
+    g0, g1, g2 = x0[u] - x0[w]
+    p0, p1, p2 = d[i] - d[j]
+    q0, q1, q2 = d[k] - d[m]
+    h0, h1, h2 = d[u] - d[w]
+    # cross(A, B) = c0 + s c1 + s^2 c2
+    c00, c01, c02 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    c10 = a1 * q2 - a2 * q1 + p1 * b2 - p2 * b1
+    c11 = a2 * q0 - a0 * q2 + p2 * b0 - p0 * b2
+    c12 = a0 * q1 - a1 * q0 + p0 * b1 - p1 * b0
+    c20, c21, c22 = p1 * q2 - p2 * q1, p2 * q0 - p0 * q2, p0 * q1 - p1 * q0
+    f0 = c00 * g0 + c01 * g1 + c02 * g2
+    f1 = c00 * h0 + c01 * h1 + c02 * h2 + c10 * g0 + c11 * g1 + c12 * g2
+    f2 = c10 * h0 + c11 * h1 + c12 * h2 + c20 * g0 + c21 * g1 + c22 * g2
+    f3 = c20 * h0 + c21 * h1 + c22 * h2
+    return np.stack([f0, f0 + f1 / 3.0, f0 + (2.0 * f1 + f2) / 3.0, f0 + f1 + f2 + f3])
 
 
-def _bernstein(det, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
-    """(k, 4) Bernstein coefficients of f on [sa, sb] from positions at sa (xa) and sb (xb)."""
-    b0 = det(xa, xa, xa)
-    b3 = det(xb, xb, xb)
-    b1 = (det(xb, xa, xa) + det(xa, xb, xa) + det(xa, xa, xb)) / 3.0
-    b2 = (det(xb, xb, xa) + det(xb, xa, xb) + det(xa, xb, xb)) / 3.0
-    return np.stack([b0, b1, b2, b3], axis=1)
+def _subdivide(c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple:
+    """Bernstein coefficients on [lo, hi] (four (k,) arrays) of cubics given by their (4, k) coefficients
+    on [0, 1]: the blossom values f(lo, lo, lo), f(lo, lo, hi), f(lo, hi, hi), f(hi, hi, hi) (de
+    Casteljau steps, convex combinations: rounding stays within a few ulps of max |c|)."""
+    ml, mh = 1.0 - lo, 1.0 - hi
+    a = ml * c[:3] + lo * c[1:]  # f(lo, ., .)
+    aa = ml * a[:2] + lo * a[1:]  # f(lo, lo, .)
+    h = mh * c[:3] + hi * c[1:]  # f(hi, ., .)
+    hh = mh * h[:2] + hi * h[1:]  # f(hi, hi, .)
+    return ml * aa[0] + lo * aa[1], mh * aa[0] + hi * aa[1], ml * hh[0] + lo * hh[1], mh * hh[0] + hi * hh[1]
 
 
-def _ccd(x0: np.ndarray, x1: np.ndarray, eta: float, lower_bound, det, max_depth: int) -> tuple[np.ndarray, np.ndarray]:
+def _ccd(x0: np.ndarray, x1: np.ndarray, eta: float, lower_bound, columns, max_depth: int) -> tuple[np.ndarray, np.ndarray]:
     k = len(x0)
     hit = np.zeros(k, dtype=bool)
     toi = np.full(k, np.inf)
     if k == 0:
         return hit, toi
-    origin = x0[:, :1].copy()
-    x0 = x0 - origin
-    x1 = x1 - origin
-    d = x1 - x0
-    scale = np.maximum(np.abs(x0).max(axis=(1, 2)), np.abs(x1).max(axis=(1, 2))) + 1e-300
-    disp = np.linalg.norm(d, axis=2)
-    lip = (disp[:, 0] + disp[:, 1:].max(axis=1) if lower_bound is _vf_lb else disp[:, :2].max(axis=1) + disp[:, 2:].max(axis=1))
+    # (4, 3, k) layout relative to the first vertex: the arithmetic runs on contiguous coordinate rows
+    t0 = np.ascontiguousarray(x0.transpose(1, 2, 0))
+    td = np.ascontiguousarray(x1.transpose(1, 2, 0))
+    td -= t0
+    t0 -= t0[0].copy()
+    scale = np.maximum(np.abs(t0).reshape(12, k).max(axis=0), np.abs(t0 + td).reshape(12, k).max(axis=0)) + 1e-300
+    disp = np.sqrt(td[:, 0] ** 2 + td[:, 1] ** 2 + td[:, 2] ** 2)
+    lip = (disp[0] + disp[1:].max(axis=0) if lower_bound is _vf_lb else np.maximum(disp[0], disp[1])
+           + np.maximum(disp[2], disp[3]))
     lip = lip * (1.0 + 1e-9) + ROUNDING * scale
     delta = eta + ROUNDING * scale
     # |f| <= dist * |e1 x e2| <= dist * (2 * scale)**2 where the primitives are within dist
     eps = delta * 4.0 * scale**2 + ROUNDING * 27.0 * scale**3
+    coef = _bernstein(columns, t0, td)
     q = np.arange(k)
     lo = np.zeros(k)
     hi = np.ones(k)
     for depth in range(max_depth + 1):
+        # the cheap test first: Bernstein control values of f on [lo, hi] of one sign beyond eps (no
+        # coplanarity, no contact); an interval whose midpoint is within delta always passes it (there
+        # |f| <= eps), so the order of the two tests does not change the answer
+        b = coef if depth == 0 else _subdivide(coef[:, q], lo, hi)
+        e = eps[q]
+        bmin = np.minimum(np.minimum(b[0], b[1]), np.minimum(b[2], b[3]))
+        bmax = np.maximum(np.maximum(b[0], b[1]), np.maximum(b[2], b[3]))
+        keep = (bmin <= e) & (bmax >= -e)
+        q, lo, hi = q[keep], lo[keep], hi[keep]
         if len(q) == 0:
             break
         mid = 0.5 * (lo + hi)
-        xm = x0[q] + mid[:, None, None] * d[q]
-        lb = lower_bound(xm)
+        lb = lower_bound((t0[:, :, q] + mid * td[:, :, q]).transpose(2, 0, 1))
         touch = lb <= delta[q]
         if touch.any():
             _record(hit, toi, q[touch], mid[touch])
         keep = ~touch & ~hit[q] & (lb <= delta[q] + lip[q] * (hi - lo) * 0.5)
-        q, lo, hi = q[keep], lo[keep], hi[keep]
-        if len(q) == 0:
-            break
-        xa = x0[q] + lo[:, None, None] * d[q]
-        xb = x0[q] + hi[:, None, None] * d[q]
-        b = _bernstein(det, xa, xb)
-        e = eps[q][:, None]
-        keep = ~((b > e).all(axis=1) | (b < -e).all(axis=1))
-        q, lo, hi = q[keep], lo[keep], hi[keep]
+        q, lo, hi, mid = q[keep], lo[keep], hi[keep], mid[keep]
         if len(q) == 0:
             break
         if depth == max_depth:
@@ -174,8 +197,7 @@ def _ccd(x0: np.ndarray, x1: np.ndarray, eta: float, lower_bound, det, max_depth
         if crowded.any():
             c = crowded[q]
             _record(hit, toi, q[c], lo[c])
-            q, lo, hi = q[~c], lo[~c], hi[~c]
-        mid = 0.5 * (lo + hi)
+            q, lo, hi, mid = q[~c], lo[~c], hi[~c], mid[~c]
         q = np.concatenate([q, q])
         lo, hi = np.concatenate([lo, mid]), np.concatenate([mid, hi])
     return hit, toi

@@ -16,7 +16,7 @@ import numpy as np
 
 from modalfem.collision.distance import cross, edge_edge, point_triangle
 
-__all__ = ["apply_pair_impulses", "contact_frames", "repulsion_impulses"]
+__all__ = ["apply_pair_impulses", "contact_frames", "repulsion_impulses", "repulsion_pairs"]
 
 
 def contact_frames(X: np.ndarray, quads: np.ndarray, kind: str, Xref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -102,6 +102,36 @@ def apply_pair_impulses(
     return dV, int(act.sum())
 
 
+def repulsion_pairs(
+    X0: np.ndarray, vf: np.ndarray, ee: np.ndarray, *, thickness: float, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs of stage (a) at ``X0`` and what they want; they depend on the positions only.
+
+    Args:
+        X0: (N, 3) positions [m].
+        vf, ee: (k, 4) candidate point-triangle and edge-edge pairs.
+        thickness: ``h`` [m]; dt: step [s].
+
+    Returns:
+        ``(quads, w, n, target)``: the pairs closer than ``h`` ((p, 4) vertex indices), their (p, 4)
+        weights and (p, 3) unit normals (:func:`contact_frames`) and (p,) wanted relative normal
+        velocities ``0.1 (h - d) / dt`` [m/s].
+    """
+    quads, ws, ns, ts = [], [], [], []
+    for kind, q in (("vf", vf), ("ee", ee)):
+        if len(q) == 0:
+            continue
+        w, n, d = contact_frames(X0, q, kind, X0)
+        close = d < thickness
+        quads.append(q[close])
+        ws.append(w[close])
+        ns.append(n[close])
+        ts.append(0.1 * (thickness - d[close]) / dt)
+    if not quads:
+        return np.zeros((0, 4), dtype=np.int64), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0)
+    return tuple(np.concatenate(a) for a in (quads, ws, ns, ts))
+
+
 def repulsion_impulses(
     X0: np.ndarray,
     V: np.ndarray,
@@ -127,18 +157,8 @@ def repulsion_impulses(
     Returns:
         ``(dV, count)``: (N, 3) velocity change [m/s] and the number of proximities (d < h).
     """
-    quads, ws, ns, ts = [], [], [], []
-    for kind, q in (("vf", vf), ("ee", ee)):
-        if len(q) == 0:
-            continue
-        w, n, d = contact_frames(X0, q, kind, X0)
-        close = d < thickness
-        quads.append(q[close])
-        ws.append(w[close])
-        ns.append(n[close])
-        ts.append(0.1 * (thickness - d[close]) / dt)
-    if not quads or sum(len(q) for q in quads) == 0:
+    quads, w, n, tv = repulsion_pairs(X0, vf, ee, thickness=thickness, dt=dt)
+    if len(quads) == 0:
         return np.zeros_like(V), 0
-    quads, w, n, tv = (np.concatenate(a) for a in (quads, ws, ns, ts))
     dV, _ = apply_pair_impulses(V, invm, quads, w, n, tv, friction=friction)
     return dV, len(quads)

@@ -3,13 +3,24 @@
 Vertices that still collide after the CCD passes are merged into zones (union-find); each zone
 then moves rigidly over the step. A free zone keeps its linear and angular momentum: with centre of
 mass ``xc``, velocity ``Vc = P / M`` and ``omega = I^-1 L`` (inertia ``I`` and angular momentum ``L``
-about ``xc`` at the step start), vertex i gets ``Vc + omega x (x_i - xc)``. A zone holding kinematic
-members (pinned vertices, obstacle vertices, a plane or sphere, given as nodes after the vertices)
-instead follows the rigid motion that best fits those members' velocities (least squares, angular
-velocity regularised); the zone is *consistent* when that fit is exact, i.e. the kinematic members
-move rigidly together. The linearised rotation ``x0 + s dt (Vc + omega x r)`` is an affine map with
-singular values >= 1, so distances inside a consistent zone never shrink during the step: its
-internal pairs need no further test.
+about ``xc`` at the step start), vertex i gets ``Vc + omega x (x_i - xc)``. The linearised rotation
+``x0 + s dt (Vc + omega x r)`` is an affine map with singular values >= 1, so distances inside the
+zone never shrink during the step: its internal pairs need no further test.
+
+A zone holding kinematic members (pinned or scripted vertices, obstacle vertices, a plane or sphere,
+given as nodes after the vertices) follows them instead, and is *consistent* when it can follow
+them exactly:
+
+- when the kinematic vertices' end positions ``x + tau v`` are one finite rigid motion ``R x + T`` of
+  their start positions (a handle turning over the step: its chord velocities are not a rigid
+  velocity field), every member moves by that motion (``follow_finite_motion``): the whole zone,
+  kinematic members included, then moves by the affine maps ``(1 - sigma) I + sigma R`` (plus a
+  translation), invertible for turns below pi, so no pair inside it can cross during the step;
+- otherwise by the rigid velocity field that best fits those members' velocities (least squares,
+  angular velocity regularised), consistent when that fit is exact.
+
+An inconsistent zone (e.g. cloth caught between a pin and a turning handle) is reported so that the
+caller tests its pairs again.
 """
 
 from __future__ import annotations
@@ -18,7 +29,7 @@ import numpy as np
 
 from modalfem.collision.distance import cross
 
-__all__ = ["UnionFind", "rigid_zone_velocities"]
+__all__ = ["UnionFind", "follow_finite_motion", "rigid_zone_velocities"]
 
 
 class UnionFind:
@@ -77,7 +88,8 @@ def rigid_zone_velocities(
 
     Returns:
         ``(V_new, inconsistent)``: (N, 3) velocities [m/s] (kinematic vertices unchanged) and the roots
-        of zones whose kinematic members do not move rigidly together.
+        of zones whose kinematic members do not move rigidly together (neither as a rigid velocity field
+        nor by one finite rigid motion over the step).
     """
     N = len(X0)
     V = V.copy()
@@ -112,6 +124,12 @@ def rigid_zone_velocities(
     for root in np.nonzero(kin_root & (size > 1))[0]:
         members = np.nonzero(vz == root)[0]
         obs = [analytic[k] for k in np.nonzero(roots[N:] == root)[0]]
+        if not obs:
+            vel = follow_finite_motion(X0[members], V[members], invm[members])
+            if vel is not None:
+                dm = invm[members] > 0
+                V[members[dm]] = vel[dm]
+                continue
         xc = X0[members].mean(axis=0)
         span = np.ptp(X0[members], axis=0).max() + 1e-12
         kin = members[invm[members] == 0]
@@ -133,3 +151,56 @@ def rigid_zone_velocities(
         dm = members[invm[members] > 0]
         V[dm] = sol[:3] + cross(sol[3:], X0[dm] - xc)
     return V, np.array(inconsistent, dtype=np.int64)
+
+
+def follow_finite_motion(X: np.ndarray, V: np.ndarray, invm: np.ndarray) -> np.ndarray | None:
+    """Velocities moving a zone with the finite rigid motion of its kinematic vertices, if they have one.
+
+    Scripted vertices turning with a handle get the chord velocity ``(x(t + dt) - x(t)) / dt``: their
+    end positions are a rotation of their start positions, but their velocities are not a rigid
+    velocity field ``v + omega x r`` (the map ``(R - I) / dt`` has a symmetric part, of relative size
+    half the angle), so the linearised rigid fit cannot follow them (the zone would be reported
+    inconsistent and all its pairs tested again). Here ``tau > 0`` is the time over which
+    ``X + tau V`` is a rigid image ``R X + T`` of the kinematic members: from the preserved Gram matrix
+    ``|a + tau u|^2 = |a|^2`` (a: offsets from their centroid, u: velocity offsets),
+    ``tau = -2 sum(a . u) / sum(|u|^2)`` (= dt for chords); ``R`` is the Kabsch fit (the rotation
+    about the line of collinear kinematic members is fitted to the dynamic members' own motion, with a
+    negligible weight). Every member then gets ``(R x + T - x) / tau``: the zone moves by
+    ``x -> x + sigma ((R - I) x + T)`` (sigma = s dt / tau), an affine map whose eigenvalues ``1``
+    and ``1 - sigma + sigma exp(+-i angle)`` never vanish for turns below pi, so no pair inside the
+    zone can cross during the step (the kinematic members follow exactly).
+
+    Args:
+        X: (k, 3) member positions [m] at the step start.
+        V: (k, 3) velocities [m/s].
+        invm: (k,) inverse masses [1/kg] (0: kinematic; at least one).
+
+    Returns:
+        (k, 3) velocities [m/s] of every member, or None when the kinematic members do not move by
+        one finite rigid motion (to 1e-9 of their extent and displacement) turning less than 0.9 pi,
+        or when they all translate together or have a rigid velocity field (then the linearised fit
+        of ``rigid_zone_velocities`` follows them exactly).
+    """
+    kin = invm == 0
+    a = X - X[kin].mean(axis=0)
+    u = V - V[kin].mean(axis=0)
+    uu = float(np.sum(u[kin] ** 2))
+    if uu == 0.0:
+        return None  # one kinematic vertex, or all translating together: the linearised fit is exact
+    tau = -2.0 * float(np.sum(a[kin] * u[kin])) / uu
+    if not tau > 0.0:
+        return None  # e.g. a rigid velocity field (tau = 0): the linearised fit is exact
+    Y = X + tau * V
+    dk = Y[kin].mean(axis=0)
+    b = Y - dk
+    m = np.where(kin, 0.0, 1.0 / np.where(kin, 1.0, invm))
+    w = np.where(kin, 1.0, 1e-12 * m / max(m.max(), 1e-300))
+    H = np.einsum("k,ki,kj->ij", w, a, b)
+    U, _, Wt = np.linalg.svd(H)
+    flip = 1.0 if np.linalg.det(Wt.T @ U.T) >= 0 else -1.0
+    R = Wt.T @ np.diag([1.0, 1.0, flip]) @ U.T
+    Xn = a @ R.T + dk
+    scale = np.ptp(X[kin], axis=0).max() + tau * np.abs(V[kin]).max() + 1e-300
+    if np.abs(Xn[kin] - Y[kin]).max() > 1e-9 * scale or np.trace(R) <= 1.0 + 2.0 * np.cos(0.9 * np.pi):
+        return None
+    return (Xn - X) / tau

@@ -11,7 +11,7 @@ def test_quick_bench_writes_its_section(tmp_path):
     assert cloth_bench.command(["--quick", "--out", str(out)]) == 0
     text = out.read_text()
     assert "keep" in text and text.count(cloth_bench.SECTION) == 1
-    rows = [ln for ln in text.splitlines() if ln.startswith("| drape") or ln.startswith("| pile")]
+    rows = [ln for ln in text.splitlines() if ln.startswith(("| drape", "| pile"))]
     assert len(rows) == 2
     for ln in rows:
         cells = [c.strip() for c in ln.strip("|").split("|")]
