@@ -168,13 +168,18 @@ def test_chunked_and_upper_hessians_are_the_same_matrices(monkeypatch):
     np.testing.assert_allclose(whole, ref, atol=1e-13 * np.abs(whole).max())
 
 
-def test_forces_and_hessians_in_one_pass_match_the_separate_ones(monkeypatch):
-    rng = np.random.default_rng(4)
-    X, grad1, vol1 = _rest(4)
-    m = 17
+def _deformed(seed: int, rest_seed: int, m: int):
+    """m copies of one rest element with random deformations: gradients, volumes, F (m, 3, 3)."""
+    rng = np.random.default_rng(seed)
+    X, grad1, vol1 = _rest(rest_seed)
     grad, vol = np.repeat(grad1, m, axis=0), np.repeat(vol1, m)
     x = X[None] + 0.3 * rng.standard_normal((m, 4, 3))
-    U, s, V = kin.svd_rv(np.einsum("mai,maj->mij", x, grad))
+    return grad, vol, np.einsum("mai,maj->mij", x, grad)
+
+
+def test_forces_and_hessians_in_one_pass_match_the_separate_ones(monkeypatch):
+    grad, vol, F = _deformed(4, 4, 17)
+    U, s, V = kin.svd_rv(F)
     d = TERMS["stable"].derivs(s, 2)
     monkeypatch.setattr(en, "_CHUNK", 6)  # three chunks
     f, H = en.element_forces_and_hessians(U, V, d, grad, vol)
@@ -203,12 +208,7 @@ def test_stable_corotated_one_pass_derivatives_match_the_sum_of_terms():
 
 def test_element_last_layout_gives_the_same_forces_and_hessians(monkeypatch):
     """The solver passes U, V (3, 3, m) from ``svd_rv_t`` and gradients (4, 3, m): same results as (m, ...)."""
-    rng = np.random.default_rng(6)
-    X, grad1, vol1 = _rest(5)
-    m = 13
-    grad, vol = np.repeat(grad1, m, axis=0), np.repeat(vol1, m)
-    x = X[None] + 0.3 * rng.standard_normal((m, 4, 3))
-    F = np.einsum("mai,maj->mij", x, grad)
+    grad, vol, F = _deformed(6, 5, 13)
     U, s, V = kin.svd_rv(F)
     Ut, st, Vt = kin.svd_rv_t(np.moveaxis(F, 0, -1))
     d = TERMS["stable"].derivs(s, 2)
