@@ -149,6 +149,15 @@ def _section(rows: list[tuple], command: str, seconds: float) -> str:
         lines.append(f"| {r['tets']} | {r['vertices']} | {variant} | {r['ms_per_step']:.1f} | {r['cpu_ms_per_step']:.1f} | "
                      f"{1e3 / r['ms_per_step']:.1f} | {r['newton_per_step']:.2f} | {r['cg_per_step']:.0f} | "
                      f"{100 * r['solve_share']:.0f} % | {ratio} |")
+    goal = [r for cells, variant, r, _ in rows
+            if "error" not in r and variant == "linearised+cg" and 9_000 <= r["tets"] <= 11_000]
+    if goal:
+        r = goal[0]
+        sps = 1e3 / r["ms_per_step"]
+        verdict = (f"Goal ({GOAL_STEPS_PER_S:.0f} steps/s at 10k tets, one core): {r['tets']} tets, linearised+cg, "
+                   f"{r['ms_per_step']:.1f} ms/step = {sps:.1f} steps/s (CPU {r['cpu_ms_per_step']:.1f} ms) -> "
+                   f"**{'met' if sps >= GOAL_STEPS_PER_S else 'NOT met'}**.")
+        lines += ["", verdict]
     return "\n".join(lines) + "\n"
 
 

@@ -29,3 +29,12 @@ def test_quick_bench_writes_its_section(tmp_path):
         cells = [c.strip() for c in r.strip("|").split("|")]
         assert float(cells[3]) > 0 and float(cells[4]) > 0  # ms/step, steps/s
         assert float(cells[4]) > 0 and cells[8].endswith("%")  # CPU ms/step, solve share
+
+
+def test_goal_verdict_follows_the_10k_linearised_row():
+    row = {"tets": 10080, "vertices": 2233, "ms_per_step": 28.9, "cpu_ms_per_step": 28.9, "newton_per_step": 1.0,
+           "cg_per_step": 16, "solve_share": 0.3}
+    fast = tb._section([((28, 10, 6), "linearised+cg", row, None)], "cmd", 1.0)
+    slow = tb._section([((28, 10, 6), "linearised+cg", {**row, "ms_per_step": 40.0}, None)], "cmd", 1.0)
+    assert "34.6 steps/s" in fast and "**met**" in fast
+    assert "25.0 steps/s" in slow and "**NOT met**" in slow
