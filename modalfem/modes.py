@@ -288,9 +288,20 @@ def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped
 
 def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None):
     """One eigen solve; ``interior`` = (sigma, start vector on the free DOFs) or None."""
+    say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
+    if comm is None and _have_pardiso():  # PARDISO's MKL threads own the cores (see eigen.blas_threads)
+        from modalfem.eigen.blas_threads import one_openblas_thread
+
+        with one_openblas_thread():
+            return _solve_unlimited(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm,
+                                    say=say, interior=interior)
+    return _solve_unlimited(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say,
+                            interior=interior)
+
+
+def _solve_unlimited(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None):
     from modalfem.eigen.base import InteriorShiftUnusable
 
-    say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
     try:
         if solver == "slepc":
             from modalfem.eigen.slepc import solve_slepc

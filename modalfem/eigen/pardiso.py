@@ -55,21 +55,44 @@ _ORDERINGS = {"amd": 0, "metis": 2, "metis-parallel": 3}
 SERIAL_BELOW = 20_000
 
 
-def thread_count(n: int) -> int:
-    """MKL threads for a PARDISO handle of ``n`` rows: 0 (all cores) or 1.
+def busy_elsewhere(samples: int = 5) -> float:
+    """Runnable threads of other processes right now (median of a few /proc/loadavg samples, 2 ms
+    apart, less this process's own runnable threads); 0 where /proc is not available."""
+    import time
 
-    One thread below ``SERIAL_BELOW`` rows, and one when the machine is already busy (1-minute load
-    average above cores - 0.5): OpenMP threads that must share cores with other work wait at every
-    barrier. Measured at 61k DOFs with a load of ~5 on 2 cores: 44 shift-invert solves took
-    8.4-8.9 s on two threads against 4.4-5.0 s on one.
+    counts = []
+    for _ in range(samples):
+        try:
+            with open("/proc/loadavg") as f:
+                total = int(f.read().split()[3].split("/")[0])
+            own = 0
+            for tid in os.listdir("/proc/self/task"):
+                try:
+                    with open(f"/proc/self/task/{tid}/stat") as f:
+                        own += f.read().rsplit(")", 1)[1].split()[0] == "R"
+                except OSError:  # the thread ended meanwhile
+                    pass
+        except (OSError, ValueError, IndexError):
+            return 0.0
+        counts.append(max(total - own, 0))
+        time.sleep(0.002)
+    return float(np.median(counts))
+
+
+def thread_count(n: int) -> int:
+    """MKL threads for a PARDISO handle of ``n`` rows: 0 (all cores), or fewer when cores are taken.
+
+    One thread below ``SERIAL_BELOW`` rows. Otherwise the cores not taken by other processes right
+    now (``busy_elsewhere``): OpenMP threads that share a core with other work wait at every barrier.
+    Measured at 61k DOFs with a load of ~5 on 2 cores: 44 shift-invert solves took 8.4-8.9 s on two
+    threads against 4.4-5.0 s on one. (A load average would count this process's own recent work.)
     """
     if n < SERIAL_BELOW:
         return 1
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):  # no load average on this platform
+    others = busy_elsewhere()
+    if others < 0.5:
         return 0
-    return 1 if load > (os.cpu_count() or 1) - 0.5 else 0
+    return max(1, (os.cpu_count() or 1) - round(others))
 
 
 def _candidates() -> list[str]:

@@ -76,22 +76,52 @@ def test_refactor_on_the_same_analysis_counts_eigenvalues_of_a_pencil():
 def test_thread_count_is_one_for_small_matrices_and_on_a_busy_machine(monkeypatch):
     import os
 
-    from modalfem.eigen.pardiso import thread_count
+    from modalfem.eigen import pardiso
 
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
-    monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.2, 0.2))
-    assert thread_count(SERIAL_BELOW - 1) == 1 and thread_count(SERIAL_BELOW) == 0
-    monkeypatch.setattr(os, "getloadavg", lambda: (3.0, 0.2, 0.2))  # other work on both cores
-    assert thread_count(10 * SERIAL_BELOW) == 1
+    monkeypatch.setattr(pardiso, "busy_elsewhere", lambda: 0.0)
+    assert pardiso.thread_count(SERIAL_BELOW - 1) == 1 and pardiso.thread_count(SERIAL_BELOW) == 0
+    monkeypatch.setattr(pardiso, "busy_elsewhere", lambda: 1.0)  # another process on one core
+    assert pardiso.thread_count(10 * SERIAL_BELOW) == 1
+    monkeypatch.setattr(os, "cpu_count", lambda: 8)
+    assert pardiso.thread_count(10 * SERIAL_BELOW) == 7
+
+
+def test_busy_elsewhere_sees_another_busy_process_but_not_this_ones_threads():
+    import subprocess
+    import sys
+    import threading
+
+    from modalfem.eigen.pardiso import busy_elsewhere
+
+    stop = threading.Event()
+    spin = threading.Thread(target=lambda: [None for _ in iter(stop.is_set, True)], daemon=True)
+    spin.start()  # a busy thread of this process is not "elsewhere"
+    try:
+        quiet = busy_elsewhere(samples=9)
+    finally:
+        stop.set()
+        spin.join()
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        import time
+
+        time.sleep(0.3)
+        loaded = busy_elsewhere(samples=9)
+    finally:
+        busy.kill()
+        busy.wait()
+    assert loaded >= quiet + 0.5 or loaded >= 1.0
 
 
 @needs_pardiso
 def test_solve_then_refactor_on_a_threaded_size(monkeypatch):
     """analysis -> numeric -> solve -> numeric at another shift, above the one-thread size: this order
     crashed MKL when the solve ran on fewer threads than the factorisation (now one count per handle)."""
-    import os
 
-    monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))  # threaded even on a busy machine
+    from modalfem.eigen import pardiso
+
+    monkeypatch.setattr(pardiso, "busy_elsewhere", lambda: 0.0)  # threaded even on a busy machine
     n = int(np.ceil(SERIAL_BELOW ** (1 / 3))) + 1
     A = laplacian_3d(n, shift=-0.1)
     B = laplacian_3d(n, shift=1.0)
