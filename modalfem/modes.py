@@ -24,6 +24,7 @@ of it for beams, plates and cubes, free or clamped. Why about lambda_1:
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 import warnings
@@ -292,40 +293,36 @@ def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=Non
     if comm is None and _have_pardiso():  # PARDISO's MKL threads own the cores (see eigen.blas_threads)
         from modalfem.eigen.blas_threads import one_openblas_thread
 
-        with one_openblas_thread():
-            return _solve_unlimited(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm,
-                                    say=say, interior=interior)
-    return _solve_unlimited(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say,
-                            interior=interior)
-
-
-def _solve_unlimited(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None):
+        limit = one_openblas_thread()
+    else:
+        limit = contextlib.nullcontext()
     from modalfem.eigen.base import InteriorShiftUnusable
 
-    try:
-        if solver == "slepc":
-            from modalfem.eigen.slepc import solve_slepc
+    with limit:
+        try:
+            if solver == "slepc":
+                from modalfem.eigen.slepc import solve_slepc
 
-            kw = {"rows": rows, "comm": comm} if comm is not None else {}
+                kw = {"rows": rows, "comm": comm} if comm is not None else {}
+                if interior is not None:
+                    try:
+                        return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0],
+                                           start=interior[1], **kw)
+                    except InteriorShiftUnusable as why:
+                        say(f"interior shift not usable ({why}); solving at the negative shift")
+                return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, **kw)
+            from modalfem.eigen.scipy_solver import solve_scipy
+
             if interior is not None:
                 try:
-                    return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0],
-                                       start=interior[1], **kw)
+                    return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0], start=interior[1])
                 except InteriorShiftUnusable as why:
                     say(f"interior shift not usable ({why}); solving at the negative shift")
-            return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, **kw)
-        from modalfem.eigen.scipy_solver import solve_scipy
-
-        if interior is not None:
-            try:
-                return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0], start=interior[1])
-            except InteriorShiftUnusable as why:
-                say(f"interior shift not usable ({why}); solving at the negative shift")
-        return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol)
-    except (ModalfemError, ImportError):
-        raise
-    except Exception as exc:  # never a raw ARPACK/PETSc traceback
-        raise SolverError(f"{solver} eigen solve failed: {type(exc).__name__}: {exc}") from None
+            return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol)
+        except (ModalfemError, ImportError):
+            raise
+        except Exception as exc:  # never a raw ARPACK/PETSc traceback
+            raise SolverError(f"{solver} eigen solve failed: {type(exc).__name__}: {exc}") from None
 
 
 def _have_pardiso() -> bool:

@@ -186,12 +186,6 @@ def assemble(mesh, material, *, degree: int = 2, lumped: bool = False):
     return Kc, Mc
 
 
-def _restrict_csr(A, keep: np.ndarray) -> sp.csr_matrix:
-    from modalfem.modes import restrict
-
-    return restrict(A, keep)
-
-
 def assemble_free(mesh, material, *, degree: int = 2, free, lumped: bool = False):
     """Stiffness and mass restricted to the free DOFs, in the canonical free-DOF order (serial).
 
@@ -243,7 +237,9 @@ def assemble_free(mesh, material, *, degree: int = 2, free, lumped: bool = False
         d[nodes_s] = Ms.getDiagonal().array
         M_ff = _diagonal_csr(np.repeat(d, 3)[free])
     else:
-        M_ff = _restrict_csr(sp.kron(_petsc_to_csr(Ms, nodes_s), sp.identity(3, format="csr"), format="csr"), free)
+        from modalfem.modes import restrict
+
+        M_ff = restrict(sp.kron(_petsc_to_csr(Ms, nodes_s), sp.identity(3, format="csr"), format="csr"), free)
     for obj in (K, K_sub, Ms, iset):
         obj.destroy()
     return K_ff, M_ff

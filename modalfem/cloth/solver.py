@@ -77,19 +77,27 @@ def pcg_jacobi(A: sp.csr_matrix, b: np.ndarray, *, x0: np.ndarray | None = None,
     r = b - A @ x if x0 is not None else b.copy()
     if np.linalg.norm(r) <= rtol * nb:
         return x, 0
-    z = inv * r
-    p = z.copy()
-    rz = r @ z
+    return _pcg_iterate(A, inv, x, r, nb, rtol=rtol, maxiter=maxiter)
+
+
+def _pcg_iterate(A, inv: np.ndarray, x: np.ndarray, r: np.ndarray, nb: float, *, rtol: float, maxiter: int,
+                 filt=None):
+    """The Jacobi-PCG iterations from iterate ``x`` with residual ``r`` (both updated in place) until
+    ``|r| <= rtol nb``; ``filt`` projects the directions (``pcg_filtered``), None for plain PCG."""
+    c = inv * r if filt is None else filt(inv * r)
+    rz = r @ c
     for k in range(1, maxiter + 1):
-        Ap = A @ p
-        alpha = rz / (p @ Ap)
-        x += alpha * p
-        r -= alpha * Ap
+        q = A @ c if filt is None else filt(A @ c)
+        alpha = rz / (c @ q)
+        x += alpha * c
+        r -= alpha * q
         if np.linalg.norm(r) <= rtol * nb:
             return x, k
-        z = inv * r
-        rz_new = r @ z
-        p = z + (rz_new / rz) * p
+        s = inv * r
+        rz_new = r @ s
+        c = s + (rz_new / rz) * c
+        if filt is not None:
+            c = filt(c)
         rz = rz_new
     raise SolverError(f"cloth CG did not reach relative residual {rtol:g} in {maxiter} iterations")
 
@@ -118,20 +126,7 @@ def pcg_filtered(A, b: np.ndarray, z: np.ndarray, normals: np.ndarray, dofs: np.
     r = filt(b - A @ y)
     if nb == 0.0 or np.linalg.norm(r) <= rtol * nb:
         return y, 0
-    c = filt(inv * r)
-    rz = r @ c
-    for k in range(1, maxiter + 1):
-        q = filt(A @ c)
-        alpha = rz / (c @ q)
-        y += alpha * c
-        r -= alpha * q
-        if np.linalg.norm(r) <= rtol * nb:
-            return y, k
-        s = inv * r
-        rz_new = r @ s
-        c = filt(s + (rz_new / rz) * c)
-        rz = rz_new
-    raise SolverError(f"cloth CG did not reach relative residual {rtol:g} in {maxiter} iterations")
+    return _pcg_iterate(A, inv, y, r, nb, rtol=rtol, maxiter=maxiter, filt=filt)
 
 
 class _Pattern:
