@@ -229,11 +229,12 @@ class ModalBody:
         return SurfacePoint(int(i), tuple(bary / bary.sum()))
 
     # ------------------------------------------------------------------ reconstruction
-    def positions(self, state, out: np.ndarray | None = None, *, precise: bool = False) -> np.ndarray:
-        """World positions of all surface vertices, ``c + R (X + Phi q)`` (nv, 3) [m].
+    def positions(self, state, out: np.ndarray | None = None, *, precise: bool = False,
+                  frame: str = "world") -> np.ndarray:
+        """Positions of all surface vertices (nv, 3) [m]: world ``c + R (X + Phi q)``, or body axes.
 
-        Cost: one (3 nv x r) matrix-vector product plus O(nv). ``out`` (nv, 3) may be given to
-        avoid allocation.
+        Cost: one (3 nv x r) matrix-vector product, plus O(nv) for the rigid motion in the world
+        frame. ``out`` (nv, 3) may be given to avoid allocation.
 
         Args:
             state: current ``State``.
@@ -241,7 +242,23 @@ class ModalBody:
             precise: return float64 with the rest shape, rotation and translation in float64, so
                 only the small deformation ``Phi q`` carries the storage rounding (what contact
                 uses: ~1e-7 of the deformation instead of ~1e-7 of the position).
+            frame: ``"world"``, or ``"body"`` for ``X + Phi q`` in body axes about the centre of
+                mass: the matrix-vector product alone, for a renderer that applies
+                ``model_matrix(state)`` itself (a GPU vertex shader does so for free). At 50k
+                vertices x 30 modes this saves the rigid-motion pass, ~0.2 ms of ~1.1 ms.
+
+        Raises:
+            InputError: unknown ``frame``, or an ``out`` of the wrong shape or type.
         """
+        if frame not in _FRAMES:
+            raise InputError(f"frame must be one of {', '.join(_FRAMES)}, got {frame!r}")
+        if frame == "body":
+            if precise:
+                coef = _coefficients(state.q, self._basis.dtype, self._row_scale)[:-1]
+                return np.dot(coef, self.shapes_t).reshape(-1, 3) + self.rest
+            out = self._output(out, "positions")
+            np.dot(_coefficients(state.q, self._basis.dtype, self._row_scale), self._basis, out=out.reshape(-1))
+            return out
         if precise:
             coef = _coefficients(state.q, self._basis.dtype, self._row_scale)[:-1]  # no subnormal products
             u = np.dot(coef, self.shapes_t).reshape(-1, 3)
@@ -254,6 +271,16 @@ class ModalBody:
         np.dot(_coefficients(state.q, dtype, self._row_scale), self._basis, out=u)  # X + Phi q, (3 nv,), one pass over the basis
         _rotate_translate(u, state.rotation().T.astype(dtype), state.position.astype(dtype), out)
         return out
+
+    @staticmethod
+    def model_matrix(state) -> np.ndarray:
+        """The rigid motion as a 4 x 4 homogeneous matrix (float64, row-major; translation [m] in
+        the last column): ``world = M @ [x_body, 1]`` for ``x_body`` from ``positions(frame="body")``.
+        Its upper-left 3 x 3 block is also the normal matrix (a rotation)."""
+        M = np.eye(4)
+        M[:3, :3] = state.rotation()
+        M[:3, 3] = state.position
+        return M
 
     def _scratch(self) -> np.ndarray:
         """A (3 nv,) work vector of the body's dtype, one per thread (reused: a fresh 3 nv vector per
@@ -298,7 +325,7 @@ class ModalBody:
         out /= np.where(norm > 0, norm, 1.0)[:, None]
         return out
 
-    def modal_normals(self, state, out: np.ndarray | None = None) -> np.ndarray:
+    def modal_normals(self, state, out: np.ndarray | None = None, *, frame: str = "world") -> np.ndarray:
         """Unit world vertex normals (nv, 3) by the modes, at the cost of one more streaming pass.
 
         The area-weighted vertex normal ``N(x) = sum_t (x_b - x_a) x (x_c - x_a)`` is linearised in
@@ -311,13 +338,20 @@ class ModalBody:
         Args:
             state: current ``State``.
             out: (nv, 3) C-contiguous array of the body's dtype to write into.
+            frame: ``"world"``, or ``"body"`` (body axes: rotate by ``model_matrix(state)[:3, :3]``).
+
+        Raises:
+            InputError: unknown ``frame``, or an ``out`` of the wrong shape or type.
         """
+        if frame not in _FRAMES:
+            raise InputError(f"frame must be one of {', '.join(_FRAMES)}, got {frame!r}")
         if self._normal_basis is None:
             self._normal_basis = self._build_normal_basis()
             self._normal_scale = _flush_tiny(self._normal_basis)
         dtype = self._normal_basis.dtype
         out = self._output(out, "modal_normals")
-        n = np.dot(_coefficients(state.q, dtype, self._normal_scale), self._normal_basis)  # (3 nv,) unnormalised, body axes
+        n = out.reshape(-1) if frame == "body" else self._scratch()
+        np.dot(_coefficients(state.q, dtype, self._normal_scale), self._normal_basis, out=n)  # unnormalised, body axes
         sq = n * n  # |n|^2 by strided sums: an inner axis of 3 is slow in numpy reductions
         inv = sq[0::3] + sq[1::3]
         inv += sq[2::3]
@@ -327,7 +361,8 @@ class ModalBody:
         n3 = n.reshape(-1, 3)
         for k in range(3):
             n3[:, k] *= inv
-        _rotate_translate(n, state.rotation().T.astype(dtype), None, out)
+        if frame == "world":
+            _rotate_translate(n, state.rotation().T.astype(dtype), None, out)
         return out
 
     def _build_normal_basis(self) -> np.ndarray:
@@ -376,6 +411,9 @@ class ModalBody:
 NEGLIGIBLE = 1e-20
 #: basis entries below this fraction of their row's largest are set to zero
 FLUSH = 1e-15
+
+
+_FRAMES = ("world", "body")
 
 
 def _flush_tiny(basis: np.ndarray) -> np.ndarray:

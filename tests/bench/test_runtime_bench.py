@@ -37,8 +37,20 @@ def test_bench_runtime_quick_writes_a_wellformed_section(tmp_path):
     assert len(rows) == 4
     for row in rows:
         for col in ("step us", "positions ms", "step + positions ms", "steps/s", "copy of Phi ms",
-                    "(step + positions) / copy"):
+                    "(step + positions) / copy", "step + body-frame positions ms", "steps/s, body frame"):
             assert float(row[col]) > 0, (col, row)
     fem = _rows(lines, "| cells")
     assert len(fem) == 1 and int(fem[0]["DOFs"]) > 0 and re.fullmatch(r"\d+x", fem[0]["FEM / modal"])
     assert "Layouts of the mode matrix" not in section  # only at the goal size
+
+
+def test_render_states_both_verdicts_at_the_goal_size():
+    """The world-frame and the body-frame verdicts are both printed, each from its own number."""
+    goal = {"nv": rb.GOAL[0], "r": rb.GOAL[1], "phi_mb": 17.0, "dtype": "float32", "step": 2e-5, "recon": 1e-3,
+            "both": 1.2e-3, "both_body": 0.9e-3, "copy": 1.4e-3, "gemv": 0.8e-3, "normals": 1e-2,
+            "modal_normals": 1e-3}
+    text = rb.render([goal], [], {}, command="c", date="d", machine="m")
+    assert "- Steps/s: 833 -> **NOT met**" in text
+    assert "body-frame reconstruction" in text and "1111 -> **met**" in text
+    goal["both_body"] = 1.1e-3
+    assert "909 -> **NOT met**" in rb.render([goal], [], {}, command="c", date="d", machine="m")

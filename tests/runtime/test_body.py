@@ -188,3 +188,37 @@ def test_decayed_modes_are_left_out_so_no_product_is_subnormal(small_model):
         st.q[:] = 1e-3  # every mode alive: the flushed basis entries change nothing visible
         assert np.allclose(body.positions(st), kept.positions(st), rtol=0, atol=1e-6)
         assert NEGLIGIBLE <= 1e-20
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_body_frame_positions_and_normals_with_the_model_matrix_give_the_world_ones(small_model, dtype):
+    """frame="body" is X + Phi q (no rigid motion), and model_matrix maps it to the world positions."""
+    body = ModalBody(small_model, dtype=dtype)
+    st = _state(body, np.random.default_rng(7))
+    tol = 1e-13 if dtype == np.float64 else 1e-6
+    xb = body.positions(st, frame="body")
+    assert xb.dtype == dtype
+    expect = (small_model.vertices - small_model.center_of_mass) + (small_model.shapes @ st.q).reshape(-1, 3)
+    assert np.abs(xb - expect).max() <= tol * np.abs(expect).max()
+    M = body.model_matrix(st)
+    assert M.shape == (4, 4) and np.array_equal(M[3], [0, 0, 0, 1])
+    world = xb.astype(np.float64) @ M[:3, :3].T + M[:3, 3]
+    x = body.positions(st)
+    assert np.abs(world - x).max() <= 2 * tol * np.abs(x).max()
+    out = np.empty_like(xb)
+    assert body.positions(st, out=out, frame="body") is out and np.array_equal(out, xb)
+    # the rigid motion does not enter the body frame
+    moved = State(st.q.copy(), st.qdot.copy(), position=(-4.0, 2.0, 0.5), orientation=(0.0, 1.0, 0.0, 0.0))
+    assert np.array_equal(body.positions(moved, frame="body"), xb)
+    precise = body.positions(st, precise=True, frame="body")
+    assert precise.dtype == np.float64 and np.abs(precise - expect).max() <= tol * np.abs(expect).max()
+    nb = body.modal_normals(st, frame="body")
+    assert np.abs(nb.astype(np.float64) @ M[:3, :3].T - body.modal_normals(st)).max() <= 10 * tol
+
+
+def test_an_unknown_frame_is_refused(small_body):
+    st = State.rest(small_body)
+    with pytest.raises(InputError, match="frame"):
+        small_body.positions(st, frame="camera")
+    with pytest.raises(InputError, match="frame"):
+        small_body.modal_normals(st, frame="local")
