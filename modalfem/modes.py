@@ -262,7 +262,7 @@ def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped
     A.sort_indices()
     try:
         if have_pardiso():
-            f = PardisoLDLT(A).refactor()
+            f = PardisoLDLT(A, groups=np.flatnonzero(free1) // 3).refactor()
             solve = f.solve
         else:
             from scipy.sparse.linalg import splu
@@ -287,8 +287,9 @@ def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped
     return float(0.5 * (mu[j] + mu[j + 1])), u2.reshape(-1)
 
 
-def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None):
-    """One eigen solve; ``interior`` = (sigma, start vector on the free DOFs) or None."""
+def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None, groups=None):
+    """One eigen solve; ``interior`` = (sigma, start vector on the free DOFs) or None; ``groups`` = the
+    node of each free DOF (serial: PARDISO orders the node graph, a third of the DOF graph)."""
     say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
     if comm is None and _have_pardiso():  # PARDISO's MKL threads own the cores (see eigen.blas_threads)
         from modalfem.eigen.blas_threads import one_openblas_thread
@@ -303,7 +304,7 @@ def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=Non
             if solver == "slepc":
                 from modalfem.eigen.slepc import solve_slepc
 
-                kw = {"rows": rows, "comm": comm} if comm is not None else {}
+                kw = {"rows": rows, "comm": comm} if comm is not None else {"groups": groups}
                 if interior is not None:
                     try:
                         return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0],
@@ -315,10 +316,11 @@ def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=Non
 
             if interior is not None:
                 try:
-                    return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0], start=interior[1])
+                    return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0], start=interior[1],
+                                       groups=groups)
                 except InteriorShiftUnusable as why:
                     say(f"interior shift not usable ({why}); solving at the negative shift")
-            return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol)
+            return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, groups=groups)
         except (ModalfemError, ImportError):
             raise
         except Exception as exc:  # never a raw ARPACK/PETSc traceback
@@ -449,13 +451,16 @@ def modes(
         timings["interior_shift"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say, interior=interior)
+    groups = np.flatnonzero(free) // 3 if comm is None else None  # node of each free DOF
+    raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say, interior=interior,
+                 groups=groups)
     missed = _missed(raw, rigid_expected, shift)
     if missed > 0 and nev + missed + 4 <= n_free - 1:
         # a Krylov solver can miss copies of a multiple eigenvalue (12 rigid modes of two free pieces):
         # the Sylvester count says how many; one retry with a wider search usually recovers them
         say(f"retry: {missed} eigenvalue(s) missed below the inertia shift")
-        raw = _solve(solver, K_ff, M_ff, nev=nev + missed + 4, shift=shift, tol=tol, rows=rows, comm=comm, say=say)
+        raw = _solve(solver, K_ff, M_ff, nev=nev + missed + 4, shift=shift, tol=tol, rows=rows, comm=comm, say=say,
+                     groups=groups)
     timings["eigen"] = time.perf_counter() - t
     for key, val in raw.timings.items():
         timings[f"eigen.{key}"] = float(val)

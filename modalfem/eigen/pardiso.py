@@ -53,6 +53,12 @@ _MTYPE_SYM_INDEF = -2
 _ORDERINGS = {"amd": 0, "metis": 2, "metis-parallel": 3}
 #: matrices with fewer rows are ordered and factorised on one thread (see ``PardisoLDLT._call``)
 SERIAL_BELOW = 20_000
+#: order the supervariable quotient graph (see ``PardisoLDLT``) from this many rows on, when it has at
+#: least this many times fewer vertices. Measured at 138,720 DOFs (P2 cantilever, 46,240 nodes, one
+#: thread): METIS on the node graph 0.6 s + symbolic analysis with that ordering 1.2 s, against 4.3-4.7 s
+#: for METIS on the DOF graph; the factor has 6 % more entries (77.2M against 72.8M).
+SUPERVARIABLE_MIN_ROWS = 2_000
+SUPERVARIABLE_MIN_RATIO = 1.5
 
 
 def busy_elsewhere(samples: int = 5) -> float:
@@ -93,6 +99,71 @@ def thread_count(n: int) -> int:
     if others < 0.5:
         return 0
     return max(1, (os.cpu_count() or 1) - round(others))
+
+
+def supervariables_of(A) -> np.ndarray | None:
+    """Group id (n,) of each row of the CSR matrix ``A`` (sorted indices): consecutive rows with the
+    same column pattern share a group (the displacement DOFs of one node), ids ascending; None if
+    no two consecutive rows share a pattern.
+
+    Rows are compared by length and two checksums of their column indices; a collision can only
+    merge two rows whose patterns differ, which changes the fill of the ordering, never a result.
+    """
+    n = A.shape[0]
+    if n < 2:
+        return None
+    indptr = np.asarray(A.indptr, dtype=np.int64)
+    length = np.diff(indptr)
+    if np.any(length == 0):
+        return None
+    idx = np.asarray(A.indices, dtype=np.int64)
+    s1 = np.add.reduceat(idx, indptr[:-1])
+    s2 = np.add.reduceat((idx * idx) % 1_000_003, indptr[:-1])
+    same = (length[1:] == length[:-1]) & (s1[1:] == s1[:-1]) & (s2[1:] == s2[:-1])
+    if not same.any():
+        return None
+    return np.concatenate([[0], np.cumsum(~same)])
+
+
+def _check_groups(groups, n: int) -> np.ndarray:
+    """``groups`` renumbered 0..g-1 in row order; consecutive rows of one group required."""
+    g = np.asarray(groups)
+    if g.shape != (n,) or not np.issubdtype(g.dtype, np.integer):
+        raise SolverError(f"PARDISO groups must be ({n},) integers, got {g.dtype} {g.shape}")
+    change = np.concatenate([[False], g[1:] != g[:-1]])
+    ids = np.cumsum(change)
+    if n and len(np.unique(g)) != int(ids[-1]) + 1:
+        raise SolverError("PARDISO groups: the rows of a group must be consecutive")
+    return ids
+
+
+def _quotient_ordering(A, groups: np.ndarray, ordering: str) -> np.ndarray:
+    """PARDISO's fill-reducing ordering (position of each group) of the quotient graph of ``A``."""
+    import scipy.sparse as sp
+
+    ng = int(groups[-1]) + 1
+    lead = np.concatenate([[0], np.flatnonzero(np.diff(groups)) + 1])  # first row of each group
+    start, stop = A.indptr[lead], A.indptr[lead + 1]
+    counts = stop - start
+    pos = np.repeat(start - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
+    rows = np.repeat(np.arange(ng), counts)
+    cols = groups[A.indices[pos]]
+    keep = np.ones(len(cols), dtype=bool)
+    keep[1:] = (cols[1:] != cols[:-1]) | (rows[1:] != rows[:-1])
+    rows, cols = rows[keep], cols[keep]
+    deg = np.bincount(rows, minlength=ng).astype(np.float64)
+    vals = np.where(rows == cols, deg[rows] + 1.0, -1.0 / np.maximum(deg[rows], 1.0))
+    Q = sp.csr_matrix((vals, cols, np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=ng))])), shape=(ng, ng))
+    with PardisoLDLT(Q, ordering=ordering, supervariables=False, _return_ordering=True) as q:
+        return q._perm.copy()
+
+
+def _expand_ordering(groups: np.ndarray, group_position: np.ndarray, n: int) -> np.ndarray:
+    """Row positions (n,) from group positions: a group's rows stay together, in their order."""
+    order = np.lexsort((np.arange(n), group_position[groups]))
+    perm = np.empty(n, dtype=np.int32)
+    perm[order] = np.arange(n, dtype=np.int32)
+    return perm
 
 
 def _candidates() -> list[str]:
@@ -147,12 +218,20 @@ class PardisoLDLT:
             pattern is fixed for the life of the object (``refactor`` takes new values).
         ordering: fill-reducing ordering, ``"metis-parallel"`` (default, OpenMP nested dissection),
             ``"metis"`` or ``"amd"``.
+        supervariables: order the quotient graph of consecutive rows with identical patterns (the
+            three displacement DOFs of a node) and expand that ordering to the rows, when it is at
+            least ``SUPERVARIABLE_MIN_RATIO`` times smaller; else (or False) order the rows' graph.
+        groups: optional supervariable of each row (n,) ints, rows of a group consecutive (the node
+            of each free DOF, ``free_dofs // 3``): use these instead of detecting identical patterns
+            (a sum such as K - shift M drops the entries that cancel, so the three rows of a node
+            can differ there). The quotient graph takes each group's first row's pattern.
 
     Raises:
         SolverError: PARDISO is not available, or a phase failed (named, with PARDISO's reason).
     """
 
-    def __init__(self, A, *, ordering: str = "metis-parallel") -> None:
+    def __init__(self, A, *, ordering: str = "metis-parallel", supervariables: bool = True, groups=None,
+                 _return_ordering: bool = False) -> None:
         import scipy.sparse as sp
 
         lib = _library()
@@ -183,6 +262,23 @@ class PardisoLDLT:
         ip = self._iparm = np.zeros(64, dtype=np.int32)
         ip[0] = 1  # user-set parameters
         ip[1] = _ORDERINGS[ordering]
+        self._perm = np.zeros(self.n, dtype=np.int32)
+        #: rows per supervariable when the ordering came from the quotient graph, else 1.0
+        self.supervariable_ratio = 1.0
+        if _return_ordering:
+            ip[4] = 2  # PARDISO writes its ordering into self._perm
+        if not supervariables or _return_ordering:
+            groups = None
+        elif groups is not None:
+            groups = _check_groups(groups, self.n)
+        else:
+            groups = supervariables_of(A)
+        if groups is not None and self.n >= SUPERVARIABLE_MIN_ROWS:
+            ng = int(groups[-1]) + 1
+            if self.n >= SUPERVARIABLE_MIN_RATIO * ng:
+                self._perm[:] = _expand_ordering(groups, _quotient_ordering(A, groups, ordering), self.n)
+                ip[4] = 1  # user permutation: the analysis does the symbolic factorisation only
+                self.supervariable_ratio = self.n / ng
         ip[9] = 8  # pivot perturbation 1e-8 (reported in iparm[13])
         ip[10] = ip[12] = 0  # no scaling / weighted matching: keeps the inertia of A itself
         ip[17] = ip[18] = -1  # report factor nonzeros and MFlop
@@ -210,7 +306,8 @@ class PardisoLDLT:
         self._lib.pardiso(
             self._pt.ctypes.data_as(p(ctypes.c_int64)), ctypes.byref(i32(1)), ctypes.byref(i32(1)),
             ctypes.byref(i32(_MTYPE_SYM_INDEF)), ctypes.byref(i32(phase)), ctypes.byref(i32(self.n)),
-            self._a.ctypes.data, self._ia.ctypes.data_as(p(i32)), self._ja.ctypes.data_as(p(i32)), None,
+            self._a.ctypes.data, self._ia.ctypes.data_as(p(i32)), self._ja.ctypes.data_as(p(i32)),
+            self._perm.ctypes.data_as(p(i32)),
             ctypes.byref(i32(nrhs)), self._iparm.ctypes.data_as(p(i32)), ctypes.byref(i32(0)),
             None if bb is None else bb.ctypes.data, None if x is None else x.ctypes.data, ctypes.byref(err),
         )
@@ -265,8 +362,11 @@ class PardisoLDLT:
     def info(self) -> dict:
         """Ordering, factor entries and flops of the analysis (for provenance and benchmarks)."""
         code = int(self._iparm[1])
+        name = {v: k for k, v in _ORDERINGS.items()}.get(code, str(code))
+        if self.supervariable_ratio > 1.0:
+            name += f" (supervariables, {self.supervariable_ratio:.2f} rows each)"
         return {
-            "pardiso_ordering": {v: k for k, v in _ORDERINGS.items()}.get(code, str(code)),
+            "pardiso_ordering": name,
             "pardiso_factor_entries": int(self._iparm[17]),
             "pardiso_factor_flops": float(self._iparm[18]) * 1e6,
             "pardiso_perturbed_pivots": self.perturbed_pivots,

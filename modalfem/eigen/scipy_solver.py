@@ -169,7 +169,7 @@ def _rayleigh_ritz(K, M, Y: np.ndarray):
     return lam, X
 
 
-def _pardiso_inertia(factor, K, M, sigma: float) -> int | None:
+def _pardiso_inertia(factor, K, M, sigma: float, groups=None) -> int | None:
     """Negative pivots of PARDISO's LDL^T of K - sigma M (numeric refactorisation of ``factor`` when the
     pattern is the one it analysed), or None when the count is not proven (perturbed or zero pivots)."""
     from modalfem.eigen.pardiso import PardisoLDLT
@@ -180,7 +180,7 @@ def _pardiso_inertia(factor, K, M, sigma: float) -> int | None:
         factor.refactor(A.data)
         f = factor
     else:
-        f = PardisoLDLT(A).refactor()
+        f = PardisoLDLT(A, groups=groups).refactor()
     try:
         neg, zero, _ = f.inertia
         return None if f.perturbed_pivots or zero else neg
@@ -200,7 +200,8 @@ def _use_pardiso(factor: str) -> bool:
 
 
 def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: int | None = None,
-                factor: str = "auto", interior: float | None = None, start: np.ndarray | None = None) -> RawModes:
+                factor: str = "auto", interior: float | None = None, start: np.ndarray | None = None,
+                groups: np.ndarray | None = None) -> RawModes:
     """Lowest ``nev`` (+ a few) eigenpairs of K x = lam M x by shift-invert ARPACK at a negative shift.
 
     Args:
@@ -216,6 +217,7 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
             ARPACK returns the c most negative 1 / (lambda - sigma), i.e. every eigenvalue below sigma.
             Raises ``InteriorShiftUnusable`` (nothing computed) when c < nev or the count is unproven.
         start: optional ARPACK start vector (n,), e.g. approximate eigenvectors from a coarser space.
+        groups: optional node of each free DOF (n,), for PARDISO's ordering (see ``PardisoLDLT``).
 
     Returns:
         RawModes with m = nev + ``extra_count(nev)`` eigenpairs (fewer if n is tiny: then a dense
@@ -257,7 +259,7 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         at = shift if interior is None else float(interior)
         A = (K - at * M).tocsr()
         A.sort_indices()
-        pardiso = lu = PardisoLDLT(A).refactor()
+        pardiso = lu = PardisoLDLT(A, groups=groups).refactor()
         timings["factor"] = time.perf_counter() - t0
         info.update(factor="pardiso-ldlt", **pardiso.info())
         if interior is not None:
@@ -334,7 +336,7 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         j = int(np.searchsorted(lam, sigma))
     if pardiso is not None and count is None:
         try:
-            count, method = _pardiso_inertia(pardiso, K, M, sigma), "pardiso-ldlt"
+            count, method = _pardiso_inertia(pardiso, K, M, sigma, groups), "pardiso-ldlt"
         finally:
             pardiso.close()
     if count is None:

@@ -153,8 +153,9 @@ class _PardisoPC:
     inertia): the first call orders and analyses the pattern, later ones refactorise numerically.
     """
 
-    def __init__(self, ordering: str) -> None:
+    def __init__(self, ordering: str, groups=None) -> None:
         self.ordering = ordering
+        self.groups = groups
         self.factor: PardisoLDLT | None = None
 
     def setUp(self, pc) -> None:
@@ -163,7 +164,8 @@ class _PardisoPC:
         A = pc.getOperators()[1]
         indptr, indices, data = A.getValuesCSR()
         if self.factor is None:
-            self.factor = PardisoLDLT(sp.csr_matrix((data, indices, indptr), shape=A.getSize()), ordering=self.ordering)
+            self.factor = PardisoLDLT(sp.csr_matrix((data, indices, indptr), shape=A.getSize()), ordering=self.ordering,
+                                      groups=self.groups)
         self.factor.refactor(data)
 
     def apply(self, pc, x, y) -> None:
@@ -428,6 +430,7 @@ def solve_slepc(
     options: SlepcOptions | None = None,
     interior: float | None = None,
     start: np.ndarray | None = None,
+    groups: np.ndarray | None = None,
 ) -> RawModes:
     """Lowest ``nev`` eigenpairs of K x = lambda M x with SLEPc, and the certificate numbers.
 
@@ -453,6 +456,7 @@ def solve_slepc(
             (nothing computed) when c < nev, a pivot is zero or perturbed: call again without it.
         start: optional Krylov start vector (n,) in the canonical free order (serial only), e.g.
             approximate eigenvectors from a coarser space; default SLEPc's random vector.
+        groups: optional node of each free DOF (n,), for PARDISO's ordering (see ``PardisoLDLT``).
 
     Returns:
         ``RawModes`` with nev + extra (or every converged, if SLEPc returns more) eigenpairs in
@@ -543,7 +547,7 @@ def solve_slepc(
         db[prefix + k] = v
     eps = SLEPc.EPS()
     Kabs = stats = None
-    pardiso = _PardisoPC(opt.pardiso_ordering) if factor == "pardiso" else None
+    pardiso = _PardisoPC(opt.pardiso_ordering, groups) if factor == "pardiso" else None
     stage = "setting up the eigensolver"
     try:
         eps.create(pcomm)
