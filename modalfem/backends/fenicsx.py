@@ -112,15 +112,22 @@ def _compile(forms):
     return [dolfinx.fem.form(f) for f in forms]
 
 
-def _assemble_stiffness_mass(V_k, V_m, material, *, lumped: bool):
-    """Assembled PETSc stiffness on ``V_k`` [N/m] and (lumped or consistent) mass on ``V_m`` [kg]."""
+def _assemble_stiffness_mass(V_k, V_m, material, *, lumped: bool, stiffness_type: str = "aij"):
+    """Assembled PETSc stiffness on ``V_k`` [N/m] and (lumped or consistent) mass on ``V_m`` [kg].
+
+    ``stiffness_type="baij"`` stores K by 3 x 3 node blocks: PETSc inserts a block per lookup instead
+    of a value per lookup, measured 0.30 s against 1.04 s for the P2 stiffness at 139,587 DOFs. Only
+    for callers that take a sub-matrix of it (which comes back as AIJ), not its raw CSR arrays.
+    """
     import dolfinx.fem.petsc
 
     from modalfem.forms import ufl_elasticity as forms
 
     mass = forms.lumped_mass_form if lumped else forms.mass_form
     a_k, a_m = _compile([forms.stiffness_form(V_k, material), mass(V_m, material)])
-    K = dolfinx.fem.petsc.assemble_matrix(a_k)
+    K = dolfinx.fem.petsc.create_matrix(a_k, mat_type=stiffness_type)
+    K.zeroEntries()
+    dolfinx.fem.petsc.assemble_matrix(K, a_k)
     K.assemble()
     M = dolfinx.fem.petsc.assemble_matrix(a_m)
     M.assemble()
@@ -222,7 +229,10 @@ def assemble_free(mesh, material, *, degree: int = 2, free, lumped: bool = False
     V, nodes = create_function_space(mesh, degree=degree, comm=MPI.COMM_SELF)
     Vs = dolfinx.fem.FunctionSpace(V.mesh, ("Lagrange", degree))
     nodes_s = node_of_block(Vs, mesh)
-    K, Ms = _assemble_stiffness_mass(V, Vs, material, lumped=lumped)
+    # node blocks when every node is wholly free or wholly held (a block sub-matrix; PETSc refuses a
+    # BAIJ sub-matrix that splits a node's block, and a converted copy crashed on it)
+    whole_nodes = bool(np.all(free.reshape(-1, 3) == free.reshape(-1, 3)[:, :1]))
+    K, Ms = _assemble_stiffness_mass(V, Vs, material, lumped=lumped, stiffness_type="baij" if whole_nodes else "aij")
     canon = canonical_dofs(nodes)  # local DOF -> canonical DOF
     local_of_canon = np.empty_like(canon)
     local_of_canon[canon] = np.arange(len(canon))
