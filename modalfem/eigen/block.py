@@ -161,8 +161,8 @@ def block_krylov_schur(
         S = np.asarray(start, dtype=np.float64).reshape(n, -1)[:, :b]
         P[:, : S.shape[1]] = S
     P, MP, _ = _new_block(P, M, [], rng)
-    V = np.empty((n, max_dim + b))
-    MV = np.empty((n, max_dim + b))
+    V = np.empty((n, max_dim + b), order="F")  # column-major: V[:, :k] is one contiguous block
+    MV = np.empty((n, max_dim + b), order="F")
     H = np.zeros((max_dim + b, max_dim + b))
     R = np.zeros((b, 0))
     k, solves, blocks, restarts = 0, 0, 0, 0
