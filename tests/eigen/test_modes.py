@@ -19,11 +19,13 @@ PLATE_Z = [Fix(t, components="z") for t in ("x0", "x1", "y0", "y1")]
     [("beam", None, 6), ("beam", "x0", 0), ("plate", PLATE_Z, 3), ("two_cubes", None, 12)],
 )
 @pytest.mark.parametrize("degree", [1, 2])
-def test_rigid_counts_found_and_certified(request, mesh_name, fixed, rigid, degree, steel, assemble_km):
+@pytest.mark.parametrize("solver", ["scipy", "block"])
+def test_rigid_counts_found_and_certified(request, mesh_name, fixed, rigid, degree, solver, steel, assemble_km):
     mesh = request.getfixturevalue(mesh_name)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no rigid-count mismatch warning
-        res = modes(mesh, steel, k=5, degree=degree, fixed=fixed, backend="skfem", solver="scipy")
+        res = modes(mesh, steel, k=5, degree=degree, fixed=fixed, backend="skfem", solver=solver)
+    assert res.solver == solver
     assert res.rigid_mode_count == rigid == res.info["rigid_expected"]
     assert res.rigid_shapes.shape == (3 * mesh.node_count(degree), rigid)
     assert res.certificate.passed, res.certificate.to_dict()
@@ -171,3 +173,23 @@ def test_restrict_equals_fancy_indexing():
     assert B.shape == ref.shape and B.has_sorted_indices
     np.testing.assert_array_equal(B.toarray(), ref.toarray())
     assert restrict(A, np.zeros(60, bool)).shape == (0, 0)
+
+
+def test_auto_solver_is_block_on_pardiso_in_one_process_and_slepc_under_mpi(monkeypatch):
+    import sys
+
+    mod = sys.modules["modalfem.modes"]  # the module (``modalfem.modes`` the attribute is the function)
+    monkeypatch.setattr(mod, "_have_pardiso", lambda: True)
+    monkeypatch.setattr("modalfem.backends.have_slepc", lambda: True)
+    monkeypatch.setattr(mod, "_world_size", lambda: 1)
+    assert mod._pick_solver("auto") == "block"
+    monkeypatch.setattr(mod, "_world_size", lambda: 2)
+    assert mod._pick_solver("auto") == "slepc"
+    monkeypatch.setattr(mod, "_have_pardiso", lambda: False)
+    monkeypatch.setattr(mod, "_world_size", lambda: 1)
+    assert mod._pick_solver("auto") == "slepc"  # MUMPS
+    monkeypatch.setattr("modalfem.backends.have_slepc", lambda: False)
+    assert mod._pick_solver("auto") == "scipy"
+    assert mod._pick_solver("block") == "block"
+    with pytest.raises(InputError, match="unknown solver"):
+        mod._pick_solver("lanczos")
