@@ -2,12 +2,12 @@
 
 For each scene (``modalfem.cloth.scenes.drape`` / ``pile``) and size (vertices per side) one child
 process, pinned to one thread (``OMP_NUM_THREADS=1`` etc.), steps the scene and reports per step:
-wall time, the share of each stage (cloth implicit step, the pipeline's broad phase, repulsion, CCD,
+wall time, CPU time, the share of each stage (cloth implicit step, the pipeline's broad phase, repulsion, CCD,
 impact zones, and stage (d) smoothing with its re-check), triangle-pair tests before and after
 normal-cone culling, impact zones, CG iterations, and the intersecting pairs found by the
 independent check (``modalfem.cloth.scenes.intersections``) every ``--check-every`` steps and at the end.
-A second table compares the two linear solvers (Jacobi-CG and SuperLU) on the implicit step alone
-(the twist scene without collisions).
+A second table compares the two linear solvers (block-Jacobi-CG and SuperLU) on the implicit step
+alone (the twist scene without collisions). ``--scenes`` and ``--no-solvers`` select what runs.
 
 The child is ``python -m modalfem.bench.cloth_bench --case drape --n 32 --steps 40 --json-out r.json``.
 """
@@ -45,7 +45,7 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
     sc = setup.scene
     sc.solver.linear_solver = linear_solver
     sums = dict.fromkeys(STAGES, 0.0)
-    total = 0.0
+    total = cpu = 0.0
     unculled = culled = zones = zone_steps = max_zone = cg = timed = measured = 0
     intersections = 0
     for k in range(steps):
@@ -53,7 +53,9 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
         if probe:  # counting unculled pair tests costs time: only on probe steps, which are not timed
             base = sc.pipeline.config
             sc.pipeline.config = dataclasses.replace(base, measure_culling=True)
+        c0 = time.process_time()
         st = sc.step(setup.dt)
+        c1 = time.process_time()
         if probe:
             sc.pipeline.config = base
             unculled += st.collision.pair_tests_unculled or 0
@@ -62,6 +64,7 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
         else:
             timed += 1
             total += st.seconds["total"]
+            cpu += c1 - c0
         if not probe:
             sums["implicit"] += st.seconds["forces"] + st.seconds["implicit"]
             sums["smoothing"] += st.seconds["smoothing"]
@@ -78,6 +81,7 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
                 intersections += scenes.intersections(setup)
     return {
         "case": case, "n": n, "steps": steps, "ms_per_step": 1e3 * total / max(timed, 1),
+        "cpu_ms_per_step": 1e3 * cpu / max(timed, 1),
         "shares": {k: v / total for k, v in sums.items()},
         "pair_tests_unculled": unculled / max(measured, 1), "pair_tests": culled / max(measured, 1),
         "zones_per_step": zones / steps, "zone_steps": zone_steps, "max_zone": max_zone,
@@ -125,23 +129,25 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
           "(repulsion, CCD, impact zones, culling by normal cones and projected contours, smoothing with "
           "re-check). Scenes: `modalfem.cloth.scenes.drape` (1 m cloth onto a 0.3 m ball) and `pile` (1 m "
           "cloth dropped vertically onto the ground), dt = 10 ms."),
+         ("- CPU ms/step is this process's CPU time per step (`time.process_time`): on a shared machine it "
+          "counts less of the waiting for a core than the wall time."),
          ("- Shares are of the step's wall time; pair tests are triangle-pair BVH leaf tests per step before "
           "and after culling (the proximity and the swept traversal of the first pipeline call), counted on "
           "every 10th step (those steps are left out of the timings); zones = impact zones per step after "
           "the final pipeline call; intersections = intersecting pairs found by the independent check "
           "every 10 steps and at the end."), "",
-         "| scene | vertices | steps | ms/step | steps/s | " + " | ".join(f"{s} %" for s in STAGES)
+         "| scene | vertices | steps | ms/step | steps/s | CPU ms/step | " + " | ".join(f"{s} %" for s in STAGES)
          + " | pair tests unculled | pair tests culled | culled % | zones/step | max zone | CG its | intersections |",
-         "|---" * (14 + len(STAGES) - 2) + "|"]
+         "|---" * (15 + len(STAGES) - 2) + "|"]
     for r in results:
         if "error" in r or "ms_per_step" not in r:
             msg = r.get("error", "timeout")
-            L.append(f"| {r['case']} | {r['n']}x{r['n']} | - | {msg} |" + " |" * (8 + len(STAGES)))
+            L.append(f"| {r['case']} | {r['n']}x{r['n']} | - | {msg} |" + " |" * (9 + len(STAGES)))
             continue
         sh = " | ".join(f"{100 * r['shares'][s]:.0f}" for s in STAGES)
         cut = 100 * (1 - r["pair_tests"] / r["pair_tests_unculled"]) if r["pair_tests_unculled"] else 0.0
         L.append(f"| {r['case']} | {r['n']}x{r['n']} | {r['steps']} | {r['ms_per_step']:.0f} | "
-                 f"{1e3 / r['ms_per_step']:.2f} | {sh} | {r['pair_tests_unculled']:.0f} | {r['pair_tests']:.0f} | "
+                 f"{1e3 / r['ms_per_step']:.2f} | {r.get('cpu_ms_per_step', float('nan')):.0f} | {sh} | {r['pair_tests_unculled']:.0f} | {r['pair_tests']:.0f} | "
                  f"{cut:.0f} | {r['zones_per_step']:.2f} | {r['max_zone']} | {r['cg_iterations']:.0f} | "
                  f"{r['intersections']} |")
     goal = [r for r in results if r.get("case") == "pile" and r.get("n") == 64 and "ms_per_step" in r]
@@ -154,7 +160,7 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
     if solvers:
         L += ["", ("Linear solver of the implicit step (the twist scene without collisions, first 10 steps: the "
                    "handles deform the sheet): ms per implicit step (assembly + solve)"),
-              "", "| vertices | Jacobi-CG ms | CG its | SuperLU ms | CG / SuperLU |", "|---|---|---|---|---|"]
+              "", "| vertices | block-Jacobi-CG ms | CG its | SuperLU ms | CG / SuperLU |", "|---|---|---|---|---|"]
         for s in solvers:
             L.append(f"| {s['n']}x{s['n']} | {s['cg']:.1f} | {s['cg_its']:.0f} | {s['splu']:.1f} | "
                      f"{s['cg'] / s['splu']:.2f}x |")
@@ -168,24 +174,28 @@ def _versions_line() -> str:
 
 
 def command(argv: list[str]) -> int:
-    """``modalfem bench cloth [--out BENCHMARKS.md] [--sizes 32 64 128] [--steps S] [--quick]``."""
+    """``modalfem bench cloth [--out BENCHMARKS.md] [--sizes 32 64 128] [--steps S] [--scenes drape pile]
+    [--no-solvers] [--quick]``."""
     ap = argparse.ArgumentParser(prog="modalfem bench cloth")
     ap.add_argument("--out", default="BENCHMARKS.md")
     ap.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
     ap.add_argument("--steps", type=int, default=40, help="steps per case (the 128 case runs half)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="per case [s]")
+    ap.add_argument("--scenes", nargs="+", choices=("drape", "pile"), default=["drape", "pile"],
+                    help="scenes to run (default: both)")
+    ap.add_argument("--no-solvers", action="store_true", help="skip the linear solver table (twist scene)")
     ap.add_argument("--quick", action="store_true", help="tiny sizes and few steps (smoke test)")
     a = ap.parse_args(argv)
     sizes, steps = ([8], 10) if a.quick else (a.sizes, a.steps)
     t0 = time.perf_counter()
     results, solvers = [], []
-    for case in ("drape", "pile"):
+    for case in a.scenes:
         for n in sizes:
             k = steps if n <= 64 else max(2, steps // 2)
             print(f"cloth bench: {case} {n}x{n}, {k} steps", file=sys.stderr, flush=True)
             r = _spawn(["--case", case, "--n", str(n), "--steps", str(k)], a.timeout)
             results.append({"case": case, "n": n, **(r or {})})
-    for n in sizes:
+    for n in [] if a.no_solvers else sizes:
         row = {"n": n}
         for ls in ("cg", "splu"):
             r = _spawn(["--case", "twist", "--n", str(n), "--steps", "10", "--no-collisions", "--linear-solver", ls],

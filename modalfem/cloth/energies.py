@@ -162,12 +162,11 @@ class Membrane:
                 w = (nrm[:, :, None] * V[:, None, :, k]).reshape(m, 6)
                 H += np.maximum(-lam_n, 0.0)[:, None, None] * w[:, :, None] * w[:, None, :]
         G = self._G * np.sqrt(self._area)[:, None, None]
-        H = H.reshape(m, 3, 2, 3, 2)
-        K = np.zeros((m, 3, 3, 3, 3))  # (m, a, i, b, k) = sum_jl G_aj H_ijkl G_bl
-        for j in range(2):
-            for k in range(2):
-                K += (G[:, :, None, None, None, j] * G[:, None, None, :, None, k]) * H[:, None, :, j, None, :, k]
-        return K.reshape(m, 9, 9)
+        # (m, a, i, b, k) = sum_jl G_aj H_ijkl G_bl as two batched products: over j, then over l
+        Ht = H.reshape(m, 3, 2, 3, 2).transpose(0, 2, 1, 3, 4).reshape(m, 2, 18)  # (m, j, (i k l))
+        T = (G @ Ht).reshape(m, 27, 2)  # (m, (a i k), l)
+        K = (T @ np.transpose(G, (0, 2, 1))).reshape(m, 3, 3, 3, 3)  # (m, a, i, k, b)
+        return np.ascontiguousarray(K.transpose(0, 1, 2, 4, 3)).reshape(m, 9, 9)
 
     def hessian(self, x: np.ndarray, *, project: bool = True) -> sp.csr_matrix:
         """Sparse (3n, 3n) Hessian [N/m] (see ``hessian_blocks``)."""

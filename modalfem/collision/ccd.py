@@ -9,7 +9,9 @@ coplanar, necessary for contact) is isolated on [0, 1] by subdivision of its Ber
 interval reasoning at every step:
 
 - an interval is discarded when the Bernstein control values of ``f`` (which bound ``f`` on the
-  interval) all exceed ``eta * |normal| + rounding bound`` in magnitude and share a sign (no root);
+  interval) all exceed ``delta * max|e1| * max|e2| + rounding bound`` in magnitude and share a sign
+  (``|f| = |e1 x e2| * distance to the plane, or between the lines, <= |e1| |e2| * distance``; the
+  lengths' largest values over the step are at its ends, the norm being convex along straight lines);
 - or when a distance lower bound at the interval's midpoint exceeds ``delta + L * width / 2``, where
   ``L`` bounds how fast the distance can change (the sum of the largest vertex displacements) so no
   time in the interval can come within ``delta = eta + rounding bound`` (Lipschitz bound);
@@ -30,12 +32,12 @@ from __future__ import annotations
 import numpy as np
 
 from modalfem.collision.distance import (
-    edge_edge_lower_bound,
-    point_triangle_lower_bound,
+    edge_edge_lower_bound_rows,
+    point_triangle_lower_bound_rows,
 )
 from modalfem.errors import InputError
 
-__all__ = ["MAX_DEPTH", "MAX_INTERVALS", "edge_edge_ccd", "vertex_face_ccd"]
+__all__ = ["MAX_DEPTH", "MAX_INTERVALS", "ccd_rows", "edge_edge_ccd", "vertex_face_ccd"]
 
 #: maximum bisection depth of [0, 1] (interval width 2**-MAX_DEPTH)
 MAX_DEPTH = 40
@@ -94,11 +96,13 @@ def edge_edge_ccd(
 
 
 def _vf_lb(x: np.ndarray) -> np.ndarray:
-    return point_triangle_lower_bound(x[:, 0], x[:, 1], x[:, 2], x[:, 3])
+    """Point-triangle distance lower bounds of (4, 3, k) positions (p, a, b, c)."""
+    return point_triangle_lower_bound_rows(x[0], x[1], x[2], x[3])
 
 
 def _ee_lb(x: np.ndarray) -> np.ndarray:
-    return edge_edge_lower_bound(x[:, 0], x[:, 1], x[:, 2], x[:, 3])
+    """Edge-edge distance lower bounds of (4, 3, k) positions (a0, a1, b0, b1)."""
+    return edge_edge_lower_bound_rows(x[0], x[1], x[2], x[3])
 
 
 #: columns (i, j) = x_i - x_j of det[e1, e2, e3]: vertex-face det[b - a, c - a, p - a], edge-edge
@@ -146,15 +150,32 @@ def _subdivide(c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple:
     return ml * aa[0] + lo * aa[1], mh * aa[0] + hi * aa[1], ml * hh[0] + lo * hh[1], mh * hh[0] + hi * hh[1]
 
 
+def ccd_rows(kind: str, t0: np.ndarray, t1: np.ndarray, *, eta: float = 0.0,
+             max_depth: int = MAX_DEPTH) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`vertex_face_ccd` (``kind`` ``"vf"``) or :func:`edge_edge_ccd` (``"ee"``) of queries given as
+    (4, 3, k) start and end positions [m] (vertex, coordinate, query): the layout the arithmetic runs on,
+    which callers gathering from many pairs can build without a transposed copy. Both arrays are
+    overwritten. Returns ``(hit, toi)`` as those functions."""
+    lb, cols = (_vf_lb, _VF_COLUMNS) if kind == "vf" else (_ee_lb, _EE_COLUMNS)
+    if t0.ndim != 3 or t0.shape[:2] != (4, 3) or t1.shape != t0.shape:
+        raise InputError(f"CCD rows must be (4, 3, k) start and end positions, got {t0.shape}, {t1.shape}")
+    return _ccd_rows(t0, t1, float(eta), lb, cols, int(max_depth))
+
+
 def _ccd(x0: np.ndarray, x1: np.ndarray, eta: float, lower_bound, columns, max_depth: int) -> tuple[np.ndarray, np.ndarray]:
-    k = len(x0)
+    # (4, 3, k) layout relative to the first vertex: the arithmetic runs on contiguous coordinate rows
+    return _ccd_rows(np.ascontiguousarray(x0.transpose(1, 2, 0)), np.ascontiguousarray(x1.transpose(1, 2, 0)), eta,
+                     lower_bound, columns, max_depth)
+
+
+def _ccd_rows(t0: np.ndarray, td: np.ndarray, eta: float, lower_bound, columns, max_depth: int):
+    """The CCD of (4, 3, k) start positions ``t0`` and end positions ``td`` (both overwritten: ``td``
+    becomes the displacements, ``t0`` the positions relative to the first vertex)."""
+    k = t0.shape[2]
     hit = np.zeros(k, dtype=bool)
     toi = np.full(k, np.inf)
     if k == 0:
         return hit, toi
-    # (4, 3, k) layout relative to the first vertex: the arithmetic runs on contiguous coordinate rows
-    t0 = np.ascontiguousarray(x0.transpose(1, 2, 0))
-    td = np.ascontiguousarray(x1.transpose(1, 2, 0))
     td -= t0
     t0 -= t0[0].copy()
     scale = np.maximum(np.abs(t0).reshape(12, k).max(axis=0), np.abs(t0 + td).reshape(12, k).max(axis=0)) + 1e-300
@@ -163,8 +184,15 @@ def _ccd(x0: np.ndarray, x1: np.ndarray, eta: float, lower_bound, columns, max_d
            + np.maximum(disp[2], disp[3]))
     lip = lip * (1.0 + 1e-9) + ROUNDING * scale
     delta = eta + ROUNDING * scale
-    # |f| <= dist * |e1 x e2| <= dist * (2 * scale)**2 where the primitives are within dist
-    eps = delta * 4.0 * scale**2 + ROUNDING * 27.0 * scale**3
+    # |f| = |e1 x e2| * (distance of the point to the plane, or between the lines) <= |e1| |e2| dist where
+    # the primitives are within dist; |e(s)| is convex along the straight-line motion, so its largest
+    # value on [0, 1] is at an end
+    (i, j), (u, w) = columns[0], columns[1]
+    e1, e2 = t0[i] - t0[j], t0[u] - t0[w]
+    d1, d2 = e1 + td[i] - td[j], e2 + td[u] - td[w]
+    len1 = np.sqrt(np.maximum(np.einsum("ik,ik->k", e1, e1), np.einsum("ik,ik->k", d1, d1)))
+    len2 = np.sqrt(np.maximum(np.einsum("ik,ik->k", e2, e2), np.einsum("ik,ik->k", d2, d2)))
+    eps = delta * (len1 * len2 * (1.0 + 1e-9)) + ROUNDING * 27.0 * scale**3
     coef = _bernstein(columns, t0, td)
     q = np.arange(k)
     lo = np.zeros(k)
@@ -182,7 +210,7 @@ def _ccd(x0: np.ndarray, x1: np.ndarray, eta: float, lower_bound, columns, max_d
         if len(q) == 0:
             break
         mid = 0.5 * (lo + hi)
-        lb = lower_bound((t0[:, :, q] + mid * td[:, :, q]).transpose(2, 0, 1))
+        lb = lower_bound(t0[:, :, q] + mid * td[:, :, q])
         touch = lb <= delta[q]
         if touch.any():
             _record(hit, toi, q[touch], mid[touch])

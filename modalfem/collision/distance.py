@@ -55,11 +55,13 @@ def point_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarr
     Returns:
         ``(d, t)``: (k,) distances [m] and (k,) parameters in [0, 1] of the closest point ``a + t (b - a)``.
     """
+    ap = p - a
     d = b - a
     dd = _dot(d, d)
-    t = np.clip(_dot(p - a, d) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
-    t = np.where(dd > 0, t, 0.0)
-    return _norm(p - a - t[..., None] * d), t
+    pos = dd > 0
+    # np.minimum/np.maximum: np.clip's argument checks cost more than the arithmetic on small batches
+    t = np.where(pos, np.minimum(np.maximum(_dot(ap, d) / np.where(pos, dd, 1.0), 0.0), 1.0), 0.0)
+    return _norm(ap - t[..., None] * d), t
 
 
 def point_triangle(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,6 +199,80 @@ def edge_edge_lower_bound(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np
     t = _dot(cross(r, d1), n) / snn2
     maybe_in = (s >= -_SLACK) & (s <= 1 + _SLACK) & (t >= -_SLACK) & (t <= 1 + _SLACK)
     line = np.abs(_dot(r, n)) / np.where(nn > 0, nn, 1.0)
+    lb = np.where(maybe_in & ~parallel, np.minimum(line, ends), ends)
+    lb = np.where(parallel, ends - np.maximum(l1, l2) * sin, lb)
+    return np.maximum(lb, 0.0)
+
+
+# ------------------------------------------------------------------------------------------------
+# The lower bounds on coordinate rows: each point is a sequence of three (k,) arrays (x, y, z), the
+# same arithmetic as the (k, 3) functions above written per coordinate, so that the CCD's many small
+# batches pay a dozen fewer array calls per bound (no einsum, stack or clip per product).
+
+
+def _rcross(a, b):
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+def _rdot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _rsub(a, b):
+    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
+
+
+def _rpoint_segment(p, a, b):
+    ap, d = _rsub(p, a), _rsub(b, a)
+    dd = _rdot(d, d)
+    pos = dd > 0
+    t = np.where(pos, np.minimum(np.maximum(_rdot(ap, d) / np.where(pos, dd, 1.0), 0.0), 1.0), 0.0)
+    e = (ap[0] - t * d[0], ap[1] - t * d[1], ap[2] - t * d[2])
+    return np.sqrt(_rdot(e, e))
+
+
+def point_triangle_lower_bound_rows(p, a, b, c) -> np.ndarray:
+    """:func:`point_triangle_lower_bound` for points given as coordinate rows (each a (3, k) array or a
+    sequence of three (k,) arrays) [m]; returns (k,) lower bounds [m]."""
+    e1, e2, ap = _rsub(b, a), _rsub(c, a), _rsub(p, a)
+    n = _rcross(e1, e2)
+    nn = np.sqrt(_rdot(n, n))
+    cb = _rsub(c, b)
+    lmax = np.maximum(np.maximum(np.sqrt(_rdot(e1, e1)), np.sqrt(_rdot(e2, e2))), np.sqrt(_rdot(cb, cb)))
+    sliver = nn <= _PARALLEL * lmax * lmax
+    edge = np.minimum(np.minimum(_rpoint_segment(p, a, b), _rpoint_segment(p, b, c)), _rpoint_segment(p, c, a))
+    snn = np.where(nn > 0, nn, 1.0)
+    s2 = snn * snn
+    wa = _rdot(_rcross(_rsub(b, p), _rsub(c, p)), n) / s2
+    wb = _rdot(_rcross(_rsub(c, p), _rsub(a, p)), n) / s2
+    wc = 1.0 - wa - wb
+    maybe_in = (wa >= -_SLACK) & (wb >= -_SLACK) & (wc >= -_SLACK)
+    plane = np.abs(_rdot(ap, n)) / snn
+    height = nn / np.where(lmax > 0, lmax, 1.0)
+    lb = np.where(maybe_in, np.minimum(plane, edge), edge)
+    lb = np.where(sliver, np.minimum(lb, edge - height), lb)
+    return np.maximum(lb, 0.0)
+
+
+def edge_edge_lower_bound_rows(a0, a1, b0, b1) -> np.ndarray:
+    """:func:`edge_edge_lower_bound` for points given as coordinate rows (each a (3, k) array or a
+    sequence of three (k,) arrays) [m]; returns (k,) lower bounds [m]."""
+    d1, d2, r = _rsub(a1, a0), _rsub(b1, b0), _rsub(b0, a0)
+    n = _rcross(d1, d2)
+    nn = np.sqrt(_rdot(n, n))
+    l1, l2 = np.sqrt(_rdot(d1, d1)), np.sqrt(_rdot(d2, d2))
+    ends = np.minimum(
+        np.minimum(_rpoint_segment(a0, b0, b1), _rpoint_segment(a1, b0, b1)),
+        np.minimum(_rpoint_segment(b0, a0, a1), _rpoint_segment(b1, a0, a1)),
+    )
+    prod = l1 * l2
+    sin = nn / np.where(prod > 0, prod, 1.0) + 1e-12
+    parallel = sin <= _PARALLEL
+    snn2 = np.where(nn > 0, nn * nn, 1.0)
+    s = _rdot(_rcross(r, d2), n) / snn2
+    t = _rdot(_rcross(r, d1), n) / snn2
+    maybe_in = (s >= -_SLACK) & (s <= 1 + _SLACK) & (t >= -_SLACK) & (t <= 1 + _SLACK)
+    line = np.abs(_rdot(r, n)) / np.where(nn > 0, nn, 1.0)
     lb = np.where(maybe_in & ~parallel, np.minimum(line, ends), ends)
     lb = np.where(parallel, ends - np.maximum(l1, l2) * sin, lb)
     return np.maximum(lb, 0.0)

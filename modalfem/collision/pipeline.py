@@ -95,7 +95,8 @@ class CollisionStats:
         pair_tests: triangle-pair (leaf) tests actually done (after culling), summed over the proximity
             traversal (boxes at ``x0`` grown by h/2) and the first swept traversal (trajectory boxes);
             0 when the call re-used the traversals of an earlier call with the same ``x0``, ``dt`` and
-            ``t`` (the re-check after smoothing); the searches for dirty vertices are not counted.
+            ``t`` (the re-check after smoothing); the searches for dirty vertices (and the fresh search
+            of a later call whose vertices are mostly dirty) are not counted.
         candidates_vf: point-triangle candidate pairs of those traversals.
         candidates_ee: edge-edge candidate pairs of those traversals.
         proximities: repulsion pairs closer than the thickness (stage a).

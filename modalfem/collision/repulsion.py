@@ -94,10 +94,12 @@ def apply_pair_impulses(
         k = np.minimum(friction * dvn / np.where(tn > 0, tn, 1.0), 1.0)
         dv_rel = dv_rel - k[:, None] * vt
     per = (w * im / den[:, None])[:, :, None] * dv_rel[:, None, :]
-    cnt = np.zeros(len(V))
-    for j in range(4):
-        np.add.at(dV, q[:, j], per[:, j])
-        np.add.at(cnt, q[:, j], np.abs(w[:, j]) * (im[:, j] > 0))
+    # per-vertex sums; one bincount over the four columns in turn adds in the order np.add.at would
+    N = len(V)
+    idx = q.T.reshape(-1)
+    for c in range(3):
+        dV[:, c] = np.bincount(idx, weights=per[:, :, c].T.reshape(-1), minlength=N)
+    cnt = np.bincount(idx, weights=(np.abs(w) * (im > 0)).T.reshape(-1), minlength=N)
     dV /= np.maximum(cnt, 1.0)[:, None]
     return dV, int(act.sum())
 

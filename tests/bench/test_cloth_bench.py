@@ -28,3 +28,16 @@ def test_render_marks_failed_cases():
     head = next(ln for ln in lines if ln.startswith("| scene"))
     row = next(ln for ln in lines if ln.startswith("| pile"))
     assert row.count("|") == head.count("|")
+
+
+def test_scene_selection_and_no_solver_table(tmp_path):
+    out = tmp_path / "B.md"
+    assert cloth_bench.command(["--quick", "--scenes", "pile", "--no-solvers", "--out", str(out)]) == 0
+    text = out.read_text()
+    lines = text.splitlines()
+    head = next(ln for ln in lines if ln.startswith("| scene"))
+    rows = [ln for ln in lines if ln.startswith(("| drape", "| pile"))]
+    assert len(rows) == 1 and rows[0].startswith("| pile") and rows[0].count("|") == head.count("|")
+    cells = dict(zip((c.strip() for c in head.strip("|").split("|")), (c.strip() for c in rows[0].strip("|").split("|"))))
+    assert float(cells["CPU ms/step"]) > 0
+    assert "Jacobi-CG" not in text

@@ -101,3 +101,62 @@ def test_no_false_negatives_on_random_vertex_face_queries():
     assert not (truth & ~hit).any()
     # false positives are rare away from degeneracy
     assert (hit & ~truth).sum() <= 0.02 * len(hit)
+
+
+def _passing(rng, k, size, speed, gap):
+    """Small primitives (about ``size`` [m]) meeting a fast partner (``speed`` [m per step]) at distance
+    ``gap`` [m] at a random time: (t in [0, 1], start (k, 4, 3), end (k, 4, 3)) for vertex-face (point,
+    triangle) and edge-edge (edge a, edge b) queries."""
+    s = rng.uniform(0.05, 0.95, size=k)[:, None]
+    base0 = rng.uniform(-1, 1, size=(k, 1, 3)) + rng.normal(scale=size, size=(k, 3, 3))
+    base1 = base0 + rng.normal(scale=0.01, size=(k, 1, 3)) + rng.normal(scale=0.1 * size, size=(k, 3, 3))
+    at = base0 + s[:, :, None] * (base1 - base0)  # the small primitive at the meeting time
+    w = rng.normal(scale=speed, size=(k, 3))
+    # vertex-face: the point meets an interior point of the triangle, `gap` off its plane
+    bary = rng.dirichlet([2.0, 2.0, 2.0], size=k)
+    n = np.cross(at[:, 1] - at[:, 0], at[:, 2] - at[:, 0])
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    p = np.einsum("kj,kji->ki", bary, at) + gap * n
+    vf0 = np.concatenate([(p - s * w)[:, None], base0], axis=1)
+    vf1 = np.concatenate([(p + (1 - s) * w)[:, None], base1], axis=1)
+    # edge-edge: edge a = the small primitive's first side; edge b crosses it `gap` away along their
+    # common normal, through interior points of both
+    a0, a1 = at[:, 0], at[:, 1]
+    d = rng.normal(size=(k, 3))
+    m = np.cross(a1 - a0, d)
+    m /= np.linalg.norm(m, axis=1)[:, None]
+    mid_a = a0 + rng.uniform(0.2, 0.8, size=(k, 1)) * (a1 - a0)
+    dn = d / np.linalg.norm(d, axis=1)[:, None] * size
+    u = rng.uniform(0.2, 0.8, size=(k, 1))
+    b0, b1 = mid_a + gap * m - u * dn, mid_a + gap * m + (1 - u) * dn
+    ee0 = np.stack([base0[:, 0], base0[:, 1], b0 - s * w, b1 - s * w], axis=1)
+    ee1 = np.stack([base1[:, 0], base1[:, 1], b0 + (1 - s) * w, b1 + (1 - s) * w], axis=1)
+    return s[:, 0], (vf0, vf1), (ee0, ee1)
+
+
+@pytest.mark.parametrize("size", [1e-3, 1e-2, 0.1])
+def test_small_primitives_meeting_a_fast_partner_within_eta_always_hit(size):
+    """The coplanarity tolerance is bounded by the edge lengths |e1| |e2| (not the coordinate scale, which a
+    fast partner makes large): queries passing at eta / 2 must all report a hit."""
+    rng = np.random.default_rng(11)
+    eta = 1e-5
+    _, vf, ee = _passing(rng, 400, size, speed=1.0, gap=0.5 * eta)
+    for fun, (x0, x1) in ((vertex_face_ccd, vf), (edge_edge_ccd, ee)):
+        hit, toi = fun(x0, x1, eta=eta)
+        assert hit.all()
+        assert ((toi >= 0) & (toi <= 1)).all()
+
+
+def test_row_layout_entry_gives_the_same_answers():
+    from modalfem.collision.ccd import ccd_rows
+
+    rng = np.random.default_rng(5)
+    x0 = rng.uniform(-1, 1, size=(500, 4, 3))
+    x1 = x0 + rng.normal(scale=0.8, size=x0.shape)
+    for kind, fun in (("vf", vertex_face_ccd), ("ee", edge_edge_ccd)):
+        hit, toi = fun(x0, x1, eta=1e-3)
+        t0, t1 = (np.ascontiguousarray(a.transpose(1, 2, 0)) for a in (x0, x1))
+        h2, toi2 = ccd_rows(kind, t0, t1, eta=1e-3)
+        assert hit.sum() > 20 and np.array_equal(hit, h2) and np.array_equal(toi, toi2)
+    with pytest.raises(InputError, match="4, 3, k"):
+        ccd_rows("vf", np.zeros((3, 4, 2)), np.zeros((3, 4, 2)))

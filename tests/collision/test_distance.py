@@ -76,3 +76,26 @@ def test_lower_bounds_on_nearly_parallel_crossing_edges_and_slivers():
     d, _, _ = edge_edge(p, a, b, c)
     lb = edge_edge_lower_bound(p, a, b, c)
     assert (lb <= d + 1e-12).all() and np.median(lb / d) > 0.5
+
+
+def test_row_lower_bounds_equal_the_batched_ones_to_rounding():
+    """The CCD's coordinate-row lower bounds do the same arithmetic as the (k, 3) functions, also for
+    slivers, nearly parallel and zero-length edges."""
+    from modalfem.collision.distance import (
+        edge_edge_lower_bound,
+        edge_edge_lower_bound_rows,
+        point_triangle_lower_bound,
+        point_triangle_lower_bound_rows,
+    )
+
+    rng = np.random.default_rng(8)
+    X = rng.standard_normal((3000, 4, 3))
+    X[1000:1500, 3] = X[1000:1500, 2] + 1e-9 * rng.standard_normal((500, 3))  # slivers / short edges
+    X[1500:2000, 3] = X[1500:2000, 2]  # zero length
+    X[2000:2500, 3] = X[2000:2500, 2] + (X[2000:2500, 1] - X[2000:2500, 0]) * (1 + 1e-7)  # parallel edges
+    rows = X.transpose(1, 2, 0)
+    cols = [X[:, i] for i in range(4)]
+    for batched, by_rows in ((point_triangle_lower_bound, point_triangle_lower_bound_rows),
+                             (edge_edge_lower_bound, edge_edge_lower_bound_rows)):
+        a, b = batched(*cols), by_rows(*rows)
+        assert np.allclose(a, b, rtol=1e-12, atol=1e-14)

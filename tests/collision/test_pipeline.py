@@ -241,3 +241,28 @@ def test_obstacle_and_option_validation():
     assert np.allclose(moving.positions(0.5)[:, 2], x0[:, 2] + 0.5)
     keyed = TriangleMeshObstacle(x0, tri, vertices_end=x0 + 1.0, t_start=1.0, t_end=3.0)
     assert np.allclose(keyed.positions(2.0), x0 + 0.5) and np.allclose(keyed.positions(9.0), x0 + 1.0)
+
+
+@pytest.mark.parametrize("fresh", [0.0, 1.0])
+def test_second_call_with_new_velocities_reuses_the_step_and_ends_collision_free(fresh, monkeypatch):
+    """The call after smoothing (same start, other velocities) re-uses the step's candidate pairs: with
+    most vertices dirty it searches afresh with culling (fresh = 0: always), else only the dirty
+    vertices (fresh = 1: never); either way its answer has no crossing."""
+    from modalfem.collision import _stages
+
+    monkeypatch.setattr(_stages, "FRESH_SEARCH", fresh)
+    x0, tri, rest = _meshes.folded_sheet(4, gap=0.05)
+    rng = np.random.default_rng(7)
+    cfg = CollisionConfig(thickness=0.004)
+    pipe = CollisionPipeline(tri, config=cfg, reference_positions=rest)
+    v = rng.normal(scale=3.0, size=x0.shape)
+    v[:, 2] -= np.where(x0[:, 2] > 0.04, 8.0, 0.0)
+    v_first, st = pipe.resolve(x0, v, np.ones(len(x0)), DT)
+    assert st.unresolved == 0 and st.pair_tests > 0
+    v2 = v_first + rng.normal(scale=1.5, size=x0.shape)  # a different, crossing candidate
+    assert _crossings(x0, x0 + DT * v2, tri) > 0
+    v_new, st2 = pipe.resolve(x0, v2, np.ones(len(x0)), DT)
+    assert st2.pair_tests == 0  # the traversals of the first call were re-used
+    assert st2.unresolved == 0
+    assert _crossings(x0, x0 + DT * v_new, tri) == 0
+    assert len(intersecting_pairs(x0 + DT * v_new, tri)) == 0
