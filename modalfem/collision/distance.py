@@ -149,24 +149,7 @@ def point_triangle_lower_bound(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: n
         (k,) lower bounds [m] (>= 0).
     """
     p, a, b, c = np.broadcast_arrays(p, a, b, c)
-    e1, e2, ap = b - a, c - a, p - a
-    n = cross(e1, e2)
-    nn = _norm(n)
-    lens = np.stack([_norm(e1), _norm(e2), _norm(c - b)], axis=-1)
-    lmax = lens.max(axis=-1)
-    sliver = nn <= _PARALLEL * lmax * lmax
-    edge = np.minimum(np.minimum(point_segment(p, a, b)[0], point_segment(p, b, c)[0]), point_segment(p, c, a)[0])
-    snn = np.where(nn > 0, nn, 1.0)
-    # barycentrics from signed sub-areas along n (exact-ish; only their sign with a slack matters)
-    wa = _dot(cross(b - p, c - p), n) / (snn * snn)
-    wb = _dot(cross(c - p, a - p), n) / (snn * snn)
-    wc = 1.0 - wa - wb
-    maybe_in = (wa >= -_SLACK) & (wb >= -_SLACK) & (wc >= -_SLACK)
-    plane = np.abs(_dot(ap, n)) / snn
-    height = nn / np.where(lmax > 0, lmax, 1.0)
-    lb = np.where(maybe_in, np.minimum(plane, edge), edge)
-    lb = np.where(sliver, np.minimum(lb, edge - height), lb)
-    return np.maximum(lb, 0.0)
+    return point_triangle_lower_bound_rows(p.T, a.T, b.T, c.T)
 
 
 def edge_edge_lower_bound(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
@@ -183,31 +166,13 @@ def edge_edge_lower_bound(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np
         (k,) lower bounds [m] (>= 0).
     """
     a0, a1, b0, b1 = np.broadcast_arrays(a0, a1, b0, b1)
-    d1, d2, r = a1 - a0, b1 - b0, b0 - a0
-    n = cross(d1, d2)
-    nn = _norm(n)
-    l1, l2 = _norm(d1), _norm(d2)
-    ends = np.minimum(
-        np.minimum(point_segment(a0, b0, b1)[0], point_segment(a1, b0, b1)[0]),
-        np.minimum(point_segment(b0, a0, a1)[0], point_segment(b1, a0, a1)[0]),
-    )
-    prod = l1 * l2
-    sin = nn / np.where(prod > 0, prod, 1.0) + 1e-12
-    parallel = sin <= _PARALLEL
-    snn2 = np.where(nn > 0, nn * nn, 1.0)
-    s = _dot(cross(r, d2), n) / snn2
-    t = _dot(cross(r, d1), n) / snn2
-    maybe_in = (s >= -_SLACK) & (s <= 1 + _SLACK) & (t >= -_SLACK) & (t <= 1 + _SLACK)
-    line = np.abs(_dot(r, n)) / np.where(nn > 0, nn, 1.0)
-    lb = np.where(maybe_in & ~parallel, np.minimum(line, ends), ends)
-    lb = np.where(parallel, ends - np.maximum(l1, l2) * sin, lb)
-    return np.maximum(lb, 0.0)
+    return edge_edge_lower_bound_rows(a0.T, a1.T, b0.T, b1.T)
 
 
 # ------------------------------------------------------------------------------------------------
 # The lower bounds on coordinate rows: each point is a sequence of three (k,) arrays (x, y, z), the
-# same arithmetic as the (k, 3) functions above written per coordinate, so that the CCD's many small
-# batches pay a dozen fewer array calls per bound (no einsum, stack or clip per product).
+# arithmetic written per coordinate, so that the CCD's many small batches pay a dozen fewer array calls
+# per bound (no einsum, stack or clip per product). The (k, 3) functions above call these.
 
 
 def _rcross(a, b):
@@ -243,6 +208,7 @@ def point_triangle_lower_bound_rows(p, a, b, c) -> np.ndarray:
     edge = np.minimum(np.minimum(_rpoint_segment(p, a, b), _rpoint_segment(p, b, c)), _rpoint_segment(p, c, a))
     snn = np.where(nn > 0, nn, 1.0)
     s2 = snn * snn
+    # barycentrics from signed sub-areas along n (exact-ish; only their sign with a slack matters)
     wa = _rdot(_rcross(_rsub(b, p), _rsub(c, p)), n) / s2
     wb = _rdot(_rcross(_rsub(c, p), _rsub(a, p)), n) / s2
     wc = 1.0 - wa - wb
