@@ -380,21 +380,21 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
     t3 = time.perf_counter()
     count = None
     if interior is not None:
-        sigma, count, method = float(interior), int(m), "pardiso-ldlt"
+        sigma, count, inertia_method = float(interior), int(m), "pardiso-ldlt"
         pardiso.close()
     else:
         sigma = choose_inertia_shift(lam, nev, floor=ZERO_RTOL * abs(shift))
         j = int(np.searchsorted(lam, sigma))
     if pardiso is not None and count is None:
         try:
-            count, method = _pardiso_inertia(pardiso, K, M, sigma, groups), "pardiso-ldlt"
+            count, inertia_method = _pardiso_inertia(pardiso, K, M, sigma, groups), "pardiso-ldlt"
         finally:
             pardiso.close()
     if count is None:
-        count, sigma, method = inertia_count(K, M, sigma, lower=float(lam[j - 1]), upper=float(lam[j]))
+        count, sigma, inertia_method = inertia_count(K, M, sigma, lower=float(lam[j - 1]), upper=float(lam[j]))
     timings["inertia"] = time.perf_counter() - t3
     timings["certificate"] = timings["residuals"] + timings["inertia"]
-    info["inertia_method"] = method
+    info["inertia_method"] = inertia_method
     return RawModes(
         eigenvalues=lam, vectors=X, residuals=res, orthonormality_error=orth,
         inertia_shift=float(sigma), inertia_count=int(count), timings=timings, info=info,

@@ -252,19 +252,18 @@ class ModalBody:
         """
         if frame not in _FRAMES:
             raise InputError(f"frame must be one of {', '.join(_FRAMES)}, got {frame!r}")
+        if precise:
+            # float64 rest shape (and rigid motion); the same subnormal-free mode weights as below
+            coef = _coefficients(state.q, self._basis.dtype, self._row_scale)[:-1]
+            x = np.dot(coef, self.shapes_t).reshape(-1, 3) + self.rest
+            if frame == "world":
+                x = x @ state.rotation().T
+                x += state.position
+            return x
         if frame == "body":
-            if precise:
-                coef = _coefficients(state.q, self._basis.dtype, self._row_scale)[:-1]
-                return np.dot(coef, self.shapes_t).reshape(-1, 3) + self.rest
             out = self._output(out, "positions")
             np.dot(_coefficients(state.q, self._basis.dtype, self._row_scale), self._basis, out=out.reshape(-1))
             return out
-        if precise:
-            coef = _coefficients(state.q, self._basis.dtype, self._row_scale)[:-1]  # no subnormal products
-            u = np.dot(coef, self.shapes_t).reshape(-1, 3)
-            x = (self.rest + u) @ state.rotation().T
-            x += state.position
-            return x
         dtype = self._basis.dtype
         out = self._output(out, "positions")
         u = self._scratch()
