@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from modalfem.backends._sparse import expand_components
 from modalfem.errors import InputError
 
 __all__ = ["assemble", "assemble_free", "assemble_petsc", "canonical_dofs", "create_function_space", "node_of_block"]
@@ -187,7 +188,7 @@ def assemble(mesh, material, *, degree: int = 2, lumped: bool = False):
         d[nodes_s] = Ms.getDiagonal().array
         Mc = _diagonal_csr(np.repeat(d, 3))
     else:
-        Mc = sp.kron(_petsc_to_csr(Ms, nodes_s), sp.identity(3, format="csr"), format="csr")
+        Mc = expand_components(_petsc_to_csr(Ms, nodes_s))
     K.destroy()
     Ms.destroy()
     return Kc, Mc
@@ -247,9 +248,7 @@ def assemble_free(mesh, material, *, degree: int = 2, free, lumped: bool = False
         d[nodes_s] = Ms.getDiagonal().array
         M_ff = _diagonal_csr(np.repeat(d, 3)[free])
     else:
-        from modalfem.modes import restrict
-
-        M_ff = restrict(sp.kron(_petsc_to_csr(Ms, nodes_s), sp.identity(3, format="csr"), format="csr"), free)
+        M_ff = expand_components(_petsc_to_csr(Ms, nodes_s), free)
     for obj in (K, K_sub, Ms, iset):
         obj.destroy()
     return K_ff, M_ff

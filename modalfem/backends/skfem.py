@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from modalfem.backends._sparse import expand_components
 from modalfem.errors import InputError
 
-__all__ = ["assemble", "create_basis", "canonical_permutation"]
+__all__ = ["assemble", "canonical_permutation", "create_basis"]
 
 
 def _check_degree(degree: int) -> int:
@@ -166,5 +167,5 @@ def assemble(mesh, material, *, degree: int = 2, lumped: bool = False, method: s
         n = len(d)
         M = sp.csr_matrix((d, np.arange(n), np.arange(n + 1)), shape=(n, n))
     else:
-        M = sp.kron(Ms, sp.identity(3, format="csr"), format="csr")
+        M = expand_components(Ms)
     return K, M
