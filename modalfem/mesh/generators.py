@@ -23,7 +23,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from modalfem.errors import InputError, MeshError
-from modalfem.mesh.core import Mesh, signed_volumes
+from modalfem.mesh.core import Mesh, signed_volumes, unique_rows
 
 __all__ = ["box", "plate", "rod", "tuning_fork", "bell", "GENERATORS"]
 
@@ -101,7 +101,7 @@ def _outward_tags(points: np.ndarray, cells: np.ndarray, tags: dict[str, np.ndar
             oriented[name] = f
             continue
         allkeys = np.vstack([bkey, np.sort(f, axis=1)])
-        _, inv = np.unique(allkeys, axis=0, return_inverse=True)
+        _, inv = unique_rows(allkeys, len(bare.points), return_inverse=True)
         inv = inv.ravel()
         where = np.full(inv.max() + 1, -1, dtype=np.int64)
         where[inv[: len(bnd)]] = np.arange(len(bnd))
