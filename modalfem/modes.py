@@ -299,7 +299,7 @@ def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped
     return float(0.5 * (mu[j] + mu[j + 1])), u2.reshape(-1)
 
 
-def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None, groups=None, analysis=None):
+def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None, groups=None):
     """One eigen solve; ``interior`` = (sigma, start vector on the free DOFs) or None; ``groups`` = the
     node of each free DOF (serial: PARDISO orders the node graph, a third of the DOF graph)."""
     say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
@@ -333,32 +333,11 @@ def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=Non
                                        groups=groups, method=method)
                 except InteriorShiftUnusable as why:
                     say(f"interior shift not usable ({why}); solving at the negative shift")
-            return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, groups=groups, method=method,
-                               analysis=analysis)
+            return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, groups=groups, method=method)
         except (ModalfemError, ImportError):
             raise
         except Exception as exc:  # never a raw ARPACK/PETSc traceback
             raise SolverError(f"{solver} eigen solve failed: {type(exc).__name__}: {exc}") from None
-
-
-#: start PARDISO's ordering and symbolic analysis during the shift estimate from this many free DOFs on
-BACKGROUND_ANALYSIS_MIN = 20_000
-
-
-def _start_analysis(solver: str, K_ff, M_ff, groups):
-    """A ``pardiso.BackgroundAnalysis`` of the pattern of K - M (that of K - shift M for any shift, up to
-    exact cancellations, which the solver checks), started now so it overlaps the shift estimate; or
-    None (SLEPc, no PARDISO, small problems)."""
-    if solver not in ("block", "scipy") or K_ff.shape[0] < BACKGROUND_ANALYSIS_MIN or not _have_pardiso():
-        return None
-    from modalfem.eigen.pardiso import BackgroundAnalysis
-
-    def pattern():
-        P = (K_ff - M_ff).tocsr()
-        P.sort_indices()
-        return P
-
-    return BackgroundAnalysis(pattern, groups=groups, pivoting="diagonal")
 
 
 def _have_pardiso() -> bool:
@@ -472,9 +451,6 @@ def modes(
         del K, M
     timings["assembly"] = time.perf_counter() - t
 
-    groups = np.flatnonzero(free) // 3 if comm is None else None  # node of each free DOF
-    analysis = _start_analysis(solver, K_ff, M_ff, groups) if comm is None and not INTERIOR_SHIFT else None
-
     say("shift")
     t = time.perf_counter()
     shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=rigid_expected, rows=rows, comm=comm)
@@ -490,8 +466,9 @@ def modes(
         timings["interior_shift"] = time.perf_counter() - t
 
     t = time.perf_counter()
+    groups = np.flatnonzero(free) // 3 if comm is None else None  # node of each free DOF
     raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say, interior=interior,
-                 groups=groups, analysis=analysis)
+                 groups=groups)
     missed = _missed(raw, rigid_expected, shift)
     if missed > 0 and nev + missed + 4 <= n_free - 1:
         # a Krylov solver can miss copies of a multiple eigenvalue (12 rigid modes of two free pieces):

@@ -119,7 +119,6 @@ def block_krylov_schur(
     seed: int = 0,
     strict: int | None = None,
     extra_tol: float = 1e-6,
-    monitor=None,
 ):
     """The ``m`` largest eigenvalues theta of ``T = opinv(M @ .)`` and their M-orthonormal vectors.
 
@@ -140,9 +139,6 @@ def block_krylov_schur(
             ``extra_tol``. Pairs computed only to place the certificate's inertia shift need their
             eigenvalues to ~1e-3, not their vectors to 1e-12: the Sylvester count checks them.
         extra_tol: convergence tolerance of the pairs beyond ``strict``.
-        monitor: optional callable ``monitor(theta, rel)`` called after every block step with the
-            current leading Ritz values (up to m, descending) and their relative residual estimates
-            ``||T y - theta y||_M / theta`` (e.g. to start work that needs approximate eigenvalues).
 
     Returns:
         (theta (m,) descending, X (n, m) M-orthonormal, info dict with ``solves``, ``blocks``,
@@ -188,8 +184,6 @@ def block_krylov_schur(
         est = np.linalg.norm(R @ Y, axis=0)
         need = np.where(np.arange(m) < strict, tol, max(extra_tol, tol)) * np.abs(theta[:m]) if k >= m else None
         done = need is not None and bool(np.all(est[:m] <= need))
-        if monitor is not None:
-            monitor(theta[:m].copy(), est[:m] / np.maximum(np.abs(theta[:m]), np.finfo(float).tiny))
         if done or k + b > max_dim:
             if done:
                 X = V[:, :k] @ Y[:, :m]

@@ -31,7 +31,7 @@ import numpy as np
 
 from modalfem.errors import SolverError
 
-__all__ = ["BackgroundAnalysis", "PardisoLDLT", "have_pardiso"]
+__all__ = ["PardisoLDLT", "have_pardiso"]
 
 _LIB = None
 _LOAD_ERROR: str | None = None
@@ -155,7 +155,7 @@ def _quotient_ordering(A, groups: np.ndarray, ordering: str) -> np.ndarray:
     deg = np.bincount(rows, minlength=ng).astype(np.float64)
     vals = np.where(rows == cols, deg[rows] + 1.0, -1.0 / np.maximum(deg[rows], 1.0))
     Q = sp.csr_matrix((vals, cols, np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=ng))])), shape=(ng, ng))
-    with PardisoLDLT(Q, ordering=ordering, supervariables=False) as q:
+    with PardisoLDLT(Q, ordering=ordering, supervariables=False, _return_ordering=True) as q:
         return q._perm.copy()
 
 
@@ -232,15 +232,14 @@ class PardisoLDLT:
             factorisation that had to perturb a pivot is redone with Bunch-Kaufman, so the factor
             is never a perturbed one when an unperturbed one exists (``pivoting_used`` says which).
             Diagonal pivots are backward stable for positive definite A; for an indefinite A the
-            caller checks a solve's backward error before trusting the factor (``backward_error``).
-        threads: MKL threads for every phase (0: all cores); default ``thread_count(n)``.
+            caller checks a solve's backward error before trusting the factor.
 
     Raises:
         SolverError: PARDISO is not available, or a phase failed (named, with PARDISO's reason).
     """
 
     def __init__(self, A, *, ordering: str = "metis-parallel", supervariables: bool = True, groups=None,
-                 pivoting: str = "bunch-kaufman", threads: int | None = None, _perm: np.ndarray | None = None) -> None:
+                 pivoting: str = "bunch-kaufman", _return_ordering: bool = False) -> None:
         import scipy.sparse as sp
 
         lib = _library()
@@ -250,8 +249,8 @@ class PardisoLDLT:
             raise SolverError(f"unknown PARDISO ordering {ordering!r}; use one of {sorted(_ORDERINGS)}")
         if pivoting not in _PIVOTING:
             raise SolverError(f"unknown PARDISO pivoting {pivoting!r}; use one of {sorted(_PIVOTING)}")
+        #: requested pivoting, and the one the last numeric factorisation used
         self.pivoting = self.pivoting_used = pivoting
-        self._ordering = ordering
         A = sp.csr_matrix(A)
         if A.shape[0] != A.shape[1]:
             raise SolverError(f"PARDISO needs a square matrix, got shape {A.shape}")
@@ -270,7 +269,7 @@ class PardisoLDLT:
         self._a = np.ascontiguousarray(A.data[self._upper], dtype=np.float64)
         self._lib = lib
         #: MKL threads for every phase of this handle (0 = MKL's default, all cores)
-        self.threads = thread_count(self.n) if threads is None else int(threads)
+        self.threads = thread_count(self.n)
         self._pt = np.zeros(64, dtype=np.int64)
         ip = self._iparm = np.zeros(64, dtype=np.int32)
         ip[0] = 1  # user-set parameters
@@ -278,8 +277,9 @@ class PardisoLDLT:
         self._perm = np.zeros(self.n, dtype=np.int32)
         #: rows per supervariable when the ordering came from the quotient graph, else 1.0
         self.supervariable_ratio = 1.0
-        ip[4] = 2  # PARDISO writes its ordering into self._perm (unless one is given below)
-        if not supervariables or _perm is not None:
+        if _return_ordering:
+            ip[4] = 2  # PARDISO writes its ordering into self._perm
+        if not supervariables or _return_ordering:
             groups = None
         elif groups is not None:
             groups = _check_groups(groups, self.n)
@@ -291,9 +291,6 @@ class PardisoLDLT:
                 self._perm[:] = _expand_ordering(groups, _quotient_ordering(A, groups, ordering), self.n)
                 ip[4] = 1  # user permutation: the analysis does the symbolic factorisation only
                 self.supervariable_ratio = self.n / ng
-        if _perm is not None:
-            self._perm[:] = _perm
-            ip[4] = 1
         ip[9] = 8  # pivot perturbation 1e-8 (reported in iparm[13])
         ip[10] = ip[12] = 0  # no scaling / weighted matching: keeps the inertia of A itself
         ip[17] = ip[18] = -1  # report factor nonzeros and MFlop
@@ -357,33 +354,6 @@ class PardisoLDLT:
         self.factored = True
         return self
 
-    def twin(self, A=None, *, threads: int = 1, pivoting: str | None = None) -> PardisoLDLT:
-        """A new handle for a matrix with this one's pattern (default: this one's values), analysed
-        with this handle's ordering (symbolic analysis only, no reordering), not yet factorised.
-
-        Two handles hold two factors at once: one can be factorised (on ``threads`` MKL threads)
-        while the other solves, from two Python threads (ctypes releases the GIL; PARDISO handles
-        are independent). Used to compute an inertia count concurrently with shift-invert solves.
-
-        Args:
-            A: optional CSR matrix with the same pattern (``same_pattern``); its values are used.
-            threads: MKL threads of the new handle.
-            pivoting: default this handle's.
-
-        Raises:
-            SolverError: A's pattern differs, or the analysis failed.
-        """
-        import scipy.sparse as sp
-
-        if A is None:
-            data = np.zeros(self._nnz_full)
-            data[self._upper] = self._a
-            A = sp.csr_matrix((data, self._indices, self._indptr), shape=(self.n, self.n))
-        elif not self.same_pattern(A):
-            raise SolverError("PARDISO twin: the matrix's sparsity pattern differs from the analysed one")
-        return PardisoLDLT(A, ordering=self._ordering, supervariables=False, threads=threads,
-                           pivoting=pivoting or self.pivoting, _perm=self._perm.copy())
-
     def solve(self, b: np.ndarray) -> np.ndarray:
         """x with A x = b for b of shape (n,) or (n, m) (several right-hand sides in one pass)."""
         if not self.factored:
@@ -441,53 +411,3 @@ class PardisoLDLT:
                 self.close()
             except Exception:  # noqa: BLE001, S110 - at interpreter shutdown ctypes may be gone already
                 pass
-
-
-class BackgroundAnalysis:
-    """``PardisoLDLT(make_matrix(), **kwargs)`` (ordering and symbolic analysis) on a thread, from now.
-
-    The analysis needs only the sparsity pattern, which is known as soon as K and M are assembled;
-    ``modes`` starts it on the pattern of K - M and computes the shift meanwhile (ctypes releases
-    the GIL during PARDISO's call, and the shift estimate is mostly sparse products).
-
-    Args:
-        make_matrix: callable returning the CSR matrix (sorted indices) whose pattern is analysed;
-            called on the worker thread.
-        **kwargs: ``PardisoLDLT`` options.
-    """
-
-    def __init__(self, make_matrix, **kwargs) -> None:
-        import threading
-
-        self._factor: PardisoLDLT | None = None
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._run, args=(make_matrix, kwargs), name="modalfem-analysis",
-                                        daemon=True)
-        self._thread.start()
-
-    def _run(self, make_matrix, kwargs) -> None:
-        try:
-            self._factor = PardisoLDLT(make_matrix(), **kwargs)
-        except BaseException as exc:  # noqa: BLE001 - re-raised by result()
-            self._error = exc
-
-    def result(self) -> PardisoLDLT:
-        """The analysed handle (waits for the thread); the caller owns it from now on.
-
-        Raises:
-            SolverError: the analysis failed (PARDISO's reason, or the exception that stopped it).
-        """
-        self._thread.join()
-        if self._error is not None:
-            if isinstance(self._error, SolverError):
-                raise self._error
-            raise SolverError(f"PARDISO analysis failed: {type(self._error).__name__}: {self._error}")
-        factor, self._factor = self._factor, None
-        return factor
-
-    def close(self) -> None:
-        """Wait for the thread and release a handle nobody took (idempotent)."""
-        self._thread.join()
-        if self._factor is not None:
-            self._factor.close()
-            self._factor = None

@@ -37,9 +37,6 @@ __all__ = ["ZERO_RTOL", "extra_count", "inertia_count", "residual_floor", "resid
 ZERO_RTOL = 1e-3
 #: backward error a factorisation used for an inertia count must reach on a test solve.
 _FACTOR_BACKWARD_TOL = 1e-10
-#: the block solver's inertia count runs on a second PARDISO handle, concurrently with the solves
-#: (``modalfem.eigen.inertia_thread``), from this many free DOFs on (below, threads cost more than they give)
-CONCURRENT_MIN_ROWS = 20_000
 #: largest size for the dense Bunch-Kaufman fallback (6000^2 doubles = 288 MB).
 _DENSE_LDL_MAX = 6000
 
@@ -205,25 +202,29 @@ def _rayleigh_ritz(K, M, Y: np.ndarray):
 
 def _pardiso_inertia(factor, K, M, sigma: float, groups=None) -> int | None:
     """Negative pivots of PARDISO's LDL^T of K - sigma M (numeric refactorisation of ``factor`` when the
-    pattern is the one it analysed, else a new analysis), or None when the count is not proven."""
-    from modalfem.eigen.inertia_thread import pardiso_inertia
+    pattern is the one it analysed), or None when the count is not proven (perturbed or zero pivots).
+
+    A factor with diagonal pivots (faster, see ``PardisoLDLT``) of this indefinite matrix is trusted
+    only when a solve's backward error is at most ``_FACTOR_BACKWARD_TOL``; otherwise it is redone with
+    Bunch-Kaufman pivots."""
     from modalfem.eigen.pardiso import PardisoLDLT
 
-    count = pardiso_inertia(factor, K, M, sigma)
-    if count is not None or factor.same_pattern((K - sigma * M).tocsr()):
-        return count
     A = (K - sigma * M).tocsr()
     A.sort_indices()
-    with PardisoLDLT(A, groups=groups) as f:
-        return pardiso_inertia(f, K, M, sigma)
-
-
-def _cores_free(n: int) -> bool:
-    """Whether the inertia count should run concurrently with the solves: a large enough problem and
-    no other process running (on busy cores the two would only take turns)."""
-    from modalfem.eigen.pardiso import busy_elsewhere
-
-    return n >= CONCURRENT_MIN_ROWS and busy_elsewhere() < 0.5
+    if factor.same_pattern(A):
+        factor.refactor(A.data)
+        f = factor
+    else:
+        f = PardisoLDLT(A, groups=groups, pivoting=factor.pivoting).refactor()
+    try:
+        if f.pivoting_used == "diagonal" and _backward_error(A, f.solve) > _FACTOR_BACKWARD_TOL:
+            f.pivoting = "bunch-kaufman"
+            f.refactor()
+        neg, zero, _ = f.inertia
+        return None if f.perturbed_pivots or zero else neg
+    finally:
+        if f is not factor:
+            f.close()
 
 
 def _use_pardiso(factor: str) -> bool:
@@ -238,7 +239,7 @@ def _use_pardiso(factor: str) -> bool:
 
 def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: int | None = None,
                 factor: str = "auto", interior: float | None = None, start: np.ndarray | None = None,
-                groups: np.ndarray | None = None, method: str = "arpack", analysis=None) -> RawModes:
+                groups: np.ndarray | None = None, method: str = "arpack") -> RawModes:
     """Lowest ``nev`` (+ a few) eigenpairs of K x = lam M x by shift-invert ARPACK at a negative shift.
 
     Args:
@@ -258,8 +259,6 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         method: ``"arpack"`` (``eigsh``, one solve per Lanczos vector) or ``"block"`` (block
             Krylov-Schur, ``modalfem.eigen.block``: 4 right-hand sides per solve, ~2x faster on a
             PARDISO factor; at an ``interior`` shift ARPACK is used).
-        analysis: optional ``pardiso.BackgroundAnalysis`` started earlier on a matrix with the pattern
-            of K - shift M (e.g. K - M): its handle is used when the patterns agree, else ignored.
 
     Returns:
         RawModes with m = nev + ``extra_count(nev)`` eigenpairs (fewer if n is tiny: then a dense
@@ -268,17 +267,6 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
     Raises:
         SolverError: the factorisation or ARPACK failed, or the inertia count could not be proven.
     """
-    owned: list = [] if analysis is None else [analysis]  # concurrent workers to stop whatever happens
-    try:
-        return _solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, ncv=ncv, factor=factor, interior=interior,
-                            start=start, groups=groups, method=method, owned=owned, analysis=analysis)
-    finally:
-        for obj in owned:
-            obj.close()
-
-
-def _solve_scipy(K_ff, M_ff, *, nev, shift, tol, ncv, factor, interior, start, groups, method, owned,
-                 analysis) -> RawModes:
     from scipy.sparse.linalg import (
         ArpackError,
         ArpackNoConvergence,
@@ -301,7 +289,7 @@ def _solve_scipy(K_ff, M_ff, *, nev, shift, tol, ncv, factor, interior, start, g
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     info = {"solver": "scipy", "shift": float(shift), "nev": int(nev), "computed": int(m)}
-    pardiso = concurrent = None
+    pardiso = None
     if n <= max(200, 3 * m):  # ARPACK needs ncv < n; tiny problems are solved densely
         lam, X = _dense_solve(K, M, m)
         lu, interior = None, None
@@ -317,22 +305,7 @@ def _solve_scipy(K_ff, M_ff, *, nev, shift, tol, ncv, factor, interior, start, g
         # K - shift M is positive definite: diagonal pivots (Cholesky up to signs) are stable there and
         # faster; at an interior shift it is indefinite and Bunch-Kaufman pivots keep the solves stable
         pivoting = "diagonal" if interior is None else "bunch-kaufman"
-        pardiso = analysis.result() if analysis is not None else None
-        if pardiso is not None and not pardiso.same_pattern(A):
-            pardiso.close()
-            pardiso = None
-        if pardiso is None:
-            pardiso = PardisoLDLT(A, groups=groups, pivoting=pivoting)
-        else:
-            pardiso.pivoting = pivoting
-            info["analysis"] = "in background"
-        lu = pardiso
-        if interior is None and method == "block" and _cores_free(n):
-            from modalfem.eigen.inertia_thread import ConcurrentInertia
-
-            concurrent = ConcurrentInertia(pardiso, K, M, nev=nev, shift=shift)
-            owned.append(concurrent)
-        pardiso.refactor(A.data)
+        pardiso = lu = PardisoLDLT(A, groups=groups, pivoting=pivoting).refactor()
         timings["factor"] = time.perf_counter() - t0
         info.update(factor="pardiso-ldlt", **pardiso.info())
         if interior is not None:
@@ -361,8 +334,7 @@ def _solve_scipy(K_ff, M_ff, *, nev, shift, tol, ncv, factor, interior, start, g
         from modalfem.eigen.block import block_krylov_schur
 
         t1 = time.perf_counter()
-        theta, X, binfo = block_krylov_schur(lu.solve, M, m, tol=max(tol * 1e-2, 1e-14), start=start, strict=nev,
-                                             monitor=None if concurrent is None else concurrent.monitor)
+        theta, X, binfo = block_krylov_schur(lu.solve, M, m, tol=max(tol * 1e-2, 1e-14), start=start, strict=nev)
         timings["solve"] = time.perf_counter() - t1
         order = np.argsort(shift + 1.0 / theta)
         lam, X = (shift + 1.0 / theta)[order], X[:, order]
@@ -420,23 +392,10 @@ def _solve_scipy(K_ff, M_ff, *, nev, shift, tol, ncv, factor, interior, start, g
     if interior is not None:
         sigma, count, inertia_method = float(interior), int(m), "pardiso-ldlt"
         pardiso.close()
-    elif concurrent is not None:
-        pardiso.close()  # the solves are done: its memory goes before the twin's work ends
-        count, sigma = concurrent.count(lam)
-        inertia_method = "pardiso-ldlt (concurrent)"
-        j = int(np.searchsorted(lam, sigma))
-        info["inertia_early_shift"] = concurrent.early_sigma is not None and sigma == concurrent.early_sigma
-        if count is None:  # the twin's factor was not a proof: a new analysis with Bunch-Kaufman pivots
-            from modalfem.eigen.pardiso import PardisoLDLT
-
-            A = (K - sigma * M).tocsr()
-            A.sort_indices()
-            with PardisoLDLT(A, groups=groups) as f:
-                count, inertia_method = _pardiso_inertia(f, K, M, sigma, groups), "pardiso-ldlt"
     else:
         sigma = choose_inertia_shift(lam, nev, floor=ZERO_RTOL * abs(shift))
         j = int(np.searchsorted(lam, sigma))
-    if pardiso is not None and count is None and concurrent is None:
+    if pardiso is not None and count is None:
         try:
             count, inertia_method = _pardiso_inertia(pardiso, K, M, sigma, groups), "pardiso-ldlt"
         finally:
