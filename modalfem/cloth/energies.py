@@ -1,4 +1,4 @@
-"""Cloth energies: corotational in-plane membrane and dihedral-angle bending, vectorised.
+"""Cloth energies: corotational in-plane membrane and dihedral-angle bending.
 
 Membrane (per triangle, rest area ``A``, deformation gradient ``F = Ds Dm^-1`` (3, 2) from a 2D rest
 frame, polar decomposition ``F = R S``):
@@ -23,7 +23,9 @@ by finite differences) has the Gauss-Newton part ``c grad theta grad theta^T`` a
 semi-definite by construction and exact at the rest angle.
 
 All functions take positions ``x`` (n, 3) [m] and return energy [J], gradient (n, 3) [N] (the negative
-force), and per-element Hessian blocks with their DOF indices for sparse assembly.
+force), and per-element Hessian blocks with their DOF indices for sparse assembly. The per-element work
+(polar decomposition, stresses, projected Hessians, dihedral angles and their gradients) runs in the
+compiled loops of ``modalfem.cloth._energy_kernels``.
 """
 
 from __future__ import annotations
@@ -35,10 +37,9 @@ import scipy.sparse as sp
 
 from modalfem.cloth.mesh import ClothMesh
 
-__all__ = ["Bending", "Membrane", "assemble_blocks", "dihedral_angles", "scatter"]
+__all__ = ["Bending", "Membrane", "assemble_blocks", "dihedral_angles"]
 
 _GRAD_REF = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])
-_SQRT_EPS = 1e-12
 
 
 def assemble_blocks(blocks: np.ndarray, verts: np.ndarray, n: int) -> sp.csr_matrix:
@@ -54,29 +55,6 @@ def assemble_blocks(blocks: np.ndarray, verts: np.ndarray, n: int) -> sp.csr_mat
     rows = np.repeat(dof, 3 * k, axis=1).reshape(-1)
     cols = np.tile(dof, (1, 3 * k)).reshape(-1)
     return sp.csr_matrix((blocks.reshape(-1), (rows, cols)), shape=(3 * n, 3 * n))
-
-
-def scatter(verts: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Sum per-element vertex vectors ``values`` (m, k, 3) into (n, 3) over ``verts`` (m, k)."""
-    idx = verts.reshape(-1)
-    v = values.reshape(-1, 3)
-    return np.stack([np.bincount(idx, weights=v[:, c], minlength=n) for c in range(3)], axis=1)
-
-
-def _polar(F: np.ndarray):
-    """R (m, 3, 2), S (m, 2, 2), S^-1, tr S of F (m, 3, 2) with ``F = R S``, S SPD (2x2 closed form)."""
-    C = np.einsum("mki,mkj->mij", F, F)
-    det = np.maximum(C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] ** 2, _SQRT_EPS)
-    sd = np.sqrt(det)
-    tr_s = np.sqrt(C[:, 0, 0] + C[:, 1, 1] + 2.0 * sd)
-    S = (C + sd[:, None, None] * np.eye(2)) / tr_s[:, None, None]
-    det_s = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] ** 2
-    Sinv = np.empty_like(S)
-    Sinv[:, 0, 0], Sinv[:, 1, 1] = S[:, 1, 1], S[:, 0, 0]
-    Sinv[:, 0, 1] = Sinv[:, 1, 0] = -S[:, 0, 1]
-    Sinv /= det_s[:, None, None]
-    R = F[:, :, 0, None] * Sinv[:, None, 0, :] + F[:, :, 1, None] * Sinv[:, None, 1, :]
-    return R, S, Sinv, tr_s
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,67 +84,52 @@ class Membrane:
         object.__setattr__(self, "_G", _GRAD_REF @ B)  # (m, 3, 2): F = sum_a x_a G_a^T
         object.__setattr__(self, "_area", self.mesh.areas.copy())
 
-    def _F(self, x: np.ndarray) -> np.ndarray:
-        q = x[self.mesh.triangles]  # (m, a, i)
-        G = self._G  # (m, a, j)
-        return sum(q[:, a, :, None] * G[:, a, None, :] for a in range(3))
+    def _args(self, x: np.ndarray):
+        return (np.ascontiguousarray(x, dtype=float), self.mesh.triangles, self._G, self._area, float(self.mu),
+                float(self.lam))
 
     def energy(self, x: np.ndarray) -> float:
         """Membrane energy [J] at positions ``x`` (n, 3) [m]."""
-        F = self._F(x)
-        R, _S, _, tr_s = _polar(F)
-        psi = self.mu * np.sum((F - R) ** 2, axis=(1, 2)) + 0.5 * self.lam * (tr_s - 2.0) ** 2
-        return float(np.sum(self._area * psi))
+        from modalfem.cloth import _energy_kernels as ek
+
+        return float(ek.membrane_energy(*self._args(x)))
 
     def gradient(self, x: np.ndarray) -> np.ndarray:
         """dW/dx (n, 3) [N] (the negative elastic force)."""
-        F = self._F(x)
-        R, _, _, tr_s = _polar(F)
-        P = 2.0 * self.mu * (F - R) + (self.lam * (tr_s - 2.0))[:, None, None] * R
-        g = (self._G @ np.transpose(P, (0, 2, 1))) * self._area[:, None, None]
-        return scatter(self.mesh.triangles, g, len(x))
+        from modalfem.cloth import _energy_kernels as ek
+
+        out = np.zeros((len(x), 3))
+        ek.membrane_gradient(*self._args(x), out)
+        return out
 
     def hessian_blocks(self, x: np.ndarray, *, project: bool = True) -> np.ndarray:
         """Per-triangle 9x9 Hessians (m, 9, 9) [N/m], exact or projected to positive semi-definite.
 
         In F-space (``vec F`` row-major, 6 entries) the exact Hessian is
         ``2 mu I + lam r r^T + (lam (tr S - 2) - 2 mu) (q q^T / tr S + kron(I - R R^T, S^-1))`` with
-        ``r = vec R``, ``q = vec(R J)``, ``J`` the 2x2 rotation by 90 degrees.
+        ``r = vec R``, ``q = vec(R J)``, ``J`` the 2x2 rotation by 90 degrees. Its spectrum is known in
+        closed form: the only eigenvalues that can be negative are the twist ``2 mu + 2 c / tr S`` (vector
+        ``q / sqrt 2``, ``c = lam (tr S - 2) - 2 mu``) and the out-of-plane ``2 mu + c / sigma_k`` (vectors
+        ``vec(n v_k^T)``, ``n`` the unit normal, ``v_k`` the right singular vectors, ``sigma_k`` the
+        singular values of F); the projection clamps them at zero. Compiled
+        (``modalfem.cloth._energy_kernels.membrane_hessian``).
 
         Args:
             x: positions (n, 3) [m].
             project: clamp the negative eigenvalues of each F-space Hessian to zero.
         """
-        F = self._F(x)
-        R, _, Sinv, tr_s = _polar(F)
-        m = len(F)
-        r = R.reshape(m, 6)
-        q = np.stack([R[:, :, 1], -R[:, :, 0]], axis=2).reshape(m, 6)  # vec(R J)
-        Pn = np.eye(3) - np.einsum("mij,mkj->mik", R, R)
-        kron = (Pn[:, :, None, :, None] * Sinv[:, None, :, None, :]).reshape(m, 6, 6)
-        c = self.lam * (tr_s - 2.0) - 2.0 * self.mu
-        H = c[:, None, None] * (q[:, :, None] * q[:, None, :] / tr_s[:, None, None] + kron)
-        H += self.lam * r[:, :, None] * r[:, None, :]
-        H[:, np.arange(6), np.arange(6)] += 2.0 * self.mu
-        if project:
-            # closed-form spectrum: the only eigenvalues that can be negative are the twist
-            # 2 mu + 2 c / tr S (vector q / sqrt 2) and the out-of-plane 2 mu + c / sigma_k (vectors
-            # vec(n v_k^T), n the unit normal, v_k the right singular vectors); clamp them at zero.
-            lam_l = 2.0 * self.mu + 2.0 * c / tr_s
-            H += np.maximum(-lam_l, 0.0)[:, None, None] * 0.5 * q[:, :, None] * q[:, None, :]
-            sig2, V = np.linalg.eigh(np.transpose(F, (0, 2, 1)) @ F)
-            nrm = np.cross(F[:, :, 0], F[:, :, 1])
-            nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
-            for k in range(2):
-                lam_n = 2.0 * self.mu + c / np.sqrt(np.maximum(sig2[:, k], _SQRT_EPS))
-                w = (nrm[:, :, None] * V[:, None, :, k]).reshape(m, 6)
-                H += np.maximum(-lam_n, 0.0)[:, None, None] * w[:, :, None] * w[:, None, :]
-        G = self._G * np.sqrt(self._area)[:, None, None]
-        # (m, a, i, b, k) = sum_jl G_aj H_ijkl G_bl as two batched products: over j, then over l
-        Ht = H.reshape(m, 3, 2, 3, 2).transpose(0, 2, 1, 3, 4).reshape(m, 2, 18)  # (m, j, (i k l))
-        T = (G @ Ht).reshape(m, 27, 2)  # (m, (a i k), l)
-        K = (T @ np.transpose(G, (0, 2, 1))).reshape(m, 3, 3, 3, 3)  # (m, a, i, k, b)
-        return np.ascontiguousarray(K.transpose(0, 1, 2, 4, 3)).reshape(m, 9, 9)
+        from modalfem.cloth import _energy_kernels as ek
+
+        out = np.empty((len(self.mesh.triangles), 9, 9))
+        ek.membrane_hessian(*self._args(x), bool(project), out, np.zeros((0, 3, 3), np.int64))
+        return out
+
+    def add_hessian(self, x: np.ndarray, data: np.ndarray, maps: np.ndarray) -> None:
+        """Add the projected Hessian [N/m] at ``x`` (n, 3) [m] straight into a 3x3-block matrix's ``data``
+        (nnzb, 3, 3), the triangles' blocks at positions ``maps`` (m, 3, 3) (no per-triangle blocks formed)."""
+        from modalfem.cloth import _energy_kernels as ek
+
+        ek.membrane_hessian(*self._args(x), True, data, maps)
 
     def hessian(self, x: np.ndarray, *, project: bool = True) -> sp.csr_matrix:
         """Sparse (3n, 3n) Hessian [N/m] (see ``hessian_blocks``)."""
@@ -180,24 +143,13 @@ def dihedral_angles(x: np.ndarray, hinges: np.ndarray):
     first triangle ``(e0, e1, a)``. Gradient formulas: the opposite vertices move along their
     triangle's normal (``|e| n / (2 A)``); the edge vertices take the balancing combination.
     """
-    x0, x1, xa, xb = (x[hinges[:, k]] for k in range(4))
-    e = x1 - x0
-    n1 = np.cross(e, xa - x0)  # normal of triangle (e0, e1, a), |n1| = 2 A1
-    n2 = np.cross(xb - x0, e)  # normal of triangle (e1, e0, b), |n2| = 2 A2
-    le = np.linalg.norm(e, axis=1)
-    ehat = e / le[:, None]
-    s = np.einsum("hi,hi->h", np.cross(n1, n2), ehat)
-    c = np.einsum("hi,hi->h", n1, n2)
-    theta = np.arctan2(s, c)
-    q1 = np.einsum("hi,hi->h", n1, n1)
-    q2 = np.einsum("hi,hi->h", n2, n2)
-    ga = -(le / q1)[:, None] * n1
-    gb = -(le / q2)[:, None] * n2
-    ta = np.einsum("hi,hi->h", xa - x0, ehat) / le  # position of a's foot along the edge (0 at e0)
-    tb = np.einsum("hi,hi->h", xb - x0, ehat) / le
-    g0 = -(1.0 - ta)[:, None] * ga - (1.0 - tb)[:, None] * gb
-    g1 = -ta[:, None] * ga - tb[:, None] * gb
-    return theta, np.stack([g0, g1, ga, gb], axis=1)
+    from modalfem.cloth import _energy_kernels as ek
+
+    hinges = np.asarray(hinges, dtype=np.int64).reshape(-1, 4)
+    theta = np.empty(len(hinges))
+    g = np.empty((len(hinges), 4, 3))
+    ek.dihedral(np.ascontiguousarray(x, dtype=float), hinges, theta, g)
+    return theta, g
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,11 +188,21 @@ class Bending:
     def gradient(self, x: np.ndarray) -> np.ndarray:
         """dW/dx (n, 3) [N]."""
         h = self.mesh.hinges.vertices
-        out = np.zeros_like(x, dtype=float)
+        out = np.zeros((len(x), 3))
         if not len(h):
             return out
+        from modalfem.cloth import _energy_kernels as ek
+
         theta, g = dihedral_angles(x, h)
-        return scatter(h, (self._coef * self._wrapped(theta))[:, None, None] * g, len(x))
+        ek.scatter_rows(out, h, g, self._coef * self._wrapped(theta))
+        return out
+
+    def gauss_newton_factors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The projected Hessian of each hinge as ``w g g^T``: weights ``w`` (h,) [J] and the angle
+        gradients ``g`` (h, 12) [rad/m] at positions ``x`` (n, 3) [m] (for assembly without forming blocks)."""
+        h = self.mesh.hinges.vertices
+        _, g = dihedral_angles(x, h)
+        return self._coef, g.reshape(len(h), 12)
 
     def hessian_blocks(self, x: np.ndarray, *, project: bool = True, step: float = 1e-6) -> np.ndarray:
         """Per-hinge 12x12 Hessians (h, 12, 12) [N/m].
@@ -253,11 +215,11 @@ class Bending:
                 relative step ``step`` (for checks and studies, not for the solve).
         """
         h = self.mesh.hinges.vertices
-        theta, g = dihedral_angles(x, h)
-        g = g.reshape(len(h), 12)
-        H = self._coef[:, None, None] * g[:, :, None] * g[:, None, :]
+        w, g = self.gauss_newton_factors(x)
+        H = w[:, None, None] * g[:, :, None] * g[:, None, :]
         if project:
             return H
+        theta, _ = dihedral_angles(x, h)
         scale = step * np.sqrt(self._coef.size and np.max(np.sum((x[h[:, 1]] - x[h[:, 0]]) ** 2, axis=1)))
         Hth = np.empty((len(h), 12, 12))
         for k in range(12):

@@ -52,12 +52,14 @@ class StepStats:
         linear: the implicit step's ``LinearSolveInfo``.
         collision: the pipeline's ``CollisionStats`` of the first call (None without collisions).
         recheck: the ``CollisionStats`` of the call after smoothing (None if not run).
+        smooth_iterations: CG iterations of the smoothing solve (0 if not run or not CG).
     """
 
     seconds: dict = field(default_factory=dict)
     linear: LinearSolveInfo | None = None
     collision: object | None = None
     recheck: object | None = None
+    smooth_iterations: int = 0
 
 
 class ClothScene:
@@ -242,6 +244,7 @@ class ClothScene:
             t3 = time.perf_counter()
             if self.smoothing > 0 and st.collision.touched is not None and st.collision.touched.any():
                 dv = self.solver.smooth(v_col - v_new, dt, strength=self.smoothing, fixed=idx)
+                st.smooth_iterations = self.solver.smooth_iterations
                 v_smooth, st.recheck = self.pipeline.resolve(x, v_new + dv, self._pinned_masses, dt, t=t)
                 if not st.recheck.unresolved or st.collision.unresolved:
                     v_col, last = v_smooth, st.recheck  # else keep the unsmoothed, collision-free answer

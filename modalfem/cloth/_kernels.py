@@ -1,0 +1,381 @@
+"""Compiled kernels of the cloth solver on 3x3-block sparse matrices (numba, compiled on first call, cached).
+
+A block matrix is the block-CSR triple ``indptr`` (n + 1,), ``indices`` (nnzb,) (block columns, sorted per
+block row) and ``data`` (nnzb, 3, 3) over vertices, node-major DOFs (3 i + component). Constraints are per
+vertex: ``kind[i]`` 0 free, 1 the normal component along the unit ``normal[i]`` prescribed (a contact),
+2 all three components prescribed (a handle); ``S_i`` is the projection on the free components
+(``I``, ``I - n n^T`` or 0).
+
+``pcg`` is the Baraff-Witkin modified (filtered) preconditioned conjugate gradient method, one fused
+pass over the matrix per iteration (product, projection and dot product together), one over the vectors
+(update, residual norm) and the additive multilevel preconditioner (restriction up the aggregation
+levels, their block-Jacobi and coarsest solves, prolongation down with block Jacobi and the projection,
+dot product); ``aggregate`` and ``level_matrices`` build its levels.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["aggregate", "bsr_matvec", "level_matrices", "pcg", "scatter_blocks"]
+
+
+@numba.njit(cache=True)
+def bsr_matvec(indptr, indices, data, x, out):
+    """``out = A x`` for block ``A`` and ``x``, ``out`` (n, 3)."""
+    n = len(indptr) - 1
+    for i in range(n):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            x0, x1, x2 = x[j, 0], x[j, 1], x[j, 2]
+            a0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
+            a1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
+            a2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+        out[i, 0] = a0
+        out[i, 1] = a1
+        out[i, 2] = a2
+
+
+@numba.njit(cache=True)
+def scatter_blocks(data, maps, blocks, scale):
+    """``data[maps[e, a, b]] += scale * blocks[e, 3a:3a+3, 3b:3b+3]`` for element blocks (m, 3k, 3k) and
+    their block positions ``maps`` (m, k, k)."""
+    m, k = maps.shape[0], maps.shape[1]
+    for e in range(m):
+        for a in range(k):
+            for b in range(k):
+                p = maps[e, a, b]
+                for r in range(3):
+                    for c in range(3):
+                        data[p, r, c] += scale * blocks[e, 3 * a + r, 3 * b + c]
+
+
+@numba.njit(cache=True)
+def _project(kind, normal, i, u0, u1, u2):
+    """``S_i u`` for the vertex ``i``."""
+    if kind[i] == 0:
+        return u0, u1, u2
+    if kind[i] == 2:
+        return 0.0, 0.0, 0.0
+    n0, n1, n2 = normal[i, 0], normal[i, 1], normal[i, 2]
+    d = n0 * u0 + n1 * u1 + n2 * u2
+    return u0 - d * n0, u1 - d * n1, u2 - d * n2
+
+
+@numba.njit(cache=True)
+def _inverse3(D, out):
+    """``out = D^-1`` for a 3x3 ``D`` (identity for a singular one)."""
+    c00 = D[1, 1] * D[2, 2] - D[1, 2] * D[2, 1]
+    c01 = D[1, 2] * D[2, 0] - D[1, 0] * D[2, 2]
+    c02 = D[1, 0] * D[2, 1] - D[1, 1] * D[2, 0]
+    det = D[0, 0] * c00 + D[0, 1] * c01 + D[0, 2] * c02
+    scale = 0.0
+    for r in range(3):
+        for c in range(3):
+            scale = max(scale, abs(D[r, c]))
+    if not abs(det) > 1e-300 + 1e-14 * scale**3:
+        for r in range(3):
+            for c in range(3):
+                out[r, c] = 1.0 if r == c else 0.0
+        return
+    out[0, 0] = c00 / det
+    out[1, 0] = c01 / det
+    out[2, 0] = c02 / det
+    out[0, 1] = (D[0, 2] * D[2, 1] - D[0, 1] * D[2, 2]) / det
+    out[1, 1] = (D[0, 0] * D[2, 2] - D[0, 2] * D[2, 0]) / det
+    out[2, 1] = (D[0, 1] * D[2, 0] - D[0, 0] * D[2, 1]) / det
+    out[0, 2] = (D[0, 1] * D[1, 2] - D[0, 2] * D[1, 1]) / det
+    out[1, 2] = (D[0, 2] * D[1, 0] - D[0, 0] * D[1, 2]) / det
+    out[2, 2] = (D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]) / det
+
+
+@numba.njit(cache=True)
+def _preconditioner(data, diag, kind, normal):
+    """(n, 3, 3) ``S_i B_i^-1 S_i`` with ``B_i`` the diagonal block, for a contact ``S D S + tr(D)/3 n n^T``
+    (its inverse keeps range(S))."""
+    n = len(diag)
+    P = np.zeros((n, 3, 3))
+    D = np.empty((3, 3))
+    S = np.empty((3, 3))
+    inv = np.empty((3, 3))
+    for i in range(n):
+        if kind[i] == 2:
+            continue
+        for a in range(3):
+            for b in range(3):
+                D[a, b] = data[diag[i], a, b]
+        if kind[i] == 1:
+            _projector(kind, normal, i, S)
+            tr = (D[0, 0] + D[1, 1] + D[2, 2]) / 3.0
+            _sandwich(S, D, inv)
+            for a in range(3):
+                for b in range(3):
+                    D[a, b] = inv[a, b] + tr * normal[i, a] * normal[i, b]
+            _inverse3(D, inv)
+            _sandwich(S, inv, P[i])
+        else:
+            _inverse3(D, P[i])
+    return P
+
+
+@numba.njit(cache=True)
+def _sandwich(S, D, out):
+    """``out = S D S`` (3x3, S symmetric)."""
+    for a in range(3):
+        for b in range(3):
+            t = 0.0
+            for u in range(3):
+                for v in range(3):
+                    t += S[a, u] * D[u, v] * S[v, b]
+            out[a, b] = t
+
+
+@numba.njit(cache=True)
+def _residual(indptr, indices, data, kind, normal, b, y, r):
+    """``r = S (b - A y)``; returns ``|r|^2``."""
+    n = len(indptr) - 1
+    rr = 0.0
+    for i in range(n):
+        a0 = b[i, 0]
+        a1 = b[i, 1]
+        a2 = b[i, 2]
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
+            a0 -= data[p, 0, 0] * y0 + data[p, 0, 1] * y1 + data[p, 0, 2] * y2
+            a1 -= data[p, 1, 0] * y0 + data[p, 1, 1] * y1 + data[p, 1, 2] * y2
+            a2 -= data[p, 2, 0] * y0 + data[p, 2, 1] * y1 + data[p, 2, 2] * y2
+        a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
+        r[i, 0] = a0
+        r[i, 1] = a1
+        r[i, 2] = a2
+        rr += a0 * a0 + a1 * a1 + a2 * a2
+    return rr
+
+
+@numba.njit(cache=True)
+def aggregate(indptr, indices):
+    """Greedy aggregation of a graph (CSR adjacency): each vertex not yet taken starts an aggregate with
+    its untaken neighbours. Returns (aggregate of each vertex (n,), aggregate count)."""
+    n = len(indptr) - 1
+    agg = np.full(n, -1, np.int64)
+    k = 0
+    for i in range(n):
+        if agg[i] >= 0:
+            continue
+        agg[i] = k
+        for p in range(indptr[i], indptr[i + 1]):
+            if agg[indices[p]] < 0:
+                agg[indices[p]] = k
+        k += 1
+    return agg, k
+
+
+@numba.njit(cache=True)
+def level_matrices(indptr, indices, data, kind, normal, agg, up, off):
+    """Galerkin matrices of the aggregation levels, ``P_l^T S A S P_l`` with ``P_l`` the piecewise-constant
+    prolongation (3 translations per aggregate) of level ``l``: the aggregates of all levels are numbered
+    together, level ``l`` from ``off[l]``; ``agg`` (n,): each vertex's level-0 aggregate, ``up`` (off[L-1],):
+    each aggregate's parent on the next level. Returns the inverses (off[L-1], 3, 3) of the diagonal blocks
+    of levels 0..L-2 and the full matrix (3 nc, 3 nc) of the coarsest level.
+
+    A block singular because its vertices are constrained (``S P u = 0``) is inverted after adding
+    ``1e-10 tr / 3`` to its diagonal (a zero one as the identity): restricted residuals have no component
+    along such ``u`` and the prolongation removes it, so any generalised inverse gives the same result.
+    """
+    n = len(indptr) - 1
+    L = len(off) - 1
+    nd = off[L - 1]
+    D = np.zeros((nd, 3, 3))
+    nc = off[L] - nd
+    C = np.zeros((3 * nc, 3 * nc))
+    T = np.empty((3, 3))
+    Si = np.empty((3, 3))
+    Sj = np.empty((3, 3))
+    for i in range(n):
+        if kind[i] == 2:
+            continue
+        _projector(kind, normal, i, Si)
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            if kind[j] == 2:
+                continue
+            if kind[i] == 0 and kind[j] == 0:
+                for a in range(3):
+                    for b in range(3):
+                        T[a, b] = data[p, a, b]
+            else:
+                _projector(kind, normal, j, Sj)
+                for a in range(3):
+                    for b in range(3):
+                        t = 0.0
+                        for u in range(3):
+                            for v in range(3):
+                                t += Si[a, u] * data[p, u, v] * Sj[v, b]
+                        T[a, b] = t
+            gi = agg[i]
+            gj = agg[j]
+            while gi < nd:  # up the levels while i and j share a block-Jacobi level's aggregate
+                if gi == gj:
+                    for a in range(3):
+                        for b in range(3):
+                            D[gi, a, b] += T[a, b]
+                gi = up[gi]
+                gj = up[gj]
+            I = gi - nd
+            J = gj - nd
+            for a in range(3):
+                for b in range(3):
+                    C[3 * I + a, 3 * J + b] += T[a, b]
+    Dinv = np.empty((nd, 3, 3))
+    for g in range(nd):
+        tr = (D[g, 0, 0] + D[g, 1, 1] + D[g, 2, 2]) / 3.0
+        for a in range(3):
+            D[g, a, a] += 1e-10 * tr
+        _inverse3(D[g], Dinv[g])
+    return Dinv, C
+
+
+@numba.njit(cache=True)
+def _projector(kind, normal, i, S):
+    for a in range(3):
+        for b in range(3):
+            S[a, b] = (1.0 if a == b else 0.0) - (normal[i, a] * normal[i, b] if kind[i] == 1 else 0.0)
+
+
+@numba.njit(cache=True)
+def _precondition(P, r, z, kind, normal, agg, up, off, Dinv, Cinv, w, e):
+    """``z = B r`` (block Jacobi plus the aggregation levels' corrections, additive); returns ``r . z``."""
+    n = len(r)
+    L = len(off) - 1
+    if L > 0:
+        nd = off[L - 1]
+        w.fill(0.0)
+        for i in range(n):  # restriction to level 0 (r is in range(S)), then up the levels
+            g = agg[i]
+            w[g, 0] += r[i, 0]
+            w[g, 1] += r[i, 1]
+            w[g, 2] += r[i, 2]
+        for g in range(nd):
+            w[up[g], 0] += w[g, 0]
+            w[up[g], 1] += w[g, 1]
+            w[up[g], 2] += w[g, 2]
+        nc3 = 3 * (off[L] - nd)
+        for u in range(nc3):
+            s = 0.0
+            for v in range(nc3):
+                s += Cinv[u, v] * w[nd + v // 3, v % 3]
+            e[nd + u // 3, u % 3] = s
+        for g in range(nd - 1, -1, -1):  # block Jacobi on each level, summed down the levels
+            for a in range(3):
+                e[g, a] = Dinv[g, a, 0] * w[g, 0] + Dinv[g, a, 1] * w[g, 1] + Dinv[g, a, 2] * w[g, 2] + e[up[g], a]
+    rz = 0.0
+    for i in range(n):  # block Jacobi plus the projected prolongation
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        if L > 0:
+            g = agg[i]
+            s0, s1, s2 = _project(kind, normal, i, e[g, 0], e[g, 1], e[g, 2])
+        for a in range(3):
+            t = P[i, a, 0] * r[i, 0] + P[i, a, 1] * r[i, 1] + P[i, a, 2] * r[i, 2]
+            t += s0 if a == 0 else (s1 if a == 1 else s2)
+            z[i, a] = t
+            rz += r[i, a] * t
+    return rz
+
+
+@numba.njit(cache=True)
+def pcg(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, agg, up, off, Dinv, Cinv):
+    """Solve ``A y = b`` on the free components (filtered PCG).
+
+    The preconditioner adds to block Jacobi (the inverses of the vertices' diagonal blocks, projected)
+    the corrections of aggregation levels (additive multilevel): ``S P_l D_l^+ P_l^T S`` for levels
+    0..L-2 (``D_l`` the diagonal blocks of the level's Galerkin matrix) and ``S P_c C^+ P_c^T S`` for the
+    coarsest (its full matrix); ``L`` = 0 is block Jacobi alone.
+
+    Args:
+        indptr, indices, data: the SPD block matrix ``A``; ``diag`` (n,): position of each diagonal block.
+        kind, normal: the constraints (module docstring).
+        b: right-hand side (n, 3).
+        y: (n, 3), updated in place: on entry the start, whose constrained components are the prescribed
+            ones (they are kept); on exit the solution.
+        rtol: relative residual: stop when ``|S (b - A y)| <= rtol |b'|``, ``b'`` the right-hand side of
+            the system with the constrained components eliminated (handle rows replaced by identity rows):
+            ``S (b - A z)`` plus the handles' prescribed values, ``z`` = ``y`` at entry with its free
+            components zeroed.
+        maxiter: iteration cap.
+        agg, up, off: the levels (``level_matrices``); ``off`` = [0] for none.
+        Dinv: (off[L-1], 3, 3) inverses of the levels' diagonal blocks (``level_matrices``).
+        Cinv: (3 nc, 3 nc) inverse of the coarsest matrix.
+
+    Returns:
+        (iterations, relative residual reached); iterations = -1 if ``maxiter`` was not enough.
+    """
+    n = len(diag)
+    r = np.empty((n, 3))
+    z = np.empty((n, 3))
+    c = np.empty((n, 3))
+    q = np.empty((n, 3))
+    w = np.empty((off[-1], 3))
+    e = np.empty((off[-1], 3))
+    for i in range(n):  # z: the constrained part of the start
+        u0, u1, u2 = _project(kind, normal, i, y[i, 0], y[i, 1], y[i, 2])
+        z[i, 0] = y[i, 0] - u0
+        z[i, 1] = y[i, 1] - u1
+        z[i, 2] = y[i, 2] - u2
+    nb2 = _residual(indptr, indices, data, kind, normal, b, z, r)
+    for i in range(n):  # the prescribed values of the handles count in the right-hand side's norm
+        if kind[i] == 2:
+            nb2 += z[i, 0] ** 2 + z[i, 1] ** 2 + z[i, 2] ** 2
+    nb = np.sqrt(nb2)
+    if nb == 0.0:
+        for i in range(n):
+            for a in range(3):
+                y[i, a] = z[i, a]
+        return 0, 0.0
+    rn = np.sqrt(_residual(indptr, indices, data, kind, normal, b, y, r))
+    if rn <= rtol * nb:
+        return 0, rn / nb
+    P = _preconditioner(data, diag, kind, normal)
+    rz = _precondition(P, r, c, kind, normal, agg, up, off, Dinv, Cinv, w, e)
+    for k in range(1, maxiter + 1):
+        cq = 0.0
+        for i in range(n):  # q = S A c (c is in range(S)), c . q
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            for p in range(indptr[i], indptr[i + 1]):
+                j = indices[p]
+                x0, x1, x2 = c[j, 0], c[j, 1], c[j, 2]
+                a0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
+                a1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
+                a2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+            a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
+            q[i, 0] = a0
+            q[i, 1] = a1
+            q[i, 2] = a2
+            cq += c[i, 0] * a0 + c[i, 1] * a1 + c[i, 2] * a2
+        if not cq > 0.0:
+            return -1, rn / nb
+        alpha = rz / cq
+        rr = 0.0
+        for i in range(n):  # y += alpha c, r -= alpha q, |r|^2
+            for a in range(3):
+                y[i, a] += alpha * c[i, a]
+                r[i, a] -= alpha * q[i, a]
+                rr += r[i, a] * r[i, a]
+        rn = np.sqrt(rr)
+        if rn <= rtol * nb:
+            return k, rn / nb
+        rz_new = _precondition(P, r, z, kind, normal, agg, up, off, Dinv, Cinv, w, e)
+        beta = rz_new / rz
+        rz = rz_new
+        for i in range(n):
+            for a in range(3):
+                c[i, a] = z[i, a] + beta * c[i, a]
+    return -1, rn / nb
