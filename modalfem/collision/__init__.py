@@ -12,5 +12,8 @@ The cloth collision pipeline of Bridson, Fedkiw and Anderson (2002), each stage 
 - :mod:`modalfem.collision.tritri`: ``intersecting_pairs``, an independent triangle-triangle test.
 
 Import from the submodules (``from modalfem.collision.pipeline import CollisionPipeline``); this
-package imports nothing on its own so that ``import modalfem`` stays light. Runtime code: NumPy only.
+package imports nothing on its own so that ``import modalfem`` stays light. Runtime code: NumPy, and
+numba kernels (``_bvh_kernels``, ``_contour_kernels``, ``_pair_kernels``, ``_ccd_kernels``,
+``_distance_kernels``: loops over nodes, pairs and queries, compiled on first call and cached next to the
+modules).
 """

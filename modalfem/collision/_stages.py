@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 
 from modalfem.collision._system import PairStore
-from modalfem.collision.ccd import ccd_rows
+from modalfem.collision.ccd import MAX_INTERVALS
 from modalfem.collision.obstacles import Plane
 from modalfem.collision.repulsion import (
     apply_pair_impulses,
@@ -28,7 +28,7 @@ PIPELINE_DEPTH = 20
 #: re-searches, more candidates)
 SLACK = 0.1
 #: fraction of dirty cloth vertices above which the candidate pairs are searched afresh (with culling)
-FRESH_SEARCH = 0.5
+FRESH_SEARCH = 0.2
 
 
 def _analytic_contacts(ob, X0, V, dt, t, eta):
@@ -60,62 +60,27 @@ def analytic_hits(system, X0, V, dt, t, eta, n):
     return out
 
 
-def _near(q: np.ndarray, kind: str, lo: np.ndarray, hi: np.ndarray, margin: float) -> np.ndarray:
-    """(k,) bool: the two primitives of pairs ``q`` (k, 4) have boxes (vertex boxes ``lo``/``hi``
-    (N, 3) [m]) within ``margin`` [m] of each other."""
-    lo, hi = lo.T, hi.T
-    ok = np.ones(len(q), dtype=bool)
-    c0, c1, c2, c3 = q.T
-    for ax in range(3):
-        lx, hx = lo[ax], hi[ax]
-        if kind == "vf":
-            alo, ahi = lx[c0], hx[c0]
-            blo = np.minimum(np.minimum(lx[c1], lx[c2]), lx[c3])
-            bhi = np.maximum(np.maximum(hx[c1], hx[c2]), hx[c3])
-        else:
-            alo, ahi = np.minimum(lx[c0], lx[c1]), np.maximum(hx[c0], hx[c1])
-            blo, bhi = np.minimum(lx[c2], lx[c3]), np.maximum(hx[c2], hx[c3])
-        ok &= (alo <= bhi + margin) & (blo <= ahi + margin)
-    return ok
-
-
-def _rows(XT: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """(4, 3, k) positions of the pairs ``q`` (k, 4) from coordinate rows ``XT`` (3, N) [m]."""
-    qT = np.ascontiguousarray(q.T)
-    out = np.empty((4, 3, len(q)))
-    for i in range(4):
-        for c in range(3):
-            out[i, c] = XT[c][qT[i]]
-    return out
-
-
 def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     """Colliding candidate pairs of ``store`` (a ``PairStore``): [("vf"|"ee", quads (k, 4), toi (k,))],
     skipping all-kinematic pairs, pairs inside one zone (``roots``) and, if ``only`` ((N,) bool) is
     given, pairs without a flagged vertex (their trajectories did not change since they were last found
     collision-free). The cheap index filters run first, then the trajectory boxes (within ``eta``),
-    then the CCD."""
+    then the CCD (one compiled pass, :func:`modalfem.collision._ccd_kernels.ccd_candidates`)."""
+    from modalfem.collision import _ccd_kernels
+
+    X0 = np.ascontiguousarray(X0)
     X1 = X0 + dt * V
-    lo, hi = np.minimum(X0, X1), np.maximum(X0, X1)
-    X0T, X1T = np.ascontiguousarray(X0.T), np.ascontiguousarray(X1.T)
     movable = invm > 0
+    zones = np.zeros(0, dtype=np.int64) if roots is None else np.ascontiguousarray(roots, dtype=np.int64)
     out = []
     for kind in ("vf", "ee"):
         q = store.pairs(kind, only)
         if len(q) == 0:
             continue
-        c0, c1, c2, c3 = q.T
-        ok = movable[c0] | movable[c1] | movable[c2] | movable[c3]
-        if roots is not None:
-            r0 = roots[c0]
-            ok &= ~((roots[c1] == r0) & (roots[c2] == r0) & (roots[c3] == r0))
-        q = q[ok]
-        q = q[_near(q, kind, lo, hi, eta)]
-        if len(q) == 0:
-            continue
-        hit, toi = ccd_rows(kind, _rows(X0T, q), _rows(X1T, q), eta=eta, max_depth=PIPELINE_DEPTH)
-        if hit.any():
-            out.append((kind, q[hit], toi[hit]))
+        idx, toi = _ccd_kernels.ccd_candidates(kind == "vf", X0, X1, np.ascontiguousarray(q), movable, zones, eta,
+                                               PIPELINE_DEPTH, MAX_INTERVALS)
+        if len(idx):
+            out.append((kind, q[idx], toi))
     return out
 
 
@@ -265,8 +230,8 @@ def resolve(system, cfg, x0, v, masses, dt, t):
                 stats.pair_tests_unculled = (stats.pair_tests_unculled or 0) + cand.tests_unculled
             sec["broad_phase"] += time.perf_counter() - t1
             t0 += time.perf_counter() - t1
-            near = cand.subset(*cand.within(system, X0, X0, cfg.thickness))
-            cache["near"] = repulsion_pairs(X0, near.vf, near.ee, thickness=cfg.thickness, dt=dt)
+            # boxes grown by h / 2 overlap: the primitives' boxes are within h (distance < h is tested next)
+            cache["near"] = repulsion_pairs(X0, cand.vf, cand.ee, thickness=cfg.thickness, dt=dt)
         quads, w, nrm, tv = cache["near"]
         dV = np.zeros_like(V)
         if len(quads):

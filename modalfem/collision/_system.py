@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modalfem.collision import _pair_kernels
 from modalfem.collision.bvh import BroadPhaseBVH
 from modalfem.collision.obstacles import Plane, Sphere, TriangleMeshObstacle
 from modalfem.collision.tritri import intersecting_pairs
@@ -18,6 +19,9 @@ from modalfem.errors import InputError
 
 __all__ = ["Candidates", "PairStore", "System", "check_triangles", "count_intersections", "edges_of"]
 
+#: dirty triangles above which the dirty search traverses the tree against itself instead of querying
+#: one box per dirty triangle (measured on the 64x64 pile: about even at 300)
+DUAL_SEARCH = 300
 
 
 def check_triangles(triangles) -> np.ndarray:
@@ -47,37 +51,12 @@ class Candidates:
     ee: np.ndarray
     tests: int
     tests_unculled: int
-    vf_ids: np.ndarray
-    ee_ids: np.ndarray
-
-    def within(self, system: System, X0: np.ndarray, X1: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
-        """Masks of ``vf`` and ``ee`` pairs whose primitives' trajectory boxes come within ``margin`` [m]."""
-        vlo, vhi = np.minimum(X0, X1), np.maximum(X0, X1)
-        flo, fhi = vlo[system.tris].min(axis=1), vhi[system.tris].max(axis=1)
-        elo, ehi = vlo[system.edges].min(axis=1), vhi[system.edges].max(axis=1)
-        v, f = self.vf_ids[:, 0], self.vf_ids[:, 1]
-        mv = ((vlo[v] <= fhi[f] + margin) & (flo[f] <= vhi[v] + margin)).all(axis=1)
-        a, b = self.ee_ids[:, 0], self.ee_ids[:, 1]
-        me = ((elo[a] <= ehi[b] + margin) & (elo[b] <= ehi[a] + margin)).all(axis=1)
-        return mv, me
-
-    def merged(self, other: Candidates) -> Candidates:
-        """Both candidate sets (assumed disjoint)."""
-        return Candidates(
-            np.concatenate([self.vf, other.vf]), np.concatenate([self.ee, other.ee]), self.tests + other.tests,
-            self.tests_unculled + other.tests_unculled, np.concatenate([self.vf_ids, other.vf_ids]),
-            np.concatenate([self.ee_ids, other.ee_ids]),
-        )
-
-    def subset(self, mv: np.ndarray, me: np.ndarray) -> Candidates:
-        """The candidates selected by the masks."""
-        return Candidates(self.vf[mv], self.ee[me], self.tests, self.tests_unculled, self.vf_ids[mv], self.ee_ids[me])
 
 
 class PairStore:
-    """The candidate pairs of one step as blocks of (4, k) vertex indices with an alive mask: pairs holding
+    """The candidate pairs of one step as blocks of (k, 4) vertex indices with an alive mask: pairs holding
     a dirty vertex are dropped in place and their replacements added as a new block, so an update and a
-    selection cost a few vectorised gathers, without copying the untouched pairs."""
+    selection are one compiled pass each, without copying the untouched pairs."""
 
     def __init__(self, cand: Candidates) -> None:
         self.blocks: list = []
@@ -87,36 +66,29 @@ class PairStore:
         """Append the pairs of ``cand``."""
         for kind, q in (("vf", cand.vf), ("ee", cand.ee)):
             if len(q):
-                self.blocks.append((kind, np.ascontiguousarray(q.T), np.ones(len(q), dtype=bool)))
+                self.blocks.append((kind, np.ascontiguousarray(q, dtype=np.int64), np.ones(len(q), dtype=bool)))
         if len(self.blocks) > 24:
             merged = []
             for kind in ("vf", "ee"):
-                parts = [qT[:, alive] for k, qT, alive in self.blocks if k == kind]
+                parts = [q[alive] for k, q, alive in self.blocks if k == kind]
                 if parts:
-                    q = np.concatenate(parts, axis=1)
-                    merged.append((kind, q, np.ones(q.shape[1], dtype=bool)))
+                    q = np.concatenate(parts)
+                    merged.append((kind, q, np.ones(len(q), dtype=bool)))
             self.blocks = merged
-
-    @staticmethod
-    def _incident(qT: np.ndarray, flags: np.ndarray) -> np.ndarray:
-        return flags[qT[0]] | flags[qT[1]] | flags[qT[2]] | flags[qT[3]]
 
     def drop(self, dirty: np.ndarray) -> None:
         """Drop the pairs holding a vertex flagged in ``dirty`` ((N,) bool)."""
-        for _, qT, alive in self.blocks:
-            alive &= ~self._incident(qT, dirty)
+        for _, q, alive in self.blocks:
+            _pair_kernels.drop_pairs(q, alive, dirty)
 
     def pairs(self, kind: str, only: np.ndarray | None = None) -> np.ndarray:
         """(k, 4) alive pairs of ``kind`` (``"vf"``/``"ee"``), only those holding a vertex flagged in
         ``only`` ((N,) bool) if given."""
-        parts = []
-        for k, qT, alive in self.blocks:
-            if k == kind:
-                sel = alive if only is None else alive & self._incident(qT, only)
-                parts.append(qT[:, sel])
+        flags = np.zeros(0, dtype=bool) if only is None else only
+        parts = [_pair_kernels.select_pairs(q, alive, flags) for k, q, alive in self.blocks if k == kind]
         if not parts:
             return np.zeros((0, 4), dtype=np.int64)
-        return np.concatenate(parts, axis=1).T
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 class System:
@@ -145,7 +117,6 @@ class System:
         # (inside the owners' boxes) cannot be missed
         self.owned_verts = self._owned(self.tris, self.n_total)
         self.owned_edges = self._owned(self.tri_edges, len(self.edges))
-        self._own_v, self._own_e = _owned_lists(self.owned_verts), _owned_lists(self.owned_edges)
         self.cloth_bvh: BroadPhaseBVH | None = None
         self.obstacle_bvh: BroadPhaseBVH | None = None
         if self.meshes:
@@ -159,7 +130,7 @@ class System:
         owner = np.full(count, F)
         np.minimum.at(owner, items.ravel(), np.repeat(np.arange(F), 3))
         mine = owner[items] == np.arange(F)[:, None]
-        return np.where(mine, items, -1)
+        return np.ascontiguousarray(np.where(mine, items, -1))
 
     def build_cloth_bvh(self, x_ref: np.ndarray) -> None:
         """Build the cloth's BVH grouping triangles by ``x_ref`` (n_cloth, 3) [m]."""
@@ -199,15 +170,17 @@ class System:
             unculled += t2
         tp = np.concatenate(parts) if parts else np.zeros((0, 2), dtype=np.int64)
         vlo, vhi = self.vertex_boxes(X0, X1, margin, static_margin)
-        vf, ee, vf_ids, ee_ids = self._primitive_pairs(tp, vlo, vhi, dirty)
-        return Candidates(vf, ee, tests, unculled, vf_ids, ee_ids)
+        vf, ee = self._primitive_pairs(tp, vlo, vhi, dirty)
+        return Candidates(vf, ee, tests, unculled)
 
     def dirty_candidates(self, vlo: np.ndarray, vhi: np.ndarray, dirty: np.ndarray, *,
                          self_collision: bool) -> Candidates:
         """The candidate pairs holding a ``dirty`` vertex ((n_total,) bool), searched again with the vertex
         boxes ``vlo``/``vhi`` ((n_total, 3) [m]; a clean vertex keeps the box of the last search). Only
-        the dirty triangles' boxes are refitted and queried (no culling: a superset of what a full
-        traversal would give for them), so the cost follows the dirty set."""
+        the dirty triangles' boxes are refitted and searched (no culling: a superset of what a full
+        traversal would give for them), by one box query each, or, above ``DUAL_SEARCH`` dirty triangles,
+        by a traversal of the tree against itself pruned to subtrees holding one; the cost follows the
+        dirty set."""
         n, m = self.n_cloth, self.m_cloth
         dtri = dirty[self.tris[:m]].any(axis=1)
         ids = np.flatnonzero(dtri)
@@ -215,7 +188,11 @@ class System:
         bvh.refit_triangles(ids, vlo[:n], vhi[:n])
         qlo, qhi = bvh.tri_lo[ids], bvh.tri_hi[ids]
         parts = []
-        if self_collision:
+        if self_collision and len(ids) > DUAL_SEARCH:
+            # many dirty triangles: one traversal of the tree against itself, pruned to subtrees holding
+            # one, shares the descent that separate queries would repeat (same pairs)
+            parts.append(bvh.self_pairs(culling=False, dirty=dtri)[0])
+        elif self_collision:
             qi, other = bvh.query(qlo, qhi)
             a = ids[qi]
             ok = (a != other) & (~dtri[other] | (a < other))
@@ -224,8 +201,8 @@ class System:
             qi, other = self.obstacle_bvh.query(qlo, qhi)
             parts.append(np.stack([ids[qi], other + m], axis=1))
         tp = np.concatenate(parts) if parts else np.zeros((0, 2), dtype=np.int64)
-        vf, ee, vf_ids, ee_ids = self._primitive_pairs(tp, vlo, vhi, dirty)
-        return Candidates(vf, ee, 0, 0, vf_ids, ee_ids)
+        vf, ee = self._primitive_pairs(tp, vlo, vhi, dirty)
+        return Candidates(vf, ee, 0, 0)
 
     @staticmethod
     def vertex_boxes(X0, X1, margin, static_margin=None):
@@ -242,79 +219,11 @@ class System:
         """Point-triangle and edge-edge pairs of triangle pairs ``tp`` whose boxes overlap (vertex boxes
         ``vlo``/``vhi`` (N, 3) [m] already grown by the margin), without pairs sharing a vertex; with
         ``dirty`` ((N,) bool) only pairs holding a flagged vertex."""
-        tris = self.tris
-        if len(tp) == 0:
-            z4, z2 = np.zeros((0, 4), dtype=np.int64), np.zeros((0, 2), dtype=np.int64)
-            return z4, z4, z2, z2
-        vlo, vhi = vlo.T.copy(), vhi.T.copy()
-        t0, t1, t2 = tris.T
-        flo = np.minimum(np.minimum(vlo[:, t0], vlo[:, t1]), vlo[:, t2])
-        fhi = np.maximum(np.maximum(vhi[:, t0], vhi[:, t1]), vhi[:, t2])
-        e0, e1 = self.edges.T
-        elo, ehi = np.minimum(vlo[:, e0], vlo[:, e1]), np.maximum(vhi[:, e0], vhi[:, e1])
-        A, B = tp[:, 0], tp[:, 1]
-        # vertex-face: vertices owned by one triangle against the other triangle
-        va, fa = _expand(self._own_v, A, B)
-        vb, fb = _expand(self._own_v, B, A)
-        v, f = np.concatenate([va, vb]), np.concatenate([fa, fb])
-        if dirty is not None:
-            ok = dirty[v] | (dirty[tris[f, 0]] | dirty[tris[f, 1]] | dirty[tris[f, 2]])
-            v, f = v[ok], f[ok]
-        v, f = _overlapping(vlo, vhi, v, flo, fhi, f)
-        ok = (tris[f, 0] != v) & (tris[f, 1] != v) & (tris[f, 2] != v)
-        v, f = v[ok], f[ok]
-        vf = np.concatenate([v[:, None], tris[f]], axis=1)
-        # edge-edge: edges owned by one triangle against those owned by the other
-        ea, eb = _expand_pairs(self._own_e, A, B)
-        if dirty is not None:
-            de = dirty[self.edges[:, 0]] | dirty[self.edges[:, 1]]
-            ok = de[ea] | de[eb]
-            ea, eb = ea[ok], eb[ok]
-        ea, eb = _overlapping(elo, ehi, ea, elo, ehi, eb)
-        a0, a1 = self.edges[ea, 0], self.edges[ea, 1]
-        b0, b1 = self.edges[eb, 0], self.edges[eb, 1]
-        ok = (a0 != b0) & (a0 != b1) & (a1 != b0) & (a1 != b1)
-        quad = np.stack([a0[ok], a1[ok], b0[ok], b1[ok]], axis=1)
-        return vf, quad, np.stack([v, f], axis=1), np.stack([ea[ok], eb[ok]], axis=1)
+        flags = np.zeros(0, dtype=bool) if dirty is None else np.asarray(dirty, dtype=bool)
+        return _pair_kernels.primitive_pairs(np.ascontiguousarray(tp, dtype=np.int64), self.tris, self.edges,
+                                            self.owned_verts, self.owned_edges, np.ascontiguousarray(vlo),
+                                            np.ascontiguousarray(vhi), flags)
 
-
-def _owned_lists(owned: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CSR form (counts (F,), starts (F,), items) of the -1 padded (F, 3) owned items."""
-    ok = owned >= 0
-    cnt = ok.sum(axis=1)
-    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-    return cnt, start, owned[ok]
-
-
-def _ranks(cnt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For segments of lengths ``cnt``: the segment of every element and its rank inside it."""
-    seg = np.repeat(np.arange(len(cnt)), cnt)
-    rank = np.arange(len(seg)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
-    return seg, rank
-
-
-def _expand(own, A, B):
-    """(item owned by A[k], B[k]) for every k and every item owned by A[k]."""
-    cnt, start, items = own
-    seg, rank = _ranks(cnt[A])
-    return items[start[A][seg] + rank], B[seg]
-
-
-def _expand_pairs(own, A, B):
-    """(item owned by A[k], item owned by B[k]) for every k and every such combination."""
-    cnt, start, items = own
-    nb = cnt[B]
-    seg, rank = _ranks(cnt[A] * nb)
-    nb = nb[seg]
-    return items[start[A][seg] + rank // nb], items[start[B][seg] + rank % nb]
-
-
-def _overlapping(lo1, hi1, i, lo2, hi2, j):
-    """Index pairs whose boxes overlap; boxes given per axis as (3, count) arrays."""
-    for ax in range(3):
-        ok = (lo1[ax][i] <= hi2[ax][j]) & (lo2[ax][j] <= hi1[ax][i])
-        i, j = i[ok], j[ok]
-    return i, j
 
 def count_intersections(system: System, x: np.ndarray, t: float, self_collision: bool) -> int:
     """Intersecting pairs at ``x`` (n_cloth, 3) [m]: triangle pairs (independent test) + vertices inside

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from modalfem.collision.distance import cross, edge_edge, point_triangle
-
 __all__ = ["apply_pair_impulses", "contact_frames", "repulsion_impulses", "repulsion_pairs"]
 
 
@@ -32,25 +30,10 @@ def contact_frames(X: np.ndarray, quads: np.ndarray, kind: str, Xref: np.ndarray
         ``(w, n, d)``: (k, 4) weights, (k, 3) unit normals from the second primitive to the first, (k,)
         distances [m].
     """
-    P = X[quads]
-    if kind == "vf":
-        d, b = point_triangle(P[:, 0], P[:, 1], P[:, 2], P[:, 3])
-        w = np.concatenate([np.ones((len(d), 1)), -b], axis=1)
-        geo = cross(P[:, 2] - P[:, 1], P[:, 3] - P[:, 1])
-    else:
-        d, s, t = edge_edge(P[:, 0], P[:, 1], P[:, 2], P[:, 3])
-        w = np.stack([1 - s, s, -(1 - t), -t], axis=1)
-        geo = cross(P[:, 1] - P[:, 0], P[:, 3] - P[:, 2])
-    sep = np.einsum("kj,kji->ki", w, P)
-    sep_ref = np.einsum("kj,kji->ki", w, Xref[quads])
-    scale = np.abs(P).max(axis=(1, 2)) + 1e-300
-    small = d <= 1e-9 * scale
-    # touching: the geometric normal, oriented by the side the first primitive started on
-    sgn = np.where(np.einsum("ki,ki->k", geo, sep_ref) < 0, -1.0, 1.0)
-    gn = np.linalg.norm(geo, axis=1)
-    fallback = sgn[:, None] * geo / np.where(gn > 0, gn, 1.0)[:, None]
-    n = np.where(small[:, None], fallback, sep / np.where(d > 0, d, 1.0)[:, None])
-    return w, n, d
+    from modalfem.collision._distance_kernels import contact_frames as frames
+
+    q = np.ascontiguousarray(quads, dtype=np.int64)
+    return frames(kind == "vf", np.ascontiguousarray(X[q], dtype=float), np.ascontiguousarray(Xref[q], dtype=float))
 
 
 def apply_pair_impulses(

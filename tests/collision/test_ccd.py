@@ -147,16 +147,20 @@ def test_small_primitives_meeting_a_fast_partner_within_eta_always_hit(size):
         assert ((toi >= 0) & (toi <= 1)).all()
 
 
-def test_row_layout_entry_gives_the_same_answers():
-    from modalfem.collision.ccd import ccd_rows
+def test_indexed_entry_gives_the_same_answers():
+    from modalfem.collision.ccd import ccd_pairs
 
     rng = np.random.default_rng(5)
     x0 = rng.uniform(-1, 1, size=(500, 4, 3))
     x1 = x0 + rng.normal(scale=0.8, size=x0.shape)
+    quads = rng.permutation(2000).reshape(500, 4)
+    X0, X1 = np.empty((2000, 3)), np.empty((2000, 3))
+    X0[quads], X1[quads] = x0, x1
     for kind, fun in (("vf", vertex_face_ccd), ("ee", edge_edge_ccd)):
         hit, toi = fun(x0, x1, eta=1e-3)
-        t0, t1 = (np.ascontiguousarray(a.transpose(1, 2, 0)) for a in (x0, x1))
-        h2, toi2 = ccd_rows(kind, t0, t1, eta=1e-3)
+        h2, toi2 = ccd_pairs(kind, X0, X1, quads, eta=1e-3)
         assert hit.sum() > 20 and np.array_equal(hit, h2) and np.array_equal(toi, toi2)
-    with pytest.raises(InputError, match="4, 3, k"):
-        ccd_rows("vf", np.zeros((3, 4, 2)), np.zeros((3, 4, 2)))
+    with pytest.raises(InputError, match="k, 4"):
+        ccd_pairs("vf", X0, X1, quads[:, :3])
+    with pytest.raises(InputError, match="outside"):
+        ccd_pairs("ee", X0[:10], X1[:10], quads)

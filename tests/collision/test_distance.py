@@ -78,24 +78,18 @@ def test_lower_bounds_on_nearly_parallel_crossing_edges_and_slivers():
     assert (lb <= d + 1e-12).all() and np.median(lb / d) > 0.5
 
 
-def test_row_lower_bounds_stay_below_the_distance_on_degenerate_batches():
-    """The CCD's coordinate-row lower bounds never exceed the exact distances, also for slivers, nearly
-    parallel and zero-length edges (the (k, 3) entry points call the same code)."""
-    from modalfem.collision.distance import (
-        edge_edge_lower_bound_rows,
-        point_triangle_lower_bound_rows,
-    )
-
+def test_lower_bounds_stay_below_the_distance_on_degenerate_batches():
+    """The compiled lower bounds (the CCD's) never exceed the exact distances, also for slivers, nearly
+    parallel and zero-length edges."""
     rng = np.random.default_rng(8)
     X = rng.standard_normal((3000, 4, 3))
     X[1000:1500, 3] = X[1000:1500, 2] + 1e-9 * rng.standard_normal((500, 3))  # slivers / short edges
     X[1500:2000, 3] = X[1500:2000, 2]  # zero length
     X[2000:2500, 3] = X[2000:2500, 2] + (X[2000:2500, 1] - X[2000:2500, 0]) * (1 + 1e-7)  # parallel edges
-    rows = X.transpose(1, 2, 0)
     cols = [X[:, i] for i in range(4)]
     d_pt, _ = point_triangle(*cols)
     d_ee = edge_edge(*cols)[0]
-    for by_rows, d in ((point_triangle_lower_bound_rows, d_pt), (edge_edge_lower_bound_rows, d_ee)):
-        lb = by_rows(*rows)
+    for bound, d in ((point_triangle_lower_bound, d_pt), (edge_edge_lower_bound, d_ee)):
+        lb = bound(*cols)
         assert lb.shape == (3000,) and np.all(lb >= 0) and np.all(lb <= d + 1e-12)
         assert np.median(lb / d) > 0.5  # and not trivially zero

@@ -1,0 +1,360 @@
+"""Compiled kernels of the broad phase: BVH refits, traversal with normal-cone and contour culling
+(:mod:`modalfem.collision._contour_kernels`), box queries.
+
+Plain loops over nodes and pairs with explicit stacks (numba ``njit``, compiled on first call and cached
+on disk). The data layout is :class:`modalfem.collision.bvh.BroadPhaseBVH`'s: nodes ``1..2P-1`` of a
+complete binary tree (leaves ``P..2P-1``), per-node boxes ``lo``/``hi`` (2P, 3) [m], per-leaf triangle
+slots ``slot_tri`` (P, L) (-1: empty) and their boxes ``slo``/``shi`` (3, P, L) [m].
+
+numba's disk cache does not notice edits of the other modules a kernel calls: after changing
+:mod:`modalfem.collision._contour_kernels`, delete ``modalfem/collision/__pycache__``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from modalfem.collision._contour_kernels import contour_ok
+
+__all__ = ["query", "refit", "refit_triangles", "traverse"]
+
+_HALF_PI = 0.5 * math.pi - 1e-9
+
+
+@numba.njit(cache=True)
+def _grow(buf: np.ndarray, count: int) -> np.ndarray:
+    """``buf`` (k, 2) with room for at least one more row past ``count``."""
+    if count < len(buf):
+        return buf
+    out = np.empty((2 * len(buf) + 16, buf.shape[1]), dtype=buf.dtype)
+    out[:count] = buf[:count]
+    return out
+
+
+@numba.njit(cache=True)
+def _adjacent(adj: np.ndarray, key: int) -> bool:
+    """``key`` is in the sorted ``adj`` (binary search)."""
+    lo, hi = 0, len(adj)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if adj[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo < len(adj) and adj[lo] == key
+
+
+@numba.njit(cache=True)
+def _angle(ax: np.ndarray, b: np.ndarray) -> float:
+    c = ax[0] * b[0] + ax[1] * b[1] + ax[2] * b[2]
+    return math.acos(min(max(c, -1.0), 1.0))
+
+
+@numba.njit(cache=True)
+def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, slot_a, slo_a, shi_a, slot_b, slo_b, shi_b,
+                         filt: bool, dirty_tris):
+    """Triangle pairs of the leaf pairs ``leaves[:count]`` (leaf indices) whose boxes overlap, and the number
+    of tests (a leaf paired with itself: each unordered pair of its triangles once). Empty slots have
+    empty boxes (+inf / -inf) and never overlap: the box tests of one row run branch-free."""
+    L, Lb = slot_a.shape[1], slot_b.shape[1]
+    out = np.empty((count * L * Lb, 2), dtype=np.int64)
+    ok = np.empty(Lb, dtype=np.bool_)
+    n = 0
+    tests = 0
+    for p in range(count):
+        ia, ib = leaves[p, 0], leaves[p, 1]
+        self_leaf = same and ia == ib
+        nb = 0
+        for c in range(Lb):
+            nb += slot_b[ib, c] >= 0
+        for r in range(L):
+            ta = slot_a[ia, r]
+            if ta < 0:
+                continue
+            alo0, alo1, alo2 = slo_a[0, ia, r], slo_a[1, ia, r], slo_a[2, ia, r]
+            ahi0, ahi1, ahi2 = shi_a[0, ia, r], shi_a[1, ia, r], shi_a[2, ia, r]
+            for c in range(Lb):
+                ok[c] = ((alo0 <= shi_b[0, ib, c]) & (slo_b[0, ib, c] <= ahi0) & (alo1 <= shi_b[1, ib, c])
+                         & (slo_b[1, ib, c] <= ahi1) & (alo2 <= shi_b[2, ib, c]) & (slo_b[2, ib, c] <= ahi2))
+            c0 = r + 1 if self_leaf else 0
+            if self_leaf:
+                for c in range(c0, Lb):
+                    tests += slot_b[ib, c] >= 0
+            else:
+                tests += nb
+            da = filt and dirty_tris[ta]
+            for c in range(c0, Lb):
+                if ok[c]:
+                    tb = slot_b[ib, c]
+                    if filt and not (da or (same and dirty_tris[tb])):
+                        continue
+                    out[n, 0], out[n, 1] = ta, tb
+                    n += 1
+    return out[:n].copy(), tests
+
+
+@numba.njit(cache=True)
+def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a, shi_a,
+             Pb: int, lo_b, hi_b, ne_b, slot_b, slo_b, shi_b,
+             connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit: int,
+             x0, x1, static: bool, check_contour: bool, dirty_nodes, dirty_tris):
+    """Triangle pairs (tree a, tree b) whose boxes overlap, and the number of triangle-pair (leaf) tests.
+
+    ``same``: b is a itself (each unordered pair once, no pair of a triangle with itself), with normal
+    cone and contour culling when ``culling`` (a node that is one connected patch, with a cone narrower
+    than a half-space and a non-crossing contour, is not tested against itself; two adjacent such
+    patches are not tested against each other when their union passes both tests). ``dirty_nodes``
+    (2Pa,) / ``dirty_tris`` (m_a,) (empty: no filter): only pairs holding a flagged triangle of tree a.
+    """
+    filt = len(dirty_nodes) > 0
+    stack = np.empty((256, 2), dtype=np.int64)
+    stack[0, 0], stack[0, 1] = 1, 1
+    top = 1
+    leaves = np.empty((1024, 2), dtype=np.int64)
+    count = 0
+    ax = np.empty(3)
+    while top:
+        top -= 1
+        a, b = stack[top, 0], stack[top, 1]
+        if same and a == b:  # the node's self-test
+            if not ne_a[a] or (filt and not dirty_nodes[a]):
+                continue
+            if culling and connected[a] and cone_angle[a] < _HALF_PI and (
+                    not check_contour
+                    or contour_ok(a, -1, cone_axis[a], bnd_start, bnd_edge, bnd_id, limit, x0, x1, static)):
+                continue
+            if a >= Pa:
+                if count == len(leaves):
+                    leaves = _grow(leaves, count)
+                leaves[count, 0], leaves[count, 1] = a - Pa, a - Pa
+                count += 1
+                continue
+            if top + 3 > len(stack):
+                stack = _grow(stack, top + 3)
+            stack[top, 0], stack[top, 1] = 2 * a, 2 * a
+            stack[top + 1, 0], stack[top + 1, 1] = 2 * a + 1, 2 * a + 1
+            stack[top + 2, 0], stack[top + 2, 1] = 2 * a, 2 * a + 1
+            top += 3
+            continue
+        if filt and not (dirty_nodes[a] or (same and dirty_nodes[b])):
+            continue
+        if not (ne_a[a] and ne_b[b]):
+            continue
+        if (lo_a[a, 0] > hi_b[b, 0] or lo_b[b, 0] > hi_a[a, 0] or lo_a[a, 1] > hi_b[b, 1] or lo_b[b, 1] > hi_a[a, 1]
+                or lo_a[a, 2] > hi_b[b, 2] or lo_b[b, 2] > hi_a[a, 2]):
+            continue
+        if same and culling and connected[a] and connected[b] and _adjacent(adj, a * (2 * Pa) + b):
+            # two adjacent patches whose union is one patch with a narrow normal cone: skip
+            for i in range(3):
+                ax[i] = cone_axis[a, i] + cone_axis[b, i]
+            nrm = max(math.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2]), 1e-300)
+            for i in range(3):
+                ax[i] /= nrm
+            ang = max(_angle(ax, cone_axis[a]) + cone_angle[a], _angle(ax, cone_axis[b]) + cone_angle[b])
+            if ang < _HALF_PI and (not check_contour or contour_ok(a, b, ax, bnd_start, bnd_edge, bnd_id, limit,
+                                                                   x0, x1, static)):
+                continue
+        leaf_a, leaf_b = a >= Pa, b >= Pb
+        if leaf_a and leaf_b:
+            if count == len(leaves):
+                leaves = _grow(leaves, count)
+            leaves[count, 0], leaves[count, 1] = a - Pa, b - Pb
+            count += 1
+            continue
+        size_a = (hi_a[a, 0] - lo_a[a, 0]) + (hi_a[a, 1] - lo_a[a, 1]) + (hi_a[a, 2] - lo_a[a, 2])
+        size_b = (hi_b[b, 0] - lo_b[b, 0]) + (hi_b[b, 1] - lo_b[b, 1]) + (hi_b[b, 2] - lo_b[b, 2])
+        if top + 2 > len(stack):
+            stack = _grow(stack, top + 2)
+        if not leaf_a and (leaf_b or size_a >= size_b):
+            stack[top, 0], stack[top, 1] = 2 * a, b
+            stack[top + 1, 0], stack[top + 1, 1] = 2 * a + 1, b
+        else:
+            stack[top, 0], stack[top, 1] = a, 2 * b
+            stack[top + 1, 0], stack[top + 1, 1] = a, 2 * b + 1
+        top += 2
+    return _leaf_triangle_pairs(leaves, count, same, slot_a, slo_a, shi_a, slot_b, slo_b, shi_b, filt, dirty_tris)
+
+
+@numba.njit(cache=True)
+def query(qlo: np.ndarray, qhi: np.ndarray, P: int, lo: np.ndarray, hi: np.ndarray, nonempty: np.ndarray,
+          slot_tri: np.ndarray, slo: np.ndarray, shi: np.ndarray):
+    """All (query, triangle) pairs whose boxes overlap: query boxes ``qlo``/``qhi`` (k, 3) [m] against
+    the tree; returns (p, 2) indices."""
+    L = slot_tri.shape[1]
+    out = np.empty((1024, 2), dtype=np.int64)
+    count = 0
+    stack = np.empty(64, dtype=np.int64)
+    for q in range(len(qlo)):
+        stack[0] = 1
+        top = 1
+        while top:
+            top -= 1
+            a = stack[top]
+            if not nonempty[a]:
+                continue
+            if (qlo[q, 0] > hi[a, 0] or lo[a, 0] > qhi[q, 0] or qlo[q, 1] > hi[a, 1] or lo[a, 1] > qhi[q, 1]
+                    or qlo[q, 2] > hi[a, 2] or lo[a, 2] > qhi[q, 2]):
+                continue
+            if a >= P:
+                ia = a - P
+                for c in range(L):
+                    t = slot_tri[ia, c]
+                    if t < 0:
+                        continue
+                    if ((qlo[q, 0] <= shi[0, ia, c]) & (slo[0, ia, c] <= qhi[q, 0]) & (qlo[q, 1] <= shi[1, ia, c])
+                            & (slo[1, ia, c] <= qhi[q, 1]) & (qlo[q, 2] <= shi[2, ia, c])
+                            & (slo[2, ia, c] <= qhi[q, 2])):
+                        if count == len(out):
+                            out = _grow(out, count)
+                        out[count, 0], out[count, 1] = q, t
+                        count += 1
+                continue
+            if top + 2 > len(stack):
+                stack = np.concatenate((stack, np.empty(len(stack), dtype=np.int64)))
+            stack[top], stack[top + 1] = 2 * a, 2 * a + 1
+            top += 2
+    return out[:count].copy()
+
+
+@numba.njit(cache=True)
+def _unit_cross(a0, a1, a2, b0, b1, b2, f: float) -> tuple:
+    """``f (a x b)`` normalised, and whether it was zero (then returned as is)."""
+    c0, c1, c2 = f * (a1 * b2 - a2 * b1), f * (a2 * b0 - a0 * b2), f * (a0 * b1 - a1 * b0)
+    n = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    if n > 0:
+        return c0 / n, c1 / n, c2 / n, False
+    return c0, c1, c2, True
+
+
+@numba.njit(cache=True)
+def refit(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, margin: float, static_margin: float, P: int,
+          slot_tri: np.ndarray, nonempty: np.ndarray):
+    """Boxes and normal cones of a tree (see ``BroadPhaseBVH.refit``); ``static_margin`` NaN: none.
+
+    Returns:
+        ``(tri_lo, tri_hi, lo, hi, slo, shi, cone_axis, cone_angle)``: triangle boxes (m, 3), node boxes
+        (2P, 3), slot boxes (3, P, L) [m] (empty: +inf / -inf), node cone axes (2P, 3) and half angles
+        (2P,) [rad] (pi: no bound).
+    """
+    m, L = len(tri), slot_tri.shape[1]
+    tri_lo, tri_hi = np.empty((m, 3)), np.empty((m, 3))
+    use_static = not math.isnan(static_margin)
+    for f in range(m):
+        i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
+        for c in range(3):
+            l0, h0 = min(x0[i, c], x0[j, c], x0[k, c]), max(x0[i, c], x0[j, c], x0[k, c])
+            l1, h1 = min(x1[i, c], x1[j, c], x1[k, c]), max(x1[i, c], x1[j, c], x1[k, c])
+            lo_, hi_ = min(l0, l1) - margin, max(h0, h1) + margin
+            if use_static:
+                lo_, hi_ = min(lo_, l0 - static_margin), max(hi_, h0 + static_margin)
+            tri_lo[f, c], tri_hi[f, c] = lo_, hi_
+    lo, hi = np.full((2 * P, 3), np.inf), np.full((2 * P, 3), -np.inf)
+    slo, shi = np.full((3, P, L), np.inf), np.full((3, P, L), -np.inf)
+    cone_axis, cone_angle = np.zeros((2 * P, 3)), np.full(2 * P, math.pi)
+    units = np.empty((L, 3, 3))
+    for leaf in range(P):
+        node = P + leaf
+        s0 = s1 = s2 = 0.0
+        bad = False
+        count = 0
+        for r in range(L):
+            f = slot_tri[leaf, r]
+            if f < 0:
+                continue
+            for c in range(3):
+                slo[c, leaf, r], shi[c, leaf, r] = tri_lo[f, c], tri_hi[f, c]
+                lo[node, c] = min(lo[node, c], tri_lo[f, c])
+                hi[node, c] = max(hi[node, c], tri_hi[f, c])
+            # normal control vectors (Bernstein form of the swept normal), unit length
+            i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
+            a0, a1, a2 = x0[j, 0] - x0[i, 0], x0[j, 1] - x0[i, 1], x0[j, 2] - x0[i, 2]
+            b0, b1, b2 = x0[k, 0] - x0[i, 0], x0[k, 1] - x0[i, 1], x0[k, 2] - x0[i, 2]
+            p0, p1, p2 = x1[j, 0] - x1[i, 0], x1[j, 1] - x1[i, 1], x1[j, 2] - x1[i, 2]
+            q0, q1, q2 = x1[k, 0] - x1[i, 0], x1[k, 1] - x1[i, 1], x1[k, 2] - x1[i, 2]
+            u0, u1, u2, z0 = _unit_cross(a0, a1, a2, b0, b1, b2, 1.0)
+            # the middle control vector 0.5 (a x q + p x b)
+            m0 = 0.5 * ((a1 * q2 - a2 * q1) + (p1 * b2 - p2 * b1))
+            m1 = 0.5 * ((a2 * q0 - a0 * q2) + (p2 * b0 - p0 * b2))
+            m2 = 0.5 * ((a0 * q1 - a1 * q0) + (p0 * b1 - p1 * b0))
+            mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+            z1 = not mn > 0
+            if mn > 0:
+                m0, m1, m2 = m0 / mn, m1 / mn, m2 / mn
+            w0, w1, w2, z2 = _unit_cross(p0, p1, p2, q0, q1, q2, 1.0)
+            bad = bad or z0 or z1 or z2
+            units[count, 0, 0], units[count, 0, 1], units[count, 0, 2] = u0, u1, u2
+            units[count, 1, 0], units[count, 1, 1], units[count, 1, 2] = m0, m1, m2
+            units[count, 2, 0], units[count, 2, 1], units[count, 2, 2] = w0, w1, w2
+            s0 += u0 + m0 + w0
+            s1 += u1 + m1 + w1
+            s2 += u2 + m2 + w2
+            count += 1
+        if count == 0:
+            continue
+        an = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        if bad or not an > 0:
+            continue  # axis 0, angle pi
+        s0, s1, s2 = s0 / an, s1 / an, s2 / an
+        ang = 0.0
+        for t in range(count):
+            for v in range(3):
+                d = units[t, v, 0] * s0 + units[t, v, 1] * s1 + units[t, v, 2] * s2
+                ang = max(ang, math.acos(min(max(d, -1.0), 1.0)))
+        cone_axis[node, 0], cone_axis[node, 1], cone_axis[node, 2] = s0, s1, s2
+        cone_angle[node] = ang
+    for a in range(P - 1, 0, -1):
+        l, r = 2 * a, 2 * a + 1
+        for c in range(3):
+            lo[a, c] = min(lo[l, c], lo[r, c])
+            hi[a, c] = max(hi[l, c], hi[r, c])
+        s0 = s1 = s2 = 0.0
+        if nonempty[l]:
+            s0, s1, s2 = s0 + cone_axis[l, 0], s1 + cone_axis[l, 1], s2 + cone_axis[l, 2]
+        if nonempty[r]:
+            s0, s1, s2 = s0 + cone_axis[r, 0], s1 + cone_axis[r, 1], s2 + cone_axis[r, 2]
+        n = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        if not n > 0:
+            continue  # angle pi
+        s0, s1, s2 = s0 / n, s1 / n, s2 / n
+        cone_axis[a, 0], cone_axis[a, 1], cone_axis[a, 2] = s0, s1, s2
+        ang = 0.0
+        for child in (l, r):
+            if nonempty[child]:
+                d = s0 * cone_axis[child, 0] + s1 * cone_axis[child, 1] + s2 * cone_axis[child, 2]
+                ang = max(ang, math.acos(min(max(d, -1.0), 1.0)) + cone_angle[child])
+        cone_angle[a] = ang
+    return tri_lo, tri_hi, lo, hi, slo, shi, cone_axis, cone_angle
+
+
+@numba.njit(cache=True)
+def refit_triangles(ids: np.ndarray, tri: np.ndarray, vlo: np.ndarray, vhi: np.ndarray, tri_lo: np.ndarray,
+                    tri_hi: np.ndarray, slo: np.ndarray, shi: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                    leaf_of_tri: np.ndarray, slot_of_tri: np.ndarray, P: int) -> None:
+    """In place: the boxes of triangles ``ids`` become the union of their vertices' boxes ``vlo``/``vhi``
+    (n, 3) [m]; their leaves' and ancestors' boxes are recomputed (see ``BroadPhaseBVH.refit_triangles``)."""
+    L = slo.shape[2]
+    for f in ids:
+        leaf, col = leaf_of_tri[f] - P, slot_of_tri[f]
+        for c in range(3):
+            a = min(vlo[tri[f, 0], c], vlo[tri[f, 1], c], vlo[tri[f, 2], c])
+            b = max(vhi[tri[f, 0], c], vhi[tri[f, 1], c], vhi[tri[f, 2], c])
+            tri_lo[f, c], tri_hi[f, c] = a, b
+            slo[c, leaf, col], shi[c, leaf, col] = a, b
+    # each path from a changed leaf to the root, bottom-up: a node is last recomputed after every
+    # changed leaf below it
+    for f in ids:
+        leaf = leaf_of_tri[f] - P
+        node = leaf + P
+        for c in range(3):
+            a, b = math.inf, -math.inf
+            for r in range(L):
+                a, b = min(a, slo[c, leaf, r]), max(b, shi[c, leaf, r])
+            lo[node, c], hi[node, c] = a, b
+        while node > 1:
+            node >>= 1
+            for c in range(3):
+                lo[node, c] = min(lo[2 * node, c], lo[2 * node + 1, c])
+                hi[node, c] = max(hi[2 * node, c], hi[2 * node + 1, c])

@@ -1,0 +1,262 @@
+"""Compiled point-triangle and edge-edge distance lower bounds (numba ``njit``, cached on disk).
+
+Scalar kernels on four points given as a (4, 3) array [m] (``p, a, b, c`` or ``a0, a1, b0, b1``), and
+batch loops over (k, 4, 3) arrays. :mod:`modalfem.collision.distance` documents the bounds and exposes
+the batch versions; the CCD kernels call the scalar ones.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = [
+    "contact_frames",
+    "edge_edge_batch",
+    "edge_edge_closest",
+    "edge_edge_lb",
+    "edge_edge_lb_batch",
+    "point_triangle_batch",
+    "point_triangle_closest",
+    "point_triangle_lb",
+    "point_triangle_lb_batch",
+]
+
+#: parameters within this slack of [0, 1] count as "maybe inside" for the lower bounds [-]
+SLACK = 1e-6
+#: sine of the angle below which two edges (and relative height below which a triangle) count as
+#: degenerate [-]
+PARALLEL = 1e-3
+
+
+@numba.njit(cache=True)
+def _segment_param(x: np.ndarray, i: int, j: int, m: int) -> tuple:
+    """(distance [m], parameter t in [0, 1]) of the point of segment ``x[j] x[m]`` closest to ``x[i]``."""
+    ap0, ap1, ap2 = x[i, 0] - x[j, 0], x[i, 1] - x[j, 1], x[i, 2] - x[j, 2]
+    d0, d1, d2 = x[m, 0] - x[j, 0], x[m, 1] - x[j, 1], x[m, 2] - x[j, 2]
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    t = 0.0
+    if dd > 0:
+        t = min(max((ap0 * d0 + ap1 * d1 + ap2 * d2) / dd, 0.0), 1.0)
+    e0, e1, e2 = ap0 - t * d0, ap1 - t * d1, ap2 - t * d2
+    return math.sqrt(e0 * e0 + e1 * e1 + e2 * e2), t
+
+
+@numba.njit(cache=True)
+def _point_segment(x: np.ndarray, i: int, j: int, m: int) -> float:
+    """Distance [m] from point ``x[i]`` to the segment ``x[j] x[m]`` (zero length allowed)."""
+    return _segment_param(x, i, j, m)[0]
+
+
+@numba.njit(cache=True)
+def point_triangle_lb(x: np.ndarray) -> float:
+    """Lower bound [m] of the distance from point ``x[0]`` to triangle ``x[1] x[2] x[3]``: the distance to
+    the plane where the projection may fall inside (barycentrics within ``SLACK`` of [0, 1]), for slivers
+    the edge distances minus the triangle's height, elsewhere the distance to the edges (exact)."""
+    e10, e11, e12 = x[2, 0] - x[1, 0], x[2, 1] - x[1, 1], x[2, 2] - x[1, 2]
+    e20, e21, e22 = x[3, 0] - x[1, 0], x[3, 1] - x[1, 1], x[3, 2] - x[1, 2]
+    n0, n1, n2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+    nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    c0, c1, c2 = x[3, 0] - x[2, 0], x[3, 1] - x[2, 1], x[3, 2] - x[2, 2]
+    lmax = max(math.sqrt(e10 * e10 + e11 * e11 + e12 * e12), math.sqrt(e20 * e20 + e21 * e21 + e22 * e22),
+               math.sqrt(c0 * c0 + c1 * c1 + c2 * c2))
+    edge = min(_point_segment(x, 0, 1, 2), _point_segment(x, 0, 2, 3), _point_segment(x, 0, 3, 1))
+    snn = nn if nn > 0 else 1.0
+    s2 = snn * snn
+    # barycentrics from signed sub-areas along n (only their sign with a slack matters)
+    pa0, pa1, pa2 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
+    pb0, pb1, pb2 = x[2, 0] - x[0, 0], x[2, 1] - x[0, 1], x[2, 2] - x[0, 2]
+    pc0, pc1, pc2 = x[3, 0] - x[0, 0], x[3, 1] - x[0, 1], x[3, 2] - x[0, 2]
+    wa = ((pb1 * pc2 - pb2 * pc1) * n0 + (pb2 * pc0 - pb0 * pc2) * n1 + (pb0 * pc1 - pb1 * pc0) * n2) / s2
+    wb = ((pc1 * pa2 - pc2 * pa1) * n0 + (pc2 * pa0 - pc0 * pa2) * n1 + (pc0 * pa1 - pc1 * pa0) * n2) / s2
+    wc = 1.0 - wa - wb
+    lb = edge
+    if wa >= -SLACK and wb >= -SLACK and wc >= -SLACK:
+        plane = abs(pa0 * n0 + pa1 * n1 + pa2 * n2) / snn
+        lb = min(plane, edge)
+    if nn <= PARALLEL * lmax * lmax:  # sliver
+        lb = min(lb, edge - nn / (lmax if lmax > 0 else 1.0))
+    return max(lb, 0.0)
+
+
+@numba.njit(cache=True)
+def edge_edge_lb(x: np.ndarray) -> float:
+    """Lower bound [m] of the distance between segments ``x[0] x[1]`` and ``x[2] x[3]``: the distance
+    between the lines where the closest pair may be interior, for nearly parallel edges (angle sine
+    below ``PARALLEL``) the endpoint distances minus ``max length * sin(angle)``, elsewhere the
+    endpoint-to-segment distances (exact)."""
+    d10, d11, d12 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
+    d20, d21, d22 = x[3, 0] - x[2, 0], x[3, 1] - x[2, 1], x[3, 2] - x[2, 2]
+    r0, r1, r2 = x[2, 0] - x[0, 0], x[2, 1] - x[0, 1], x[2, 2] - x[0, 2]
+    n0, n1, n2 = d11 * d22 - d12 * d21, d12 * d20 - d10 * d22, d10 * d21 - d11 * d20
+    nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    l1 = math.sqrt(d10 * d10 + d11 * d11 + d12 * d12)
+    l2 = math.sqrt(d20 * d20 + d21 * d21 + d22 * d22)
+    ends = min(min(_point_segment(x, 0, 2, 3), _point_segment(x, 1, 2, 3)),
+               min(_point_segment(x, 2, 0, 1), _point_segment(x, 3, 0, 1)))
+    prod = l1 * l2
+    sin = nn / (prod if prod > 0 else 1.0) + 1e-12
+    if sin <= PARALLEL:
+        return max(ends - max(l1, l2) * sin, 0.0)
+    snn2 = nn * nn if nn > 0 else 1.0
+    s = ((r1 * d22 - r2 * d21) * n0 + (r2 * d20 - r0 * d22) * n1 + (r0 * d21 - r1 * d20) * n2) / snn2
+    t = ((r1 * d12 - r2 * d11) * n0 + (r2 * d10 - r0 * d12) * n1 + (r0 * d11 - r1 * d10) * n2) / snn2
+    lb = ends
+    if -SLACK <= s <= 1 + SLACK and -SLACK <= t <= 1 + SLACK:
+        line = abs(r0 * n0 + r1 * n1 + r2 * n2) / (nn if nn > 0 else 1.0)
+        lb = min(line, ends)
+    return max(lb, 0.0)
+
+
+@numba.njit(cache=True)
+def point_triangle_lb_batch(x: np.ndarray) -> np.ndarray:
+    """:func:`point_triangle_lb` of (k, 4, 3) point-triangle quadruples [m]; (k,) bounds [m]."""
+    out = np.empty(len(x))
+    for i in range(len(x)):
+        out[i] = point_triangle_lb(x[i])
+    return out
+
+
+@numba.njit(cache=True)
+def edge_edge_lb_batch(x: np.ndarray) -> np.ndarray:
+    """:func:`edge_edge_lb` of (k, 4, 3) edge-edge quadruples [m]; (k,) bounds [m]."""
+    out = np.empty(len(x))
+    for i in range(len(x)):
+        out[i] = edge_edge_lb(x[i])
+    return out
+
+
+@numba.njit(cache=True)
+def point_triangle_closest(x: np.ndarray, bary: np.ndarray) -> float:
+    """Distance [m] from point ``x[0]`` to triangle ``x[1] x[2] x[3]`` (degenerate allowed); writes the
+    barycentric weights (3,) of the closest point into ``bary``."""
+    e10, e11, e12 = x[2, 0] - x[1, 0], x[2, 1] - x[1, 1], x[2, 2] - x[1, 2]
+    e20, e21, e22 = x[3, 0] - x[1, 0], x[3, 1] - x[1, 1], x[3, 2] - x[1, 2]
+    ap0, ap1, ap2 = x[0, 0] - x[1, 0], x[0, 1] - x[1, 1], x[0, 2] - x[1, 2]
+    d00 = e10 * e10 + e11 * e11 + e12 * e12
+    d01 = e10 * e20 + e11 * e21 + e12 * e22
+    d11 = e20 * e20 + e21 * e21 + e22 * e22
+    d20 = ap0 * e10 + ap1 * e11 + ap2 * e12
+    d21 = ap0 * e20 + ap1 * e21 + ap2 * e22
+    den = d00 * d11 - d01 * d01
+    good = den > 1e-14 * d00 * d11
+    sden = den if good else 1.0
+    v = (d11 * d20 - d01 * d21) / sden
+    w = (d00 * d21 - d01 * d20) / sden
+    u = 1.0 - v - w
+    best = math.inf
+    bary[0], bary[1], bary[2] = u, v, w
+    if good and u >= 0 and v >= 0 and w >= 0:
+        q0, q1, q2 = ap0 - v * e10 - w * e20, ap1 - v * e11 - w * e21, ap2 - v * e12 - w * e22
+        best = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+    for i in range(3):
+        d, t = _segment_param(x, 0, 1 + i, 1 + (i + 1) % 3)
+        if d < best:
+            best = d
+            bary[0] = bary[1] = bary[2] = 0.0
+            bary[i] = 1.0 - t
+            bary[(i + 1) % 3] = t
+    return best
+
+
+@numba.njit(cache=True)
+def edge_edge_closest(x: np.ndarray) -> tuple:
+    """(distance [m], s, t) between segments ``x[0] x[1]`` and ``x[2] x[3]`` (parallel and zero-length
+    allowed) with closest points ``x[0] + s (x[1] - x[0])`` and ``x[2] + t (x[3] - x[2])``."""
+    d10, d11, d12 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
+    d20, d21, d22 = x[3, 0] - x[2, 0], x[3, 1] - x[2, 1], x[3, 2] - x[2, 2]
+    r0, r1, r2 = x[0, 0] - x[2, 0], x[0, 1] - x[2, 1], x[0, 2] - x[2, 2]
+    A = d10 * d10 + d11 * d11 + d12 * d12
+    B = d10 * d20 + d11 * d21 + d12 * d22
+    E = d20 * d20 + d21 * d21 + d22 * d22
+    C = d10 * r0 + d11 * r1 + d12 * r2
+    F = d20 * r0 + d21 * r1 + d22 * r2
+    den = A * E - B * B
+    good = den > 1e-14 * A * E
+    sden = den if good else 1.0
+    s = (B * F - C * E) / sden
+    t = (A * F - B * C) / sden
+    best = math.inf
+    if good and 0 <= s <= 1 and 0 <= t <= 1:
+        q0, q1, q2 = r0 + s * d10 - t * d20, r1 + s * d11 - t * d21, r2 + s * d12 - t * d22
+        best = math.sqrt(q0 * q0 + q1 * q1 + q2 * q2)
+    else:
+        s = t = 0.0
+    for which in range(4):
+        if which < 2:
+            d, u = _segment_param(x, which, 2, 3)
+        else:
+            d, u = _segment_param(x, which, 0, 1)
+        if d < best:
+            best = d
+            if which < 2:
+                s, t = float(which), u
+            else:
+                s, t = u, float(which - 2)
+    return best, s, t
+
+
+@numba.njit(cache=True)
+def point_triangle_batch(x: np.ndarray) -> tuple:
+    """:func:`point_triangle_closest` of (k, 4, 3) quadruples [m]: (k,) distances [m], (k, 3) weights."""
+    d = np.empty(len(x))
+    bary = np.empty((len(x), 3))
+    for i in range(len(x)):
+        d[i] = point_triangle_closest(x[i], bary[i])
+    return d, bary
+
+
+@numba.njit(cache=True)
+def edge_edge_batch(x: np.ndarray) -> tuple:
+    """:func:`edge_edge_closest` of (k, 4, 3) quadruples [m]: (k,) distances [m], (k,) s, (k,) t."""
+    d, s, t = np.empty(len(x)), np.empty(len(x)), np.empty(len(x))
+    for i in range(len(x)):
+        d[i], s[i], t[i] = edge_edge_closest(x[i])
+    return d, s, t
+
+
+@numba.njit(cache=True)
+def contact_frames(vf: bool, P: np.ndarray, Pref: np.ndarray) -> tuple:
+    """Weights (k, 4), unit normals (k, 3) and distances (k,) [m] of primitive pairs at positions ``P``
+    (k, 4, 3) [m]; ``Pref`` (k, 4, 3) [m] orients the normal of touching pairs (see
+    :func:`modalfem.collision.repulsion.contact_frames`)."""
+    k = len(P)
+    W, N, D = np.empty((k, 4)), np.empty((k, 3)), np.empty(k)
+    bary = np.empty(3)
+    for q in range(k):
+        x = P[q]
+        if vf:
+            d = point_triangle_closest(x, bary)
+            W[q, 0], W[q, 1], W[q, 2], W[q, 3] = 1.0, -bary[0], -bary[1], -bary[2]
+            i, j, u, w = 2, 1, 3, 1
+        else:
+            d, s, t = edge_edge_closest(x)
+            W[q, 0], W[q, 1], W[q, 2], W[q, 3] = 1.0 - s, s, -(1.0 - t), -t
+            i, j, u, w = 1, 0, 3, 2
+        a0, a1, a2 = x[i, 0] - x[j, 0], x[i, 1] - x[j, 1], x[i, 2] - x[j, 2]
+        b0, b1, b2 = x[u, 0] - x[w, 0], x[u, 1] - x[w, 1], x[u, 2] - x[w, 2]
+        g0, g1, g2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+        sep0 = sep1 = sep2 = 0.0
+        ref0 = ref1 = ref2 = 0.0
+        scale = 0.0
+        for v in range(4):
+            sep0 += W[q, v] * x[v, 0]
+            sep1 += W[q, v] * x[v, 1]
+            sep2 += W[q, v] * x[v, 2]
+            ref0 += W[q, v] * Pref[q, v, 0]
+            ref1 += W[q, v] * Pref[q, v, 1]
+            ref2 += W[q, v] * Pref[q, v, 2]
+            scale = max(scale, abs(x[v, 0]), abs(x[v, 1]), abs(x[v, 2]))
+        D[q] = d
+        if d <= 1e-9 * (scale + 1e-300):
+            # touching: the geometric normal, oriented by the side the first primitive started on
+            sgn = -1.0 if g0 * ref0 + g1 * ref1 + g2 * ref2 < 0 else 1.0
+            gn = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+            gn = gn if gn > 0 else 1.0
+            N[q, 0], N[q, 1], N[q, 2] = sgn * g0 / gn, sgn * g1 / gn, sgn * g2 / gn
+        else:
+            dd = d if d > 0 else 1.0
+            N[q, 0], N[q, 1], N[q, 2] = sep0 / dd, sep1 / dd, sep2 / dd
+    return W, N, D

@@ -1,0 +1,114 @@
+"""Compiled candidate-pair kernels: the expansion of triangle pairs into point-triangle and edge-edge pairs,
+and the updates and selections of the pipeline's pair store.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["drop_pairs", "primitive_pairs", "select_pairs"]
+
+
+@numba.njit(cache=True)
+def _boxes_overlap(alo, ahi, blo, bhi, i: int, j: int) -> bool:
+    # bitwise: no branch per comparison (most tests fail on an unpredictable axis)
+    return ((alo[i, 0] <= bhi[j, 0]) & (blo[j, 0] <= ahi[i, 0]) & (alo[i, 1] <= bhi[j, 1]) & (blo[j, 1] <= ahi[i, 1])
+            & (alo[i, 2] <= bhi[j, 2]) & (blo[j, 2] <= ahi[i, 2]))
+
+
+@numba.njit(cache=True)
+def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: np.ndarray, own_e: np.ndarray,
+                    vlo: np.ndarray, vhi: np.ndarray, dirty: np.ndarray):
+    """Point-triangle and edge-edge pairs of the triangle pairs ``tp`` (k, 2) whose boxes overlap.
+
+    Each vertex and edge is owned by one triangle (``own_v``/``own_e`` (F, 3), -1 padded): a primitive
+    pair comes from the triangle pair of its owners only. Boxes are the vertex boxes ``vlo``/``vhi``
+    (N, 3) [m] (already grown by the margin), a triangle's or edge's the union of its vertices'. Pairs
+    sharing a vertex are left out; with ``dirty`` ((N,) bool, empty: no filter) only pairs holding a
+    flagged vertex are kept.
+
+    Returns:
+        ``(vf, ee)``: (p, 4) vertex quadruples ``(p, a, b, c)`` and (q, 4) ``(a0, a1, b0, b1)``.
+    """
+    filt = len(dirty) > 0
+    F, E = len(tris), len(edges)
+    flo, fhi = np.empty((F, 3)), np.empty((F, 3))
+    for f in range(F):
+        for c in range(3):
+            flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
+            fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
+    elo, ehi = np.empty((E, 3)), np.empty((E, 3))
+    for e in range(E):
+        for c in range(3):
+            elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
+            ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
+    k = len(tp)
+    vf_ids = np.empty((6 * k, 2), dtype=np.int64)
+    ee_ids = np.empty((9 * k, 2), dtype=np.int64)
+    nv = ne = 0
+    for p in range(k):
+        for side in range(2):
+            A, B = tp[p, side], tp[p, 1 - side]
+            b0, b1, b2 = tris[B, 0], tris[B, 1], tris[B, 2]
+            for r in range(3):
+                v = own_v[A, r]
+                if v < 0 or v == b0 or v == b1 or v == b2:
+                    continue
+                if filt and not (dirty[v] or dirty[b0] or dirty[b1] or dirty[b2]):
+                    continue
+                if _boxes_overlap(vlo, vhi, flo, fhi, v, B):
+                    vf_ids[nv, 0], vf_ids[nv, 1] = v, B
+                    nv += 1
+        A, B = tp[p, 0], tp[p, 1]
+        for r in range(3):
+            ea = own_e[A, r]
+            if ea < 0:
+                continue
+            a0, a1 = edges[ea, 0], edges[ea, 1]
+            for c in range(3):
+                eb = own_e[B, c]
+                if eb < 0:
+                    continue
+                c0, c1 = edges[eb, 0], edges[eb, 1]
+                if a0 == c0 or a0 == c1 or a1 == c0 or a1 == c1:
+                    continue
+                if filt and not (dirty[a0] or dirty[a1] or dirty[c0] or dirty[c1]):
+                    continue
+                if _boxes_overlap(elo, ehi, elo, ehi, ea, eb):
+                    ee_ids[ne, 0], ee_ids[ne, 1] = ea, eb
+                    ne += 1
+    vf = np.empty((nv, 4), dtype=np.int64)
+    for i in range(nv):
+        vf[i, 0] = vf_ids[i, 0]
+        vf[i, 1], vf[i, 2], vf[i, 3] = tris[vf_ids[i, 1], 0], tris[vf_ids[i, 1], 1], tris[vf_ids[i, 1], 2]
+    ee = np.empty((ne, 4), dtype=np.int64)
+    for i in range(ne):
+        ee[i, 0], ee[i, 1] = edges[ee_ids[i, 0], 0], edges[ee_ids[i, 0], 1]
+        ee[i, 2], ee[i, 3] = edges[ee_ids[i, 1], 0], edges[ee_ids[i, 1], 1]
+    return vf, ee
+
+
+@numba.njit(cache=True)
+def drop_pairs(q: np.ndarray, alive: np.ndarray, dirty: np.ndarray) -> None:
+    """In place: ``alive[i] = False`` for the pairs ``q`` (k, 4) holding a vertex flagged in ``dirty``."""
+    for i in range(len(q)):
+        if alive[i] and (dirty[q[i, 0]] or dirty[q[i, 1]] or dirty[q[i, 2]] or dirty[q[i, 3]]):
+            alive[i] = False
+
+
+@numba.njit(cache=True)
+def select_pairs(q: np.ndarray, alive: np.ndarray, only: np.ndarray) -> np.ndarray:
+    """The alive pairs of ``q`` (k, 4), only those holding a vertex flagged in ``only`` unless it is empty."""
+    use = len(only) > 0
+    keep = np.empty(len(q), dtype=np.int64)
+    n = 0
+    for i in range(len(q)):
+        if alive[i] and (not use or only[q[i, 0]] or only[q[i, 1]] or only[q[i, 2]] or only[q[i, 3]]):
+            keep[n] = i
+            n += 1
+    out = np.empty((n, 4), dtype=np.int64)
+    for j in range(n):
+        for c in range(4):
+            out[j, c] = q[keep[j], c]
+    return out
