@@ -46,7 +46,7 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
     sc.solver.linear_solver = linear_solver
     sums = dict.fromkeys(STAGES, 0.0)
     total = cpu = 0.0
-    unculled = culled = zones = zone_steps = max_zone = cg = timed = measured = 0
+    unculled = culled = zones = zone_steps = max_zone = cg = smooth_cg = timed = measured = 0
     intersections = 0
     for k in range(steps):
         probe = sc.pipeline is not None and (k + 1) % check_every == 0
@@ -69,6 +69,7 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
             sums["implicit"] += st.seconds["forces"] + st.seconds["implicit"]
             sums["smoothing"] += st.seconds["smoothing"]
         cg += st.linear.iterations
+        smooth_cg += st.smooth_iterations
         if st.collision is not None:
             if not probe:
                 for key in ("broad_phase", "repulsion", "ccd", "impact_zones"):
@@ -85,7 +86,7 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
         "shares": {k: v / total for k, v in sums.items()},
         "pair_tests_unculled": unculled / max(measured, 1), "pair_tests": culled / max(measured, 1),
         "zones_per_step": zones / steps, "zone_steps": zone_steps, "max_zone": max_zone,
-        "cg_iterations": cg / steps, "intersections": int(intersections), "finite": bool(np.isfinite(sc.x).all()),
+        "cg_iterations": cg / steps, "smooth_cg_iterations": smooth_cg / steps, "intersections": int(intersections), "finite": bool(np.isfinite(sc.x).all()),
     }
 
 
@@ -135,20 +136,23 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
           "and after culling (the proximity and the swept traversal of the first pipeline call), counted on "
           "every 10th step (those steps are left out of the timings); zones = impact zones per step after "
           "the final pipeline call; intersections = intersecting pairs found by the independent check "
-          "every 10 steps and at the end."), "",
+          "every 10 steps and at the end; CG its = conjugate-gradient iterations of the implicit solve per "
+          "step, smoothing CG its = those of the smoothing solve (multilevel-preconditioned CG, numba)."), "",
          "| scene | vertices | steps | ms/step | steps/s | CPU ms/step | " + " | ".join(f"{s} %" for s in STAGES)
-         + " | pair tests unculled | pair tests culled | culled % | zones/step | max zone | CG its | intersections |",
-         "|---" * (15 + len(STAGES) - 2) + "|"]
+         + " | pair tests unculled | pair tests culled | culled % | zones/step | max zone | CG its | smoothing CG its"
+         " | intersections |",
+         "|---" * (16 + len(STAGES) - 2) + "|"]
     for r in results:
         if "error" in r or "ms_per_step" not in r:
             msg = r.get("error", "timeout")
-            L.append(f"| {r['case']} | {r['n']}x{r['n']} | - | {msg} |" + " |" * (9 + len(STAGES)))
+            L.append(f"| {r['case']} | {r['n']}x{r['n']} | - | {msg} |" + " |" * (10 + len(STAGES)))
             continue
         sh = " | ".join(f"{100 * r['shares'][s]:.0f}" for s in STAGES)
         cut = 100 * (1 - r["pair_tests"] / r["pair_tests_unculled"]) if r["pair_tests_unculled"] else 0.0
         L.append(f"| {r['case']} | {r['n']}x{r['n']} | {r['steps']} | {r['ms_per_step']:.0f} | "
                  f"{1e3 / r['ms_per_step']:.2f} | {r.get('cpu_ms_per_step', float('nan')):.0f} | {sh} | {r['pair_tests_unculled']:.0f} | {r['pair_tests']:.0f} | "
                  f"{cut:.0f} | {r['zones_per_step']:.2f} | {r['max_zone']} | {r['cg_iterations']:.0f} | "
+                 f"{r.get('smooth_cg_iterations', float('nan')):.0f} | "
                  f"{r['intersections']} |")
     goal = [r for r in results if r.get("case") == "pile" and r.get("n") == 64 and "ms_per_step" in r]
     if goal:
@@ -160,7 +164,7 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
     if solvers:
         L += ["", ("Linear solver of the implicit step (the twist scene without collisions, first 10 steps: the "
                    "handles deform the sheet): ms per implicit step (assembly + solve)"),
-              "", "| vertices | block-Jacobi-CG ms | CG its | SuperLU ms | CG / SuperLU |", "|---|---|---|---|---|"]
+              "", "| vertices | multilevel-CG ms | CG its | SuperLU ms | CG / SuperLU |", "|---|---|---|---|---|"]
         for s in solvers:
             L.append(f"| {s['n']}x{s['n']} | {s['cg']:.1f} | {s['cg_its']:.0f} | {s['splu']:.1f} | "
                      f"{s['cg'] / s['splu']:.2f}x |")

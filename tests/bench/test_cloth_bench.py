@@ -13,11 +13,15 @@ def test_quick_bench_writes_its_section(tmp_path):
     assert "keep" in text and text.count(cloth_bench.SECTION) == 1
     rows = [ln for ln in text.splitlines() if ln.startswith(("| drape", "| pile"))]
     assert len(rows) == 2
+    header = next(ln for ln in text.splitlines() if ln.startswith("| scene |"))
+    names = [c.strip() for c in header.strip("|").split("|")]
     for ln in rows:
         cells = [c.strip() for c in ln.strip("|").split("|")]
+        assert len(cells) == len(names)
         assert float(cells[3]) > 0  # ms/step
         assert cells[-1] == "0"  # intersections
-    assert "Jacobi-CG" in text
+        assert float(cells[names.index("smoothing CG its")]) >= 0
+    assert "multilevel-CG" in text
 
 
 def test_render_marks_failed_cases():
