@@ -1,10 +1,10 @@
 """CCD benchmark: the 7,279 exact-answer queries of ``../shared/data/ccd-sample-queries``.
 
 For every scene and kind (vertex-face, edge-edge) the conservative CCD of
-:mod:`modalfem.collision.ccd` runs vectorised over all queries of the kind at once; the table gives
-the false negatives (must be 0), the false positives and the time per query. A second column times
-the same code called one query at a time on a subset, so the gain of batching is a ratio measured in
-the same run. ``load_queries`` is shared with the tests.
+:mod:`modalfem.collision.ccd` (numba-compiled, one loop over the queries) runs on all queries of the
+kind in one call; the table gives the false negatives (must be 0), the false positives and the time per
+query. A second column times the same code called one query at a time on a subset, so the cost of the
+Python call per query is a ratio measured in the same run. ``load_queries`` is shared with the tests.
 
 A second table runs the whole collision pipeline (all stages on) on synthetic cloth scenes: the
 pair tests of the BVH traversals with and without normal-cone culling, and the time per step.
@@ -185,7 +185,7 @@ def render(rows: list[dict], *, command: str, machine: str, pipe_rows: list[dict
         (
             "Conservative CCD (Bernstein subdivision of the coplanarity cubic + distance lower bounds, "
             "tolerance 0 plus rounding bounds) on the exact-answer queries of Wang et al. (2021). "
-            "FN must be 0. Time per query: all queries of a row in one vectorised call, and one call per "
+            "FN must be 0. Time per query: all queries of a row in one compiled call, and one call per "
             "query (first 200) in the same run."
         ),
         "",
