@@ -27,6 +27,8 @@ def expand_components(S, free: np.ndarray | None = None, *, bs: int = 3) -> sp.c
         CSR matrix (m, m) with sorted indices, m = ``free.sum()`` (or bs n): identical to
         ``restrict(kron(S, I_bs), free)`` (structural non-zeros only, in the same order).
     """
+    from modalfem.modes import restrict  # keeps sorted indices sorted
+
     S = sp.csr_matrix(S)
     if not S.has_sorted_indices:
         S = S.copy()
@@ -37,7 +39,7 @@ def expand_components(S, free: np.ndarray | None = None, *, bs: int = 3) -> sp.c
         whole = free.all(axis=1)
         if np.array_equal(whole, free.any(axis=1)):  # every node wholly free or wholly held
             if not whole.all():
-                S = _restrict_square(S, whole)
+                S = restrict(S, whole)
             free = None
     indptr = np.asarray(S.indptr, dtype=np.int64)
     deg = np.diff(indptr)
@@ -59,13 +61,4 @@ def expand_components(S, free: np.ndarray | None = None, *, bs: int = 3) -> sp.c
         data[pos] = S.data
     out = sp.csr_matrix((data, indices, out_indptr), shape=(bs * nn, bs * nn))
     out.has_sorted_indices = True
-    if free is None:
-        return out
-    return _restrict_square(out, free.reshape(-1))
-
-
-def _restrict_square(A: sp.csr_matrix, keep: np.ndarray) -> sp.csr_matrix:
-    """Rows and columns ``keep`` (bool mask) of a square CSR matrix with sorted indices (stays sorted)."""
-    from modalfem.modes import restrict
-
-    return restrict(A, keep)
+    return out if free is None else restrict(out, free.reshape(-1))

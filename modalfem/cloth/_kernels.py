@@ -22,22 +22,25 @@ __all__ = ["aggregate", "bsr_matvec", "level_matrices", "pcg", "scatter_blocks"]
 
 
 @numba.njit(cache=True)
+def _row_product(indptr, indices, data, x, i):
+    """Block row ``i`` of ``A`` times ``x`` (n, 3): the three components of ``(A x)_i``."""
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        j = indices[p]
+        x0, x1, x2 = x[j, 0], x[j, 1], x[j, 2]
+        a0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
+        a1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
+        a2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+    return a0, a1, a2
+
+
+@numba.njit(cache=True)
 def bsr_matvec(indptr, indices, data, x, out):
     """``out = A x`` for block ``A`` and ``x``, ``out`` (n, 3)."""
-    n = len(indptr) - 1
-    for i in range(n):
-        a0 = 0.0
-        a1 = 0.0
-        a2 = 0.0
-        for p in range(indptr[i], indptr[i + 1]):
-            j = indices[p]
-            x0, x1, x2 = x[j, 0], x[j, 1], x[j, 2]
-            a0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-            a1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-            a2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
-        out[i, 0] = a0
-        out[i, 1] = a1
-        out[i, 2] = a2
+    for i in range(len(indptr) - 1):
+        out[i, 0], out[i, 1], out[i, 2] = _row_product(indptr, indices, data, x, i)
 
 
 @numba.njit(cache=True)
@@ -140,16 +143,8 @@ def _residual(indptr, indices, data, kind, normal, b, y, r):
     n = len(indptr) - 1
     rr = 0.0
     for i in range(n):
-        a0 = b[i, 0]
-        a1 = b[i, 1]
-        a2 = b[i, 2]
-        for p in range(indptr[i], indptr[i + 1]):
-            j = indices[p]
-            y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
-            a0 -= data[p, 0, 0] * y0 + data[p, 0, 1] * y1 + data[p, 0, 2] * y2
-            a1 -= data[p, 1, 0] * y0 + data[p, 1, 1] * y1 + data[p, 1, 2] * y2
-            a2 -= data[p, 2, 0] * y0 + data[p, 2, 1] * y1 + data[p, 2, 2] * y2
-        a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
+        a0, a1, a2 = _row_product(indptr, indices, data, y, i)
+        a0, a1, a2 = _project(kind, normal, i, b[i, 0] - a0, b[i, 1] - a1, b[i, 2] - a2)
         r[i, 0] = a0
         r[i, 1] = a1
         r[i, 2] = a2
@@ -346,15 +341,7 @@ def pcg(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, agg, up,
     for k in range(1, maxiter + 1):
         cq = 0.0
         for i in range(n):  # q = S A c (c is in range(S)), c . q
-            a0 = 0.0
-            a1 = 0.0
-            a2 = 0.0
-            for p in range(indptr[i], indptr[i + 1]):
-                j = indices[p]
-                x0, x1, x2 = c[j, 0], c[j, 1], c[j, 2]
-                a0 += data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-                a1 += data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-                a2 += data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+            a0, a1, a2 = _row_product(indptr, indices, data, c, i)
             a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
             q[i, 0] = a0
             q[i, 1] = a1
