@@ -218,15 +218,18 @@ def edge_edge_batch(x: np.ndarray) -> tuple:
 
 
 @numba.njit(cache=True)
-def contact_frames(vf: bool, P: np.ndarray, Pref: np.ndarray) -> tuple:
-    """Weights (k, 4), unit normals (k, 3) and distances (k,) [m] of primitive pairs at positions ``P``
-    (k, 4, 3) [m]; ``Pref`` (k, 4, 3) [m] orients the normal of touching pairs (see
+def contact_frames(vf: bool, X: np.ndarray, quads: np.ndarray, Xref: np.ndarray) -> tuple:
+    """Weights (k, 4), unit normals (k, 3) and distances (k,) [m] of the primitive pairs ``quads`` (k, 4)
+    at positions ``X`` (N, 3) [m]; ``Xref`` (N, 3) [m] orients the normal of touching pairs (see
     :func:`modalfem.collision.repulsion.contact_frames`)."""
-    k = len(P)
+    k = len(quads)
     W, N, D = np.empty((k, 4)), np.empty((k, 3)), np.empty(k)
     bary = np.empty(3)
+    x = np.empty((4, 3))
     for q in range(k):
-        x = P[q]
+        for v in range(4):
+            for c in range(3):
+                x[v, c] = X[quads[q, v], c]
         if vf:
             d = point_triangle_closest(x, bary)
             W[q, 0], W[q, 1], W[q, 2], W[q, 3] = 1.0, -bary[0], -bary[1], -bary[2]
@@ -245,9 +248,9 @@ def contact_frames(vf: bool, P: np.ndarray, Pref: np.ndarray) -> tuple:
             sep0 += W[q, v] * x[v, 0]
             sep1 += W[q, v] * x[v, 1]
             sep2 += W[q, v] * x[v, 2]
-            ref0 += W[q, v] * Pref[q, v, 0]
-            ref1 += W[q, v] * Pref[q, v, 1]
-            ref2 += W[q, v] * Pref[q, v, 2]
+            ref0 += W[q, v] * Xref[quads[q, v], 0]
+            ref1 += W[q, v] * Xref[quads[q, v], 1]
+            ref2 += W[q, v] * Xref[quads[q, v], 2]
             scale = max(scale, abs(x[v, 0]), abs(x[v, 1]), abs(x[v, 2]))
         D[q] = d
         if d <= 1e-9 * (scale + 1e-300):

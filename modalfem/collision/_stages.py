@@ -7,6 +7,7 @@ import warnings
 
 import numpy as np
 
+from modalfem.collision._impulse_kernels import pair_impulses
 from modalfem.collision._system import PairStore
 from modalfem.collision.ccd import MAX_INTERVALS
 from modalfem.collision.obstacles import Plane
@@ -233,11 +234,18 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             # boxes grown by h / 2 overlap: the primitives' boxes are within h (distance < h is tested next)
             cache["near"] = repulsion_pairs(X0, cand.vf, cand.ee, thickness=cfg.thickness, dt=dt)
         quads, w, nrm, tv = cache["near"]
-        dV = np.zeros_like(V)
-        if len(quads):
-            dV, _ = apply_pair_impulses(V, invm, quads, w, nrm, tv, friction=cfg.friction)
         dA, acount = _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n)
-        V = V + dV + dA
+        if len(quads):
+            # Jacobi passes: each pair's wanted change is averaged with the others at its vertices, so one
+            # pass leaves pairs in multi-pair contact still approaching; repeated passes approach
+            # satisfying them all (as Bridson et al.'s pair-by-pair impulses do)
+            args = (invm, np.ascontiguousarray(quads, dtype=np.int64), w, nrm, tv, float(cfg.friction))
+            for _ in range(int(cfg.repulsion_iterations)):
+                dV, active = pair_impulses(V, *args)
+                V = V + dV
+                if not active:
+                    break
+        V = V + dA
         stats.proximities = len(quads) + acount
         sec["repulsion"] += time.perf_counter() - t0
     remaining = None

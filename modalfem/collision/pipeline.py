@@ -46,6 +46,11 @@ class CollisionConfig:
             ``CollisionStats.unresolved``).
         self_collision: test the cloth against itself (off: obstacles only).
         culling: normal-cone culling of self-collision tests over the BVH.
+        repulsion_iterations: Jacobi passes of stage (a)'s impulses (>= 1). Each pass raises every close
+            pair's relative normal velocity towards its target, a vertex in several pairs getting their
+            weight-averaged change, so a single pass leaves stacked layers approaching; measured on the
+            64x64 pile (steps 30-40, replayed from identical states): CCD hits of the first pass 1,100-1,900
+            with 1 pass, 140-260 with 20, and the largest impact zone 180 -> 50 vertices.
         ccd_passes: passes of stage (b).
         min_separation: CCD tolerance ``eta`` [m]: trajectories coming closer than this count as
             colliding (default ``1e-3 * thickness``).
@@ -62,6 +67,7 @@ class CollisionConfig:
     impact_zones: bool = True
     self_collision: bool = True
     culling: bool = True
+    repulsion_iterations: int = 20
     ccd_passes: int = 3
     min_separation: float | None = None
     max_zone_iterations: int = 200
@@ -72,6 +78,8 @@ class CollisionConfig:
             raise InputError(f"collision thickness must be a positive number of metres, got {self.thickness}")
         if not (np.isfinite(self.friction) and self.friction >= 0):
             raise InputError(f"friction coefficient must be >= 0, got {self.friction}")
+        if int(self.repulsion_iterations) < 1:
+            raise InputError(f"repulsion_iterations must be >= 1, got {self.repulsion_iterations}")
         if int(self.ccd_passes) < 0:
             raise InputError(f"ccd_passes must be >= 0, got {self.ccd_passes}")
         if self.min_separation is not None and not (self.min_separation > 0):

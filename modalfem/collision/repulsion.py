@@ -32,8 +32,8 @@ def contact_frames(X: np.ndarray, quads: np.ndarray, kind: str, Xref: np.ndarray
     """
     from modalfem.collision._distance_kernels import contact_frames as frames
 
-    q = np.ascontiguousarray(quads, dtype=np.int64)
-    return frames(kind == "vf", np.ascontiguousarray(X[q], dtype=float), np.ascontiguousarray(Xref[q], dtype=float))
+    return frames(kind == "vf", np.ascontiguousarray(X, dtype=float), np.ascontiguousarray(quads, dtype=np.int64),
+                  np.ascontiguousarray(Xref, dtype=float))
 
 
 def apply_pair_impulses(
@@ -60,31 +60,12 @@ def apply_pair_impulses(
         ``(dV, active)``: (N, 3) velocity change [m/s] (weight-averaged per vertex), number of pairs that
         acted.
     """
-    vr = np.einsum("kj,kji->ki", w, V[quads])
-    vn = np.einsum("ki,ki->k", vr, n)
-    dvn = np.maximum(target_vn - vn, 0.0)
-    im = invm[quads]
-    den = np.einsum("kj,kj->k", w * w, im)
-    act = (dvn > 0) & (den > 0)
-    dV = np.zeros_like(V)
-    if not act.any():
-        return dV, 0
-    q, w, n, im, den, dvn, vr, vn = (a[act] for a in (quads, w, n, im, den, dvn, vr, vn))
-    dv_rel = dvn[:, None] * n
-    if friction > 0:
-        vt = vr - vn[:, None] * n
-        tn = np.linalg.norm(vt, axis=1)
-        k = np.minimum(friction * dvn / np.where(tn > 0, tn, 1.0), 1.0)
-        dv_rel = dv_rel - k[:, None] * vt
-    per = (w * im / den[:, None])[:, :, None] * dv_rel[:, None, :]
-    # per-vertex sums; one bincount over the four columns in turn adds in the order np.add.at would
-    N = len(V)
-    idx = q.T.reshape(-1)
-    for c in range(3):
-        dV[:, c] = np.bincount(idx, weights=per[:, :, c].T.reshape(-1), minlength=N)
-    cnt = np.bincount(idx, weights=(np.abs(w) * (im > 0)).T.reshape(-1), minlength=N)
-    dV /= np.maximum(cnt, 1.0)[:, None]
-    return dV, int(act.sum())
+    from modalfem.collision._impulse_kernels import pair_impulses
+
+    return pair_impulses(np.ascontiguousarray(V, dtype=float), np.ascontiguousarray(invm, dtype=float),
+                         np.ascontiguousarray(quads, dtype=np.int64), np.ascontiguousarray(w, dtype=float),
+                         np.ascontiguousarray(n, dtype=float), np.ascontiguousarray(target_vn, dtype=float),
+                         float(friction))
 
 
 def repulsion_pairs(
