@@ -33,17 +33,26 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     """
     filt = len(dirty) > 0
     F, E = len(tris), len(edges)
-    flo, fhi = np.empty((F, 3)), np.empty((F, 3))
-    for f in range(F):
-        for c in range(3):
-            flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
-            fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
-    elo, ehi = np.empty((E, 3)), np.empty((E, 3))
-    for e in range(E):
-        for c in range(3):
-            elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
-            ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
     k = len(tp)
+    # boxes of the triangles in tp and of the edges they own only (a dirty search holds a few of them)
+    flo, fhi = np.empty((F, 3)), np.empty((F, 3))
+    elo, ehi = np.empty((E, 3)), np.empty((E, 3))
+    fdone = np.zeros(F, dtype=np.bool_)
+    for p in range(k):
+        for side in range(2):
+            f = tp[p, side]
+            if fdone[f]:
+                continue
+            fdone[f] = True
+            for c in range(3):
+                flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
+                fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
+            for r in range(3):
+                e = own_e[f, r]
+                if e >= 0:
+                    for c in range(3):
+                        elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
+                        ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
     vf_ids = np.empty((6 * k, 2), dtype=np.int64)
     ee_ids = np.empty((9 * k, 2), dtype=np.int64)
     nv = ne = 0
