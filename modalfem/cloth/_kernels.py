@@ -18,6 +18,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+#: weight of the aggregation levels' corrections against the fine block Jacobi in the additive
+#: preconditioner. Measured on ten systems of the 64x64 pile (implicit and smoothing solves, steps
+#: 20-25): mean CG iterations 62.7 at 1, 55.2 at 0.5, 53.7 at 0.3, 54.8 at 0.2, 62.7 at 0.1 (the
+#: piecewise-constant corrections of overlapping levels add up and over-correct smooth errors)
+COARSE_WEIGHT = 0.3
+
 __all__ = ["aggregate", "bsr_matvec", "level_matrices", "pcg", "scatter_blocks"]
 
 
@@ -264,10 +270,11 @@ def _precondition(P, r, z, kind, normal, agg, up, off, Dinv, Cinv, w, e):
             s = 0.0
             for v in range(nc3):
                 s += Cinv[u, v] * w[nd + v // 3, v % 3]
-            e[nd + u // 3, u % 3] = s
+            e[nd + u // 3, u % 3] = COARSE_WEIGHT * s
         for g in range(nd - 1, -1, -1):  # block Jacobi on each level, summed down the levels
             for a in range(3):
-                e[g, a] = Dinv[g, a, 0] * w[g, 0] + Dinv[g, a, 1] * w[g, 1] + Dinv[g, a, 2] * w[g, 2] + e[up[g], a]
+                e[g, a] = (COARSE_WEIGHT * (Dinv[g, a, 0] * w[g, 0] + Dinv[g, a, 1] * w[g, 1] + Dinv[g, a, 2] * w[g, 2])
+                           + e[up[g], a])
     rz = 0.0
     for i in range(n):  # block Jacobi plus the projected prolongation
         s0 = 0.0
@@ -289,9 +296,10 @@ def pcg(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, agg, up,
     """Solve ``A y = b`` on the free components (filtered PCG).
 
     The preconditioner adds to block Jacobi (the inverses of the vertices' diagonal blocks, projected)
-    the corrections of aggregation levels (additive multilevel): ``S P_l D_l^+ P_l^T S`` for levels
-    0..L-2 (``D_l`` the diagonal blocks of the level's Galerkin matrix) and ``S P_c C^+ P_c^T S`` for the
-    coarsest (its full matrix); ``L`` = 0 is block Jacobi alone.
+    the corrections of aggregation levels (additive multilevel, weighted by ``COARSE_WEIGHT``):
+    ``S P_l D_l^+ P_l^T S`` for levels 0..L-2 (``D_l`` the diagonal blocks of the level's Galerkin
+    matrix) and ``S P_c C^+ P_c^T S`` for the coarsest (its full matrix); ``L`` = 0 is block Jacobi
+    alone.
 
     Args:
         indptr, indices, data: the SPD block matrix ``A``; ``diag`` (n,): position of each diagonal block.
