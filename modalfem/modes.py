@@ -86,10 +86,14 @@ def _trial_fields(mesh, degree: int, fixed: np.ndarray) -> np.ndarray:
     poly = np.column_stack([np.ones(len(p)), x, y, z, x * x, y * y, z * z, x * y, y * z, z * x])
     held = fixed.reshape(-1, 3)
     B = np.zeros((len(p), 3, 3 * poly.shape[1]))
+    distance = {}  # held-node set -> distance field: a clamp holds all three components at the same nodes
     for c in range(3):
         w = np.ones(len(p))
         if held[:, c].any():
-            w = cKDTree(p[held[:, c]]).query(p)[0] / L
+            key = held[:, c].tobytes()
+            if key not in distance:
+                distance[key] = cKDTree(p[held[:, c]]).query(p)[0] / L
+            w = distance[key]
         B[:, c, c * poly.shape[1] : (c + 1) * poly.shape[1]] = w[:, None] * poly
     return B.reshape(3 * len(p), -1)
 
@@ -97,8 +101,10 @@ def _trial_fields(mesh, degree: int, fixed: np.ndarray) -> np.ndarray:
 def _ritz_products(B: np.ndarray, K, M, rows, comm):
     """(B^T K B, B^T M B, max K_ii / M_ii) for scipy matrices, or PETSc ones with ``rows``."""
     if rows is None:
+        from modalfem.eigen.spmm import spmm
+
         lam_max = float(np.max(K.diagonal() / M.diagonal()))
-        return B.T @ (K @ B), B.T @ (M @ B), lam_max
+        return B.T @ spmm(K, B), B.T @ spmm(M, B), lam_max
     x, y = K.createVecs()
     Bl = B[rows]
     KB = np.empty_like(Bl)
@@ -336,7 +342,7 @@ def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=Non
             return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, groups=groups, method=method)
         except (ModalfemError, ImportError):
             raise
-        except Exception as exc:  # never a raw ARPACK/PETSc traceback
+        except Exception as exc:  # noqa: BLE001 - never a raw ARPACK/PETSc traceback
             raise SolverError(f"{solver} eigen solve failed: {type(exc).__name__}: {exc}") from None
 
 
@@ -363,7 +369,7 @@ def _labels(points, shapes) -> tuple[str, ...]:
         return tuple(f"mode {i + 1}" for i in range(shapes.shape[1]))
     try:
         return tuple(label_modes(points, shapes))
-    except Exception as exc:  # labels are cosmetic: never lose a certified solve over them
+    except Exception as exc:  # noqa: BLE001 - labels are cosmetic: never lose a certified solve over them
         warnings.warn(f"mode labelling failed ({type(exc).__name__}: {exc}); using 'mode i'", stacklevel=3)
         return tuple(f"mode {i + 1}" for i in range(shapes.shape[1]))
 

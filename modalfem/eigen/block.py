@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from modalfem.eigen.spmm import spmm
 from modalfem.errors import SolverError
 
 __all__ = ["DEFAULT_BLOCK", "block_krylov_schur"]
@@ -70,7 +71,7 @@ def _orthogonalise(W, bases):
 
 def _cholesky_qr2(W: np.ndarray, M):
     """(Q, MQ, R) with W = Q R and Q^T M Q = I by Cholesky QR twice, or None if W is nearly rank-deficient."""
-    qr = _cholesky_qr(W, M @ W)
+    qr = _cholesky_qr(W, spmm(M, W))
     if qr is None:
         return None
     Q, MQ, R1 = qr
@@ -89,7 +90,7 @@ def _new_block(W, M, bases, rng):
     if qr is not None:
         return qr
     n, b = W.shape
-    MW = M @ W
+    MW = spmm(M, W)
     G = W.T @ MW
     s, U = np.linalg.eigh(0.5 * (G + G.T))
     smax = float(s.max())

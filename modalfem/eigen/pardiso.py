@@ -167,18 +167,19 @@ def _expand_ordering(groups: np.ndarray, group_position: np.ndarray, n: int) -> 
     return perm
 
 
-def _candidates() -> list[str]:
+def _candidates():
+    """Paths to try, lazily: ``find_library`` (which runs ``ldconfig -p``, ~40 ms) only when the
+    library next to the interpreter did not load."""
     env = os.environ.get("MODALFEM_MKL_RT")
     if env:
-        return [env]
-    found = []
+        yield env
+        return
     for prefix in dict.fromkeys((sys.prefix, sys.base_prefix)):
-        found += sorted(glob.glob(os.path.join(prefix, "lib", "libmkl_rt.so*")), key=len)
-        found += sorted(glob.glob(os.path.join(prefix, "Library", "bin", "mkl_rt*.dll")), key=len)
+        yield from sorted(glob.glob(os.path.join(prefix, "lib", "libmkl_rt.so*")), key=len)
+        yield from sorted(glob.glob(os.path.join(prefix, "Library", "bin", "mkl_rt*.dll")), key=len)
     name = ctypes.util.find_library("mkl_rt")
     if name:
-        found.append(name)
-    return found
+        yield name
 
 
 def _library():

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from modalfem.eigen.base import InteriorShiftUnusable, RawModes
+from modalfem.eigen.spmm import spmm
 from modalfem.errors import SolverError
 
 __all__ = ["ZERO_RTOL", "extra_count", "inertia_count", "residual_floor", "residuals", "solve_scipy"]
@@ -49,11 +50,11 @@ def extra_count(nev: int) -> int:
 def residuals(K, M, X: np.ndarray, lam: np.ndarray, *, shift: float, KX=None, MX=None, absK=None) -> np.ndarray:
     """Relative residuals ||K x - lam M x|| / ||K x|| (m,); for zero-like lam, / (||K||_inf ||x||).
     ``KX``, ``MX`` (products already computed) and ``absK`` (|K|) are optional."""
-    KX = K @ X if KX is None else KX
-    R = KX - (M @ X if MX is None else MX) * lam
+    KX = spmm(K, X) if KX is None else KX
+    R = KX - (spmm(M, X) if MX is None else MX) * lam
     rn = np.linalg.norm(R, axis=0)
     kx = np.linalg.norm(KX, axis=0)
-    knorm = float(np.max((_abs(K) if absK is None else absK) @ np.ones(K.shape[1]))) if K.shape[0] else 0.0
+    knorm = float(np.max(spmm(_abs(K) if absK is None else absK, np.ones(K.shape[1])))) if K.shape[0] else 0.0
     zero = np.abs(lam) <= ZERO_RTOL * abs(shift)
     den = np.where(zero, knorm * np.linalg.norm(X, axis=0), kx)
     return rn / np.maximum(den, np.finfo(float).tiny)
@@ -70,14 +71,14 @@ def residual_floor(K, X: np.ndarray, *, KX=None, absK=None) -> np.ndarray:
     ``KX`` (= K X) and ``absK`` (|K|) are optional, to reuse."""
     K = sp.csr_matrix(K)
     eps = np.finfo(float).eps * np.sqrt(int(np.max(np.diff(K.indptr))) if K.shape[0] else 0)
-    num = (_abs(K) if absK is None else absK) @ np.abs(X)
-    den = K @ X if KX is None else KX
+    num = spmm(_abs(K) if absK is None else absK, np.abs(X))
+    den = spmm(K, X) if KX is None else KX
     return eps * np.linalg.norm(num, axis=0) / np.maximum(np.linalg.norm(den, axis=0), np.finfo(float).tiny)
 
 
 def _pair_numbers(K, M, X, lam, shift, absK):
     """(residuals, roundoff floors, M X) of M-normalised pairs, with one product by K and one by M."""
-    KX, MX = K @ X, M @ X
+    KX, MX = spmm(K, X), spmm(M, X)
     res = residuals(K, M, X, lam, shift=shift, KX=KX, MX=MX, absK=absK)
     return res, residual_floor(K, X, KX=KX, absK=absK), MX
 
@@ -101,8 +102,12 @@ def _backward_error(A, solve) -> float:
     rng = np.random.default_rng(0)
     b = rng.standard_normal(A.shape[0])
     x = solve(b)
-    anorm = float(abs(A).sum(axis=1).max())
-    return float(np.linalg.norm(A @ x - b, np.inf) / (anorm * np.linalg.norm(x, np.inf) + np.linalg.norm(b, np.inf)))
+    if getattr(A, "format", None) == "csr":  # ||A||_inf without a copy of A (reduceat over the non-empty rows)
+        starts = A.indptr[:-1][np.diff(A.indptr) > 0]
+        anorm = float(np.max(np.add.reduceat(np.abs(A.data), starts))) if len(starts) else 0.0
+    else:
+        anorm = float(abs(A).sum(axis=1).max())
+    return float(np.linalg.norm(spmm(A, x) - b, np.inf) / (anorm * np.linalg.norm(x, np.inf) + np.linalg.norm(b, np.inf)))
 
 
 def _inertia_superlu(A) -> int | None:
@@ -181,12 +186,14 @@ def _rayleigh_ritz(K, M, Y: np.ndarray):
     """Rayleigh-Ritz on span(Y): ascending Ritz values and M-orthonormal Ritz vectors."""
     from scipy.linalg import eigh
 
-    mn = np.einsum("ij,ij->j", Y, M @ Y)
+    MY = spmm(M, Y)  # the one product by M (scaling Y's columns scales M Y's alike)
+    mn = np.einsum("ij,ij->j", Y, MY)
     if not np.all(mn > 0):
         raise SolverError("the mass matrix is not positive definite on the computed eigenvectors")
-    Y = Y / np.sqrt(mn)  # equal column scales keep Mr well conditioned
-    Kr = Y.T @ (K @ Y)
-    Mr = Y.T @ (M @ Y)
+    scale = np.sqrt(mn)  # equal column scales keep Mr well conditioned
+    Y = Y / scale
+    Kr = Y.T @ spmm(K, Y)
+    Mr = Y.T @ (MY / scale)
     try:
         # M-orthonormalise first (the block may be nearly dependent), then a standard eigenproblem
         sm, U = np.linalg.eigh(0.5 * (Mr + Mr.T))
@@ -195,8 +202,9 @@ def _rayleigh_ritz(K, M, Y: np.ndarray):
         lam, Q = eigh(T.T @ (0.5 * (Kr + Kr.T)) @ T)
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise SolverError(f"Rayleigh-Ritz on the computed eigenvectors failed: {exc}") from None
-    X = Y @ (T @ Q)
-    X /= np.sqrt(np.einsum("ij,ij->j", X, M @ X))
+    C = T @ Q
+    X = Y @ C
+    X /= np.sqrt(np.einsum("ij,ij->j", C, Mr @ C))  # x^T M x = c^T (Y^T M Y) c: no product by M
     return lam, X
 
 
