@@ -7,7 +7,6 @@ import warnings
 
 import numpy as np
 
-from modalfem.collision._impulse_kernels import pair_impulses
 from modalfem.collision._system import PairStore
 from modalfem.collision.ccd import MAX_INTERVALS
 from modalfem.collision.obstacles import Plane
@@ -239,9 +238,8 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             # Jacobi passes: each pair's wanted change is averaged with the others at its vertices, so one
             # pass leaves pairs in multi-pair contact still approaching; repeated passes approach
             # satisfying them all (as Bridson et al.'s pair-by-pair impulses do)
-            args = (invm, np.ascontiguousarray(quads, dtype=np.int64), w, nrm, tv, float(cfg.friction))
             for _ in range(int(cfg.repulsion_iterations)):
-                dV, active = pair_impulses(V, *args)
+                dV, active = apply_pair_impulses(V, invm, quads, w, nrm, tv, friction=cfg.friction)
                 V = V + dV
                 if not active:
                     break
