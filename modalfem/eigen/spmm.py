@@ -46,6 +46,7 @@ def _funcs():
             if lib is None:
                 raise AttributeError("no MKL")
             create, mm, destroy = lib.mkl_sparse_d_create_csr, lib.mkl_sparse_d_mm, lib.mkl_sparse_destroy
+            set_threads = lib.MKL_Set_Num_Threads_Local
         except AttributeError:
             _FUNCS = False
             return _FUNCS
@@ -54,7 +55,7 @@ def _funcs():
         create.argtypes = [ctypes.POINTER(vp), ctypes.c_int, i32, i32, vp, vp, vp, vp]
         mm.argtypes = [ctypes.c_int, ctypes.c_double, vp, _Descr, ctypes.c_int, vp, i32, i32, ctypes.c_double, vp, i32]
         destroy.argtypes = [vp]
-        _FUNCS = (create, mm, destroy, lib.MKL_Set_Num_Threads_Local)
+        _FUNCS = (create, mm, destroy, set_threads)
     return _FUNCS
 
 
