@@ -21,77 +21,88 @@ __all__ = ["ccd_batch", "ccd_candidates"]
 ROUNDING = 1e-12
 
 
-@numba.njit(cache=True)
-def _bernstein(vf: bool, t0: np.ndarray, td: np.ndarray, coef: np.ndarray) -> None:
-    """Bernstein coefficients ``coef`` (4,) on [0, 1] of ``f(s) = det[e1(s), e2(s), e3(s)]`` (vertex-face
-    det[b - a, c - a, p - a], edge-edge det[a1 - a0, b1 - b0, b0 - a0]) from the positions ``t0`` and
-    displacements ``td`` (4, 3) [m], by expanding ``(A0 + s dA) x (B0 + s dB) . (C0 + s dC)``."""
-    if vf:
-        i, j, k, m, u, w = 2, 1, 3, 1, 0, 1
-    else:
-        i, j, k, m, u, w = 1, 0, 3, 2, 2, 0
-    a0, a1, a2 = t0[i, 0] - t0[j, 0], t0[i, 1] - t0[j, 1], t0[i, 2] - t0[j, 2]
-    b0, b1, b2 = t0[k, 0] - t0[m, 0], t0[k, 1] - t0[m, 1], t0[k, 2] - t0[m, 2]
-    g0, g1, g2 = t0[u, 0] - t0[w, 0], t0[u, 1] - t0[w, 1], t0[u, 2] - t0[w, 2]
-    p0, p1, p2 = td[i, 0] - td[j, 0], td[i, 1] - td[j, 1], td[i, 2] - td[j, 2]
-    q0, q1, q2 = td[k, 0] - td[m, 0], td[k, 1] - td[m, 1], td[k, 2] - td[m, 2]
-    h0, h1, h2 = td[u, 0] - td[w, 0], td[u, 1] - td[w, 1], td[u, 2] - td[w, 2]
+@numba.njit(cache=True, inline="always")
+def _prologue(vf: bool, X0: np.ndarray, X1: np.ndarray, c0: int, c1: int, c2: int, c3: int, eta: float) -> tuple:
+    """The depth-0 quantities of one query, vertices ``c0..c3`` of ``X0``/``X1`` (start/end (N, 3) [m]),
+    in scalars (the common case, no sign change of the coplanarity function on [0, 1], ends here).
+
+    Positions are taken relative to the query's first start vertex, displacements ``d = x1 - x0``.
+    ``f(s) = det[e1(s), e2(s), e3(s)]`` (vertex-face det[b - a, c - a, p - a], edge-edge
+    det[a1 - a0, b1 - b0, b0 - a0]) is expanded from ``(A0 + s dA) x (B0 + s dB) . (C0 + s dC)`` into its
+    Bernstein coefficients on [0, 1].
+
+    Returns:
+        ``(b0, b1, b2, b3, eps, delta, scale)``: the coefficients, the threshold ``eps`` beyond which a
+        control value proves no contact, ``delta = eta + rounding`` [m] and the coordinate scale [m].
+    """
+    ox, oy, oz = X0[c0, 0], X0[c0, 1], X0[c0, 2]
+    t10, t11, t12 = X0[c1, 0] - ox, X0[c1, 1] - oy, X0[c1, 2] - oz
+    t20, t21, t22 = X0[c2, 0] - ox, X0[c2, 1] - oy, X0[c2, 2] - oz
+    t30, t31, t32 = X0[c3, 0] - ox, X0[c3, 1] - oy, X0[c3, 2] - oz
+    d00, d01, d02 = X1[c0, 0] - ox, X1[c0, 1] - oy, X1[c0, 2] - oz
+    d10, d11, d12 = X1[c1, 0] - X0[c1, 0], X1[c1, 1] - X0[c1, 1], X1[c1, 2] - X0[c1, 2]
+    d20, d21, d22 = X1[c2, 0] - X0[c2, 0], X1[c2, 1] - X0[c2, 1], X1[c2, 2] - X0[c2, 2]
+    d30, d31, d32 = X1[c3, 0] - X0[c3, 0], X1[c3, 1] - X0[c3, 1], X1[c3, 2] - X0[c3, 2]
+    scale = max(abs(d00), abs(d01), abs(d02), abs(t10), abs(t11), abs(t12), abs(t20), abs(t21), abs(t22),
+                abs(t30), abs(t31), abs(t32), abs(t10 + d10), abs(t11 + d11), abs(t12 + d12), abs(t20 + d20),
+                abs(t21 + d21), abs(t22 + d22), abs(t30 + d30), abs(t31 + d31), abs(t32 + d32)) + 1e-300
+    delta = eta + ROUNDING * scale
+    if vf:  # e1 = b - a, e2 = c - a, e3 = p - a with (p, a, b, c) = vertices 0..3
+        a0, a1, a2, p0, p1, p2 = t20 - t10, t21 - t11, t22 - t12, d20 - d10, d21 - d11, d22 - d12
+        b0, b1, b2, q0, q1, q2 = t30 - t10, t31 - t11, t32 - t12, d30 - d10, d31 - d11, d32 - d12
+        g0, g1, g2, h0, h1, h2 = -t10, -t11, -t12, d00 - d10, d01 - d11, d02 - d12
+    else:  # e1 = a1 - a0, e2 = b1 - b0, e3 = b0 - a0 with (a0, a1, b0, b1) = vertices 0..3
+        a0, a1, a2, p0, p1, p2 = t10, t11, t12, d10 - d00, d11 - d01, d12 - d02
+        b0, b1, b2, q0, q1, q2 = t30 - t20, t31 - t21, t32 - t22, d30 - d20, d31 - d21, d32 - d22
+        g0, g1, g2, h0, h1, h2 = t20, t21, t22, d20 - d00, d21 - d01, d22 - d02
+    # |f| = |e1 x e2| * (distance of the point to the plane, or between the lines) <= |e1| |e2| dist; |e(s)|
+    # is convex along the straight-line motion, so its largest value on [0, 1] is at an end
+    s10 = a0 * a0 + a1 * a1 + a2 * a2
+    s11 = (a0 + p0) * (a0 + p0) + (a1 + p1) * (a1 + p1) + (a2 + p2) * (a2 + p2)
+    s20 = b0 * b0 + b1 * b1 + b2 * b2
+    s21 = (b0 + q0) * (b0 + q0) + (b1 + q1) * (b1 + q1) + (b2 + q2) * (b2 + q2)
+    eps = delta * (math.sqrt(max(s10, s11)) * math.sqrt(max(s20, s21)) * (1.0 + 1e-9)) + ROUNDING * 27.0 * scale ** 3
     # cross(A, B) = c0 + s c1 + s^2 c2
-    c00, c01, c02 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
-    c10 = a1 * q2 - a2 * q1 + p1 * b2 - p2 * b1
-    c11 = a2 * q0 - a0 * q2 + p2 * b0 - p0 * b2
-    c12 = a0 * q1 - a1 * q0 + p0 * b1 - p1 * b0
-    c20, c21, c22 = p1 * q2 - p2 * q1, p2 * q0 - p0 * q2, p0 * q1 - p1 * q0
-    f0 = c00 * g0 + c01 * g1 + c02 * g2
-    f1 = c00 * h0 + c01 * h1 + c02 * h2 + c10 * g0 + c11 * g1 + c12 * g2
-    f2 = c10 * h0 + c11 * h1 + c12 * h2 + c20 * g0 + c21 * g1 + c22 * g2
-    f3 = c20 * h0 + c21 * h1 + c22 * h2
-    coef[0] = f0
-    coef[1] = f0 + f1 / 3.0
-    coef[2] = f0 + (2.0 * f1 + f2) / 3.0
-    coef[3] = f0 + f1 + f2 + f3
+    x00, x01, x02 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    x10 = a1 * q2 - a2 * q1 + p1 * b2 - p2 * b1
+    x11 = a2 * q0 - a0 * q2 + p2 * b0 - p0 * b2
+    x12 = a0 * q1 - a1 * q0 + p0 * b1 - p1 * b0
+    x20, x21, x22 = p1 * q2 - p2 * q1, p2 * q0 - p0 * q2, p0 * q1 - p1 * q0
+    f0 = x00 * g0 + x01 * g1 + x02 * g2
+    f1 = x00 * h0 + x01 * h1 + x02 * h2 + x10 * g0 + x11 * g1 + x12 * g2
+    f2 = x10 * h0 + x11 * h1 + x12 * h2 + x20 * g0 + x21 * g1 + x22 * g2
+    f3 = x20 * h0 + x21 * h1 + x22 * h2
+    return f0, f0 + f1 / 3.0, f0 + (2.0 * f1 + f2) / 3.0, f0 + f1 + f2 + f3, eps, delta, scale
+
+
+@numba.njit(cache=True, inline="always")
+def _separated(vf: bool, X0: np.ndarray, X1: np.ndarray, c0: int, c1: int, c2: int, c3: int, eta: float) -> bool:
+    """The common case, decided without :func:`_query`'s scratch arrays: the coplanarity function's control
+    values on [0, 1] share a sign beyond ``eps`` (no coplanarity, no contact; ``_query`` would return inf)."""
+    b0, b1, b2, b3, eps, _, _ = _prologue(vf, X0, X1, c0, c1, c2, c3, eta)
+    return min(min(b0, b1), min(b2, b3)) > eps or max(max(b0, b1), max(b2, b3)) < -eps
 
 
 @numba.njit(cache=True)
-def _query(vf: bool, x0: np.ndarray, x1: np.ndarray, eta: float, max_depth: int, max_intervals: int,
-           t0: np.ndarray, td: np.ndarray, x: np.ndarray, coef: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-           nlo: np.ndarray, nhi: np.ndarray) -> float:
-    """Time of impact in [0, 1] of one query (start ``x0``, end ``x1`` (4, 3) [m]), inf if none; the
-    remaining arrays are scratch space (``lo``..``nhi`` of length >= 2 ``max_intervals``)."""
-    scale = 0.0
+def _query(vf: bool, X0: np.ndarray, X1: np.ndarray, c0: int, c1: int, c2: int, c3: int, eta: float,
+           max_depth: int, max_intervals: int, t0: np.ndarray, td: np.ndarray, x: np.ndarray, coef: np.ndarray,
+           lo: np.ndarray, hi: np.ndarray, nlo: np.ndarray, nhi: np.ndarray) -> float:
+    """Time of impact in [0, 1] of one query (vertices ``c0..c3`` of the start/end positions ``X0``/``X1``
+    (N, 3) [m]), inf if none; the remaining arrays are scratch space (``lo``..``nhi`` of length >= 2
+    ``max_intervals``)."""
+    b0, b1, b2, b3, eps, delta, scale = _prologue(vf, X0, X1, c0, c1, c2, c3, eta)
+    coef[0], coef[1], coef[2], coef[3] = b0, b1, b2, b3
+    ids = (c0, c1, c2, c3)
     for v in range(4):
         for c in range(3):
-            td[v, c] = x1[v, c] - x0[v, c]
-    for v in range(4):
-        for c in range(3):
-            t0[v, c] = x0[v, c] - x0[0, c]
-    for v in range(4):
-        for c in range(3):
-            scale = max(scale, abs(t0[v, c]), abs(t0[v, c] + td[v, c]))
-    scale += 1e-300
+            t0[v, c] = X0[ids[v], c] - X0[c0, c]
+            td[v, c] = X1[ids[v], c] - X0[ids[v], c]
     d0 = math.sqrt(td[0, 0] ** 2 + td[0, 1] ** 2 + td[0, 2] ** 2)
     d1 = math.sqrt(td[1, 0] ** 2 + td[1, 1] ** 2 + td[1, 2] ** 2)
     d2 = math.sqrt(td[2, 0] ** 2 + td[2, 1] ** 2 + td[2, 2] ** 2)
     d3 = math.sqrt(td[3, 0] ** 2 + td[3, 1] ** 2 + td[3, 2] ** 2)
     lip = d0 + max(d1, d2, d3) if vf else max(d0, d1) + max(d2, d3)
     lip = lip * (1.0 + 1e-9) + ROUNDING * scale
-    delta = eta + ROUNDING * scale
-    # |f| = |e1 x e2| * (distance of the point to the plane, or between the lines) <= |e1| |e2| dist; |e(s)|
-    # is convex along the straight-line motion, so its largest value on [0, 1] is at an end
-    i, j, u, w = (2, 1, 3, 1) if vf else (1, 0, 3, 2)
-    s10 = s11 = s20 = s21 = 0.0
-    for c in range(3):
-        e1 = t0[i, c] - t0[j, c]
-        e2 = t0[u, c] - t0[w, c]
-        d1 = e1 + td[i, c] - td[j, c]
-        d2 = e2 + td[u, c] - td[w, c]
-        s10 += e1 * e1
-        s11 += d1 * d1
-        s20 += e2 * e2
-        s21 += d2 * d2
-    len1, len2 = math.sqrt(max(s10, s11)), math.sqrt(max(s20, s21))
-    eps = delta * (len1 * len2 * (1.0 + 1e-9)) + ROUNDING * 27.0 * scale ** 3
-    _bernstein(vf, t0, td, coef)
     lo[0], hi[0] = 0.0, 1.0
     count = 1
     toi = math.inf
@@ -153,7 +164,11 @@ def ccd_batch(vf: bool, x0: np.ndarray, x1: np.ndarray, eta: float, max_depth: i
     n = 2 * max_intervals + 2
     lo, hi, nlo, nhi = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     for q in range(k):
-        toi[q] = _query(vf, x0[q], x1[q], eta, max_depth, max_intervals, t0, td, x, coef, lo, hi, nlo, nhi)
+        if _separated(vf, x0[q], x1[q], 0, 1, 2, 3, eta):
+            toi[q] = math.inf
+        else:
+            toi[q] = _query(vf, x0[q], x1[q], 0, 1, 2, 3, eta, max_depth, max_intervals, t0, td, x, coef, lo, hi, nlo,
+                            nhi)
     return toi
 
 
@@ -173,36 +188,33 @@ def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, 
     idx = np.empty(k, dtype=np.int64)
     tois = np.empty(k)
     n = 0
-    a0, a1 = np.empty((4, 3)), np.empty((4, 3))
     t0, td, x = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
     coef = np.empty(4)
     m = 2 * max_intervals + 2
     lo, hi, nlo, nhi = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
-    first = 1 if vf else 2  # the first primitive: vertex 0 (vf) or vertices 0, 1 (ee)
     for q in range(k):
         c0, c1, c2, c3 = quads[q, 0], quads[q, 1], quads[q, 2], quads[q, 3]
         if not (movable[c0] or movable[c1] or movable[c2] or movable[c3]):
             continue
         if zones and roots[c1] == roots[c0] and roots[c2] == roots[c0] and roots[c3] == roots[c0]:
             continue
-        for v in range(4):
-            for c in range(3):
-                a0[v, c] = X0[quads[q, v], c]
-                a1[v, c] = X1[quads[q, v], c]
         near = True
         for c in range(3):
-            alo, ahi = math.inf, -math.inf
-            blo, bhi = math.inf, -math.inf
-            for v in range(4):
-                vlo, vhi = min(a0[v, c], a1[v, c]), max(a0[v, c], a1[v, c])
-                if v < first:
-                    alo, ahi = min(alo, vlo), max(ahi, vhi)
-                else:
-                    blo, bhi = min(blo, vlo), max(bhi, vhi)
+            # trajectory boxes of the first primitive (vertex c0, or edge c0 c1) and of the second
+            alo = min(X0[c0, c], X1[c0, c])
+            ahi = max(X0[c0, c], X1[c0, c])
+            blo = min(X0[c2, c], X1[c2, c], X0[c3, c], X1[c3, c])
+            bhi = max(X0[c2, c], X1[c2, c], X0[c3, c], X1[c3, c])
+            if vf:
+                blo, bhi = min(blo, X0[c1, c], X1[c1, c]), max(bhi, X0[c1, c], X1[c1, c])
+            else:
+                alo, ahi = min(alo, X0[c1, c], X1[c1, c]), max(ahi, X0[c1, c], X1[c1, c])
             near = near and alo <= bhi + eta and blo <= ahi + eta
         if not near:
             continue
-        toi = _query(vf, a0, a1, eta, max_depth, max_intervals, t0, td, x, coef, lo, hi, nlo, nhi)
+        if _separated(vf, X0, X1, c0, c1, c2, c3, eta):
+            continue
+        toi = _query(vf, X0, X1, c0, c1, c2, c3, eta, max_depth, max_intervals, t0, td, x, coef, lo, hi, nlo, nhi)
         if toi <= 1.0:
             idx[n], tois[n] = q, toi
             n += 1
