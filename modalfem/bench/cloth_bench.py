@@ -9,7 +9,10 @@ independent check (``modalfem.cloth.scenes.intersections``) every ``--check-ever
 A second table compares the two linear solvers (block-Jacobi-CG and SuperLU) on the implicit step
 alone (the twist scene without collisions). ``--scenes`` and ``--no-solvers`` select what runs.
 
-The child is ``python -m modalfem.bench.cloth_bench --case drape --n 32 --steps 40 --json-out r.json``.
+Each case runs the scene's own length (``Setup.steps``: drape 100 steps, pile 80, i.e. 1 s and 0.8 s at
+dt = 10 ms; the 128x128 cases half of it), so the pile's settled, many-layer phase is in the average;
+the column "ms/step 2nd half" is that phase alone. The child is
+``python -m modalfem.bench.cloth_bench --case drape --n 32 --json-out r.json`` (``--steps`` to override).
 """
 
 from __future__ import annotations
@@ -34,14 +37,17 @@ STAGES = ("implicit", "broad_phase", "repulsion", "ccd", "impact_zones", "smooth
 _ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
 
 
-def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_solver: str = "cg",
+def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 10, linear_solver: str = "cg",
              collisions: bool = True) -> dict:
-    """Step one scene in this process; returns the per-step averages (see module docstring)."""
+    """Step one scene in this process (``steps`` None: the scene's own length, ``Setup.steps``); returns the
+    per-step averages (see module docstring), ``late_ms_per_step`` over the second half of the steps."""
     import dataclasses
 
     from modalfem.cloth import scenes
 
     setup = scenes.SCENES[case](n, collisions=collisions)
+    steps = setup.steps if steps is None else int(steps)
+    late = late_timed = 0.0
     sc = setup.scene
     sc.solver.linear_solver = linear_solver
     sums = dict.fromkeys(STAGES, 0.0)
@@ -65,6 +71,9 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
             timed += 1
             total += st.seconds["total"]
             cpu += c1 - c0
+            if 2 * k >= steps:
+                late += st.seconds["total"]
+                late_timed += 1
         if not probe:
             sums["implicit"] += st.seconds["forces"] + st.seconds["implicit"]
             sums["smoothing"] += st.seconds["smoothing"]
@@ -82,7 +91,7 @@ def run_case(case: str, n: int, steps: int, *, check_every: int = 10, linear_sol
                 intersections += scenes.intersections(setup)
     return {
         "case": case, "n": n, "steps": steps, "ms_per_step": 1e3 * total / max(timed, 1),
-        "cpu_ms_per_step": 1e3 * cpu / max(timed, 1),
+        "cpu_ms_per_step": 1e3 * cpu / max(timed, 1), "late_ms_per_step": 1e3 * late / max(late_timed, 1),
         "shares": {k: v / total for k, v in sums.items()},
         "pair_tests_unculled": unculled / max(measured, 1), "pair_tests": culled / max(measured, 1),
         "zones_per_step": zones / steps, "zone_steps": zone_steps, "max_zone": max_zone,
@@ -94,7 +103,7 @@ def _child(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="python -m modalfem.bench.cloth_bench")
     ap.add_argument("--case", required=True)
     ap.add_argument("--n", type=int, required=True)
-    ap.add_argument("--steps", type=int, required=True)
+    ap.add_argument("--steps", type=int, default=None, help="default: the scene's own length")
     ap.add_argument("--linear-solver", default="cg")
     ap.add_argument("--no-collisions", action="store_true")
     ap.add_argument("--json-out", required=True)
@@ -138,19 +147,21 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
           "the final pipeline call; intersections = intersecting pairs found by the independent check "
           "every 10 steps and at the end; CG its = conjugate-gradient iterations of the implicit solve per "
           "step, smoothing CG its = those of the smoothing solve (multilevel-preconditioned CG, numba)."), "",
-         "| scene | vertices | steps | ms/step | steps/s | CPU ms/step | " + " | ".join(f"{s} %" for s in STAGES)
+         "| scene | vertices | steps | ms/step | steps/s | CPU ms/step | ms/step 2nd half | "
+         + " | ".join(f"{s} %" for s in STAGES)
          + " | pair tests unculled | pair tests culled | culled % | zones/step | max zone | CG its | smoothing CG its"
          " | intersections |",
-         "|---" * (16 + len(STAGES) - 2) + "|"]
+         "|---" * (17 + len(STAGES) - 2) + "|"]
     for r in results:
         if "error" in r or "ms_per_step" not in r:
             msg = r.get("error", "timeout")
-            L.append(f"| {r['case']} | {r['n']}x{r['n']} | - | {msg} |" + " |" * (10 + len(STAGES)))
+            L.append(f"| {r['case']} | {r['n']}x{r['n']} | - | {msg} |" + " |" * (11 + len(STAGES)))
             continue
         sh = " | ".join(f"{100 * r['shares'][s]:.0f}" for s in STAGES)
         cut = 100 * (1 - r["pair_tests"] / r["pair_tests_unculled"]) if r["pair_tests_unculled"] else 0.0
         L.append(f"| {r['case']} | {r['n']}x{r['n']} | {r['steps']} | {r['ms_per_step']:.0f} | "
-                 f"{1e3 / r['ms_per_step']:.2f} | {r.get('cpu_ms_per_step', float('nan')):.0f} | {sh} | {r['pair_tests_unculled']:.0f} | {r['pair_tests']:.0f} | "
+                 f"{1e3 / r['ms_per_step']:.2f} | {r.get('cpu_ms_per_step', float('nan')):.0f} | "
+                 f"{r.get('late_ms_per_step', float('nan')):.0f} | {sh} | {r['pair_tests_unculled']:.0f} | {r['pair_tests']:.0f} | "
                  f"{cut:.0f} | {r['zones_per_step']:.2f} | {r['max_zone']} | {r['cg_iterations']:.0f} | "
                  f"{r.get('smooth_cg_iterations', float('nan')):.0f} | "
                  f"{r['intersections']} |")
@@ -183,7 +194,8 @@ def command(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="modalfem bench cloth")
     ap.add_argument("--out", default="BENCHMARKS.md")
     ap.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
-    ap.add_argument("--steps", type=int, default=40, help="steps per case (the 128 case runs half)")
+    ap.add_argument("--steps", type=int, default=None,
+                    help="steps per case (default: each scene's own length, drape 100, pile 80; the 128 case runs half)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="per case [s]")
     ap.add_argument("--scenes", nargs="+", choices=("drape", "pile"), default=["drape", "pile"],
                     help="scenes to run (default: both)")
@@ -193,9 +205,12 @@ def command(argv: list[str]) -> int:
     sizes, steps = ([8], 10) if a.quick else (a.sizes, a.steps)
     t0 = time.perf_counter()
     results, solvers = [], []
+    from modalfem.cloth import scenes
+
     for case in a.scenes:
+        full = steps if steps is not None else scenes.SCENES[case](8).steps
         for n in sizes:
-            k = steps if n <= 64 else max(2, steps // 2)
+            k = full if n <= 64 else max(2, full // 2)
             print(f"cloth bench: {case} {n}x{n}, {k} steps", file=sys.stderr, flush=True)
             r = _spawn(["--case", case, "--n", str(n), "--steps", str(k)], a.timeout)
             results.append({"case": case, "n": n, **(r or {})})

@@ -21,6 +21,7 @@ def test_quick_bench_writes_its_section(tmp_path):
         assert float(cells[3]) > 0  # ms/step
         assert cells[-1] == "0"  # intersections
         assert float(cells[names.index("smoothing CG its")]) >= 0
+        assert float(cells[names.index("ms/step 2nd half")]) > 0
     assert "multilevel-CG" in text
 
 
@@ -45,3 +46,11 @@ def test_scene_selection_and_no_solver_table(tmp_path):
     cells = dict(zip((c.strip() for c in head.strip("|").split("|")), (c.strip() for c in rows[0].strip("|").split("|"))))
     assert float(cells["CPU ms/step"]) > 0
     assert "Jacobi-CG" not in text
+
+
+def test_a_case_runs_the_scenes_own_length_by_default():
+    from modalfem.cloth import scenes
+
+    r = cloth_bench.run_case("pile", 6, check_every=1000)
+    assert r["steps"] == scenes.pile(6).steps > 40  # the whole fall and settling, not a prefix
+    assert r["late_ms_per_step"] > 0 and r["intersections"] == 0
