@@ -27,7 +27,7 @@ PIPELINE_DEPTH = 20
 #: whose trajectory moves by up to about ``SLACK * thickness`` keeps its pairs (larger: fewer
 #: re-searches, more candidates)
 SLACK = 0.1
-#: fraction of dirty cloth vertices above which the candidate pairs are searched afresh (with culling)
+#: fraction of dirty cloth vertices above which the candidate pairs are searched afresh
 FRESH_SEARCH = 0.2
 
 
@@ -166,10 +166,11 @@ def resolve(system, cfg, x0, v, masses, dt, t):
     V = np.concatenate([v, (Xo1 - Xo0) / dt])
     invm = np.concatenate([1.0 / masses, np.zeros(len(Xo0))])
     eta = cfg.eta
-    # spare box margin [m] of the candidate pairs. With culling a vertex whose end position moves by more
-    # than eta is dirty anyway (the normal cones that culled its pairs were for the old trajectory), so a
-    # wider margin would only add candidates
-    culls = cfg.culling and cfg.self_collision
+    # spare box margin [m] of the candidate pairs. With swept culling a vertex whose end position moves by
+    # more than eta is dirty anyway (the normal cones that culled its pairs were for the old trajectory), so
+    # a wider margin would only add candidates
+    swept_culling = cfg.culling and cfg.swept_culling
+    culls = swept_culling and cfg.self_collision
     slack = eta if culls else max(eta, SLACK * cfg.thickness)
     margin = 0.5 * eta + 2 * slack
     cache = _step_cache(system, cfg, X0, dt, t)
@@ -181,12 +182,12 @@ def resolve(system, cfg, x0, v, masses, dt, t):
         whose trajectory grown by eta / 2 leaves that box is dirty, and only the pairs holding a dirty
         vertex are searched again (for the dirty triangles only); the others stay valid. When more than
         ``FRESH_SEARCH`` of the cloth vertices are dirty (typically the call after smoothing) all pairs are
-        searched afresh instead, with culling, as at the step's first call."""
+        searched afresh instead, as at the step's first call."""
         t0 = time.perf_counter()
         if cache["cand"] is None:
-            measured = cfg.measure_culling or not cfg.culling
+            measured = cfg.measure_culling or not swept_culling
             X1 = X0 + dt * V
-            c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=cfg.culling,
+            c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=swept_culling,
                                   count_unculled=cfg.measure_culling)
             stats.pair_tests += c.tests
             if measured:
@@ -197,7 +198,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             cache["lo"], cache["hi"] = system.vertex_boxes(X0, X1, margin)
         else:
             # dirty: the trajectory grown by eta / 2 leaves the box its pairs were found with, or (with
-            # culling: the normal cones that culled pairs were for the old trajectories) the end
+            # swept culling: the normal cones that culled pairs were for the old trajectories) the end
             # position moved by more than eta
             X1 = X0 + dt * V
             lo, hi = cache["lo"], cache["hi"]
@@ -205,9 +206,9 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             if culls:
                 dirty |= dt * np.abs(V - cache["V"]).max(axis=1) > eta
             if dirty[:n].mean() > FRESH_SEARCH:
-                # most vertices dirty (the call after smoothing): one full search with culling, as at the
-                # step's first call, finds fewer pairs than the unculled dirty search in about its time
-                c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=cfg.culling)
+                # most vertices dirty (the call after smoothing): one full search, as at the step's first
+                # call, shares the descent that the dirty search would repeat per dirty triangle
+                c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=swept_culling)
                 cache["store"], cache["V"] = PairStore(c), V.copy()
                 cache["lo"], cache["hi"] = system.vertex_boxes(X0, X1, margin)
             elif dirty.any():

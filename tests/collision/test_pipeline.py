@@ -84,12 +84,20 @@ def test_stages_off_leave_velocities_and_report_unresolved():
 
 
 def test_culling_statistics_on_a_draped_sheet():
+    """A flat sheet cannot touch itself: culling removes every test of the traversals it runs in, the
+    proximity search by default (its unculled tests: the swept search's plus the proximity search's),
+    both with ``swept_culling``."""
     x0, tri = grid(10, 10)
     v = np.zeros_like(x0)
     v[:, 2] = -1.0
-    cfg = CollisionConfig(thickness=0.005, measure_culling=True)
-    _, st = CollisionPipeline(tri, config=cfg).resolve(x0, v, np.ones(len(x0)), DT)
+    both = CollisionConfig(thickness=0.005, measure_culling=True, swept_culling=True)
+    _, st = CollisionPipeline(tri, config=both).resolve(x0, v, np.ones(len(x0)), DT)
     assert st.pair_tests == 0 < st.pair_tests_unculled and st.culled_fraction == 1.0
+    default = CollisionConfig(thickness=0.005, measure_culling=True)
+    _, st2 = CollisionPipeline(tri, config=default).resolve(x0, v, np.ones(len(x0)), DT)
+    assert st2.pair_tests_unculled == st.pair_tests_unculled
+    assert 0 < st2.pair_tests < st2.pair_tests_unculled  # the swept traversal's tests, unculled
+    assert st2.candidates_vf + st2.candidates_ee > 0 == st.candidates_vf + st.candidates_ee
 
 
 @pytest.mark.parametrize(
@@ -207,15 +215,15 @@ def test_bad_input_is_a_clear_error():
         pipe.resolve(x0, np.zeros_like(x0), m, DT)
 
 
-@pytest.mark.parametrize("seed", range(2))
-def test_folded_sheet_with_culling_ends_collision_free(seed):
+@pytest.mark.parametrize("seed, swept_culling", [(0, False), (1, False), (0, True), (1, True)])
+def test_folded_sheet_with_culling_ends_collision_free(seed, swept_culling):
     x0, tri, rest = _meshes.folded_sheet(4, gap=0.05)
     assert len(intersecting_pairs(x0, tri)) == 0
     rng = np.random.default_rng(seed)
     v = rng.normal(scale=3.0, size=x0.shape)
     v[:, 2] -= np.where(x0[:, 2] > 0.04, 8.0, 0.0)  # the upper half is thrown through the lower
     assert _crossings(x0, x0 + DT * v, tri) > 0
-    cfg = CollisionConfig(thickness=0.004, measure_culling=True)
+    cfg = CollisionConfig(thickness=0.004, measure_culling=True, swept_culling=swept_culling)
     pipe = CollisionPipeline(tri, config=cfg, reference_positions=rest)
     v_new, st = pipe.resolve(x0, v, np.ones(len(x0)), DT)
     assert st.unresolved == 0 and st.pair_tests <= st.pair_tests_unculled
@@ -244,16 +252,17 @@ def test_obstacle_and_option_validation():
 
 
 @pytest.mark.parametrize("fresh", [0.0, 1.0])
-def test_second_call_with_new_velocities_reuses_the_step_and_ends_collision_free(fresh, monkeypatch):
+@pytest.mark.parametrize("swept_culling", [False, True])
+def test_second_call_with_new_velocities_reuses_the_step_and_ends_collision_free(fresh, swept_culling, monkeypatch):
     """The call after smoothing (same start, other velocities) re-uses the step's candidate pairs: with
-    most vertices dirty it searches afresh with culling (fresh = 0: always), else only the dirty
+    most vertices dirty it searches afresh (fresh = 0: always), else only the dirty
     vertices (fresh = 1: never); either way its answer has no crossing."""
     from modalfem.collision import _stages
 
     monkeypatch.setattr(_stages, "FRESH_SEARCH", fresh)
     x0, tri, rest = _meshes.folded_sheet(4, gap=0.05)
     rng = np.random.default_rng(7)
-    cfg = CollisionConfig(thickness=0.004)
+    cfg = CollisionConfig(thickness=0.004, swept_culling=swept_culling)
     pipe = CollisionPipeline(tri, config=cfg, reference_positions=rest)
     v = rng.normal(scale=3.0, size=x0.shape)
     v[:, 2] -= np.where(x0[:, 2] > 0.04, 8.0, 0.0)
