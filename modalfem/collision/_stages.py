@@ -14,6 +14,7 @@ from modalfem.collision.repulsion import (
     apply_pair_impulses,
     contact_frames,
     repulsion_pairs,
+    sequential_pair_impulses,
 )
 from modalfem.collision.zones import UnionFind, rigid_zone_velocities
 from modalfem.errors import SimulationError
@@ -236,14 +237,8 @@ def resolve(system, cfg, x0, v, masses, dt, t):
         quads, w, nrm, tv = cache["near"]
         dA, acount = _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n)
         if len(quads):
-            # Jacobi passes: each pair's wanted change is averaged with the others at its vertices, so one
-            # pass leaves pairs in multi-pair contact still approaching; repeated passes approach
-            # satisfying them all (as Bridson et al.'s pair-by-pair impulses do)
-            for _ in range(int(cfg.repulsion_iterations)):
-                dV, active = apply_pair_impulses(V, invm, quads, w, nrm, tv, friction=cfg.friction)
-                V = V + dV
-                if not active:
-                    break
+            V, _, _ = sequential_pair_impulses(V, invm, quads, w, nrm, tv, friction=cfg.friction,
+                                               sweeps=cfg.repulsion_iterations)
         V = V + dA
         stats.proximities = len(quads) + acount
         sec["repulsion"] += time.perf_counter() - t0

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["apply_pair_impulses", "contact_frames", "repulsion_impulses", "repulsion_pairs"]
+__all__ = ["apply_pair_impulses", "contact_frames", "repulsion_impulses", "repulsion_pairs", "sequential_pair_impulses"]
 
 
 def contact_frames(X: np.ndarray, quads: np.ndarray, kind: str, Xref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -98,6 +98,48 @@ def repulsion_pairs(
     return tuple(np.concatenate(a) for a in (quads, ws, ns, ts))
 
 
+def sequential_pair_impulses(
+    V: np.ndarray,
+    invm: np.ndarray,
+    quads: np.ndarray,
+    w: np.ndarray,
+    n: np.ndarray,
+    target_vn: np.ndarray,
+    *,
+    friction: float = 0.0,
+    sweeps: int = 10,
+) -> tuple[np.ndarray, int, int]:
+    """Raise the relative normal velocity of pairs to at least ``target_vn``, pair by pair (Gauss-Seidel).
+
+    Each pair in turn gets the impulse that brings its own relative normal velocity to its target, from
+    the velocities the pairs before it left (Bridson et al.'s pair-wise application); sweeps alternate
+    forwards and backwards and stop after ``sweeps`` or once no pair acts. A vertex between two layers
+    so gets what both of its pairs need, where :func:`apply_pair_impulses` (all pairs against the same
+    velocities, changes averaged per vertex) gives it a share and needs many more passes: on the 64x64
+    pile at step 44 the largest remaining approach is 0.20 m/s after 20 averaged passes and 0.06 m/s
+    after 10 sequential sweeps, which take a quarter of the time.
+
+    Args:
+        V: (N, 3) velocities [m/s] (not modified).
+        invm: (N,) inverse masses [1/kg] (0: kinematic).
+        quads, w, n: pairs, weights and unit normals as from :func:`contact_frames`.
+        target_vn: (k,) wanted relative normal velocity [m/s].
+        friction: Coulomb coefficient [-]: each impulse lowers the tangential relative velocity by at most
+            ``friction`` times its normal change.
+        sweeps: largest number of sweeps (>= 1).
+
+    Returns:
+        ``(V_new, done, active)``: (N, 3) velocities [m/s], the sweeps run, and the pairs that acted in the
+        last sweep (0: all at or above their targets).
+    """
+    from modalfem.collision._impulse_kernels import sequential_impulses
+
+    return sequential_impulses(np.ascontiguousarray(V, dtype=float), np.ascontiguousarray(invm, dtype=float),
+                               np.ascontiguousarray(quads, dtype=np.int64), np.ascontiguousarray(w, dtype=float),
+                               np.ascontiguousarray(n, dtype=float), np.ascontiguousarray(target_vn, dtype=float),
+                               float(friction), int(sweeps))
+
+
 def repulsion_impulses(
     X0: np.ndarray,
     V: np.ndarray,
@@ -108,17 +150,19 @@ def repulsion_impulses(
     thickness: float,
     dt: float,
     friction: float,
+    sweeps: int = 10,
 ) -> tuple[np.ndarray, int]:
     """Stage (a): pairs closer than ``thickness`` at ``X0`` stop approaching and are pushed apart.
 
     The relative normal velocity of a pair at distance ``d < h`` is raised to ``0.1 (h - d) / dt``
     (an inelastic impulse plus a soft repulsion that restores a tenth of the missing thickness per
-    step), with Coulomb friction on the tangential velocity.
+    step), with Coulomb friction on the tangential velocity, pair by pair
+    (:func:`sequential_pair_impulses`, at most ``sweeps`` sweeps; the pipeline's stage (a)).
 
     Args:
         X0: (N, 3) positions [m]; V: (N, 3) velocities [m/s]; invm: (N,) inverse masses [1/kg].
         vf, ee: (k, 4) candidate point-triangle and edge-edge pairs.
-        thickness: ``h`` [m]; dt: step [s]; friction: Coulomb coefficient [-].
+        thickness: ``h`` [m]; dt: step [s]; friction: Coulomb coefficient [-]; sweeps: >= 1.
 
     Returns:
         ``(dV, count)``: (N, 3) velocity change [m/s] and the number of proximities (d < h).
@@ -126,5 +170,5 @@ def repulsion_impulses(
     quads, w, n, tv = repulsion_pairs(X0, vf, ee, thickness=thickness, dt=dt)
     if len(quads) == 0:
         return np.zeros_like(V), 0
-    dV, _ = apply_pair_impulses(V, invm, quads, w, n, tv, friction=friction)
-    return dV, len(quads)
+    V_new, _, _ = sequential_pair_impulses(V, invm, quads, w, n, tv, friction=friction, sweeps=sweeps)
+    return V_new - V, len(quads)
