@@ -45,6 +45,20 @@ def _pair_change(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndarr
     return d0, d1, d2, den
 
 
+@numba.njit(cache=True, inline="always")
+def _scatter(out: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndarray, p: int, d0: float, d1: float,
+             d2: float, den: float) -> None:
+    """Add pair ``p``'s change ``(d0, d1, d2)`` to ``out`` (N, 3) at its movable vertices, each its share
+    ``w_j / m_j / den`` (the impulse that changes the pair's relative velocity by exactly that)."""
+    for j in range(4):
+        i = quads[p, j]
+        if invm[i] > 0.0:
+            c = w[p, j] * invm[i] / den
+            out[i, 0] += c * d0
+            out[i, 1] += c * d1
+            out[i, 2] += c * d2
+
+
 @numba.njit(cache=True)
 def pair_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndarray, n: np.ndarray,
                   target: np.ndarray, friction: float):
@@ -61,14 +75,10 @@ def pair_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndar
         if den == 0.0:
             continue
         active += 1
+        _scatter(dV, invm, quads, w, p, d0, d1, d2, den)
         for j in range(4):
-            i = quads[p, j]
-            if invm[i] > 0.0:
-                c = w[p, j] * invm[i] / den
-                dV[i, 0] += c * d0
-                dV[i, 1] += c * d1
-                dV[i, 2] += c * d2
-                cnt[i] += abs(w[p, j])
+            if invm[quads[p, j]] > 0.0:
+                cnt[quads[p, j]] += abs(w[p, j])
     for i in range(N):
         if cnt[i] > 1.0:
             dV[i, 0] /= cnt[i]
@@ -97,13 +107,7 @@ def sequential_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: n
             if den == 0.0:
                 continue
             active += 1
-            for j in range(4):
-                i = quads[p, j]
-                if invm[i] > 0.0:
-                    c = w[p, j] * invm[i] / den
-                    V[i, 0] += c * d0
-                    V[i, 1] += c * d1
-                    V[i, 2] += c * d2
+            _scatter(V, invm, quads, w, p, d0, d1, d2, den)
         if active == 0:
             break
     return V, done, active
