@@ -7,7 +7,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["drop_pairs", "primitive_pairs", "select_pairs"]
+__all__ = ["drop_indexed", "drop_pairs", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
 
 
 @numba.njit(cache=True)
@@ -120,4 +120,56 @@ def select_pairs(q: np.ndarray, alive: np.ndarray, only: np.ndarray) -> np.ndarr
     for j in range(n):
         for c in range(4):
             out[j, c] = q[keep[j], c]
+    return out
+
+
+@numba.njit(cache=True)
+def vertex_index(q: np.ndarray, N: int):
+    """The pairs of ``q`` (k, 4) holding each vertex 0..N-1: ``(ptr (N + 1,), pid (4k,))``, vertex v's
+    pairs ``pid[ptr[v]:ptr[v + 1]]`` (ascending; a pair twice under a vertex it holds twice never
+    happens: a pair's four vertices are distinct)."""
+    k = len(q)
+    ptr = np.zeros(N + 1, dtype=np.int64)
+    for p in range(k):
+        for j in range(4):
+            ptr[q[p, j] + 1] += 1
+    for v in range(N):
+        ptr[v + 1] += ptr[v]
+    pos = ptr[:-1].copy()
+    pid = np.empty(4 * k, dtype=np.int64)
+    for p in range(k):
+        for j in range(4):
+            v = q[p, j]
+            pid[pos[v]] = p
+            pos[v] += 1
+    return ptr, pid
+
+
+@numba.njit(cache=True)
+def drop_indexed(alive: np.ndarray, ptr: np.ndarray, pid: np.ndarray, verts: np.ndarray) -> None:
+    """:func:`drop_pairs` through a :func:`vertex_index`: ``alive[p] = False`` for the pairs of ``verts``."""
+    for v in verts:
+        for s in range(ptr[v], ptr[v + 1]):
+            alive[pid[s]] = False
+
+
+@numba.njit(cache=True)
+def select_indexed(q: np.ndarray, alive: np.ndarray, ptr: np.ndarray, pid: np.ndarray, verts: np.ndarray):
+    """:func:`select_pairs` with a filter through a :func:`vertex_index`: the alive pairs of ``q`` holding
+    one of ``verts``, in the block's order."""
+    mark = np.zeros(len(q), dtype=np.bool_)
+    count = 0
+    for v in verts:
+        for s in range(ptr[v], ptr[v + 1]):
+            p = pid[s]
+            if alive[p] and not mark[p]:
+                mark[p] = True
+                count += 1
+    out = np.empty((count, 4), dtype=np.int64)
+    n = 0
+    for p in range(len(q)):
+        if mark[p]:
+            for c in range(4):
+                out[n, c] = q[p, c]
+            n += 1
     return out

@@ -56,10 +56,16 @@ class Candidates:
 class PairStore:
     """The candidate pairs of one step as blocks of (k, 4) vertex indices with an alive mask: pairs holding
     a dirty vertex are dropped in place and their replacements added as a new block, so an update and a
-    selection are one compiled pass each, without copying the untouched pairs."""
+    selection are one compiled pass each, without copying the untouched pairs. A block of at least
+    ``INDEXED`` pairs gets (at its first filtered use) an index of the pairs each vertex holds, so that
+    drops and filtered selections visit the flagged vertices' pairs instead of scanning the block."""
+
+    #: pairs per block from which drops and filtered selections go through a vertex -> pairs index
+    INDEXED = 4096
 
     def __init__(self, cand: Candidates) -> None:
         self.blocks: list = []
+        self._index: dict = {}
         self.add(cand)
 
     def add(self, cand: Candidates) -> None:
@@ -75,17 +81,37 @@ class PairStore:
                     q = np.concatenate(parts)
                     merged.append((kind, q, np.ones(len(q), dtype=bool)))
             self.blocks = merged
+            self._index = {}
+
+    def _vertex_index(self, q: np.ndarray, N: int):
+        """The block's :func:`_pair_kernels.vertex_index` (built once; blocks never change their pairs)."""
+        key = id(q)
+        if key not in self._index or self._index[key][0] is not q:
+            self._index[key] = (q, *_pair_kernels.vertex_index(q, N))
+        return self._index[key][1:]
 
     def drop(self, dirty: np.ndarray) -> None:
         """Drop the pairs holding a vertex flagged in ``dirty`` ((N,) bool)."""
+        verts = np.flatnonzero(dirty)
         for _, q, alive in self.blocks:
-            _pair_kernels.drop_pairs(q, alive, dirty)
+            if len(q) >= self.INDEXED:
+                _pair_kernels.drop_indexed(alive, *self._vertex_index(q, len(dirty)), verts)
+            else:
+                _pair_kernels.drop_pairs(q, alive, dirty)
 
     def pairs(self, kind: str, only: np.ndarray | None = None) -> np.ndarray:
         """(k, 4) alive pairs of ``kind`` (``"vf"``/``"ee"``), only those holding a vertex flagged in
         ``only`` ((N,) bool) if given."""
         flags = np.zeros(0, dtype=bool) if only is None else only
-        parts = [_pair_kernels.select_pairs(q, alive, flags) for k, q, alive in self.blocks if k == kind]
+        verts = None if only is None else np.flatnonzero(only)
+        parts = []
+        for k, q, alive in self.blocks:
+            if k != kind:
+                continue
+            if verts is not None and len(q) >= self.INDEXED:
+                parts.append(_pair_kernels.select_indexed(q, alive, *self._vertex_index(q, len(only)), verts))
+            else:
+                parts.append(_pair_kernels.select_pairs(q, alive, flags))
         if not parts:
             return np.zeros((0, 4), dtype=np.int64)
         return parts[0] if len(parts) == 1 else np.concatenate(parts)

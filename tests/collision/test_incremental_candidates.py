@@ -4,8 +4,10 @@ only holds every pair a fresh search (no culling) finds, and no pair twice."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from _meshes import stacked_sheets
 
+from modalfem.collision import _pair_kernels
 from modalfem.collision._system import PairStore, System
 
 
@@ -19,7 +21,9 @@ def _keys(q, kind):
     return {tuple(map(int, r)) for r in q}
 
 
-def test_dirty_updates_keep_every_pair_of_a_fresh_search():
+@pytest.mark.parametrize("indexed", [1, 10**9])  # every block through its vertex index / every block scanned
+def test_dirty_updates_keep_every_pair_of_a_fresh_search(indexed, monkeypatch):
+    monkeypatch.setattr(PairStore, "INDEXED", indexed)
     rng = np.random.default_rng(3)
     x0, tri = stacked_sheets(3, 6, gap=0.01, seed=3)
     dt, margin = 0.01, 0.002
@@ -48,3 +52,24 @@ def test_dirty_updates_keep_every_pair_of_a_fresh_search():
         only[np.flatnonzero(dirty)[:3]] = True
         sub = store.pairs("ee", only)
         assert len(sub) and only[sub].any(axis=1).all()
+
+
+def test_indexed_drops_and_selections_equal_the_scans():
+    rng = np.random.default_rng(8)
+    N, k = 300, 5000
+    q = np.array([rng.choice(N, 4, replace=False) for _ in range(k)], dtype=np.int64)
+    ptr, pid = _pair_kernels.vertex_index(q, N)
+    for p in (0, 17, k - 1):  # every pair is listed under each of its vertices
+        for v in q[p]:
+            assert p in pid[ptr[v]:ptr[v + 1]]
+    assert ptr[-1] == 4 * k
+    alive_scan = rng.random(k) < 0.8
+    alive_idx = alive_scan.copy()
+    for frac in (0.002, 0.05, 0.5):
+        flags = rng.random(N) < frac
+        got = _pair_kernels.select_indexed(q, alive_idx, ptr, pid, np.flatnonzero(flags))
+        assert np.array_equal(got, _pair_kernels.select_pairs(q, alive_scan, flags))  # same pairs, same order
+        dirty = rng.random(N) < frac / 2
+        _pair_kernels.drop_pairs(q, alive_scan, dirty)
+        _pair_kernels.drop_indexed(alive_idx, ptr, pid, np.flatnonzero(dirty))
+        assert np.array_equal(alive_idx, alive_scan)
