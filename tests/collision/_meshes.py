@@ -42,3 +42,17 @@ def folded_sheet(n: int, *, gap: float, size: float = 1.0) -> tuple[np.ndarray, 
     x[near, 0] = half + 0.5 * gap
     x[near, 2] = 0.5 * gap
     return x, tri, rest
+
+
+def all_pairs(tri):
+    """Every vertex-face and edge-edge pair not sharing a vertex (brute force, no BVH)."""
+    n = tri.max() + 1
+    v = np.repeat(np.arange(n), len(tri))
+    f = np.tile(np.arange(len(tri)), n)
+    ok = (tri[f] != v[:, None]).all(axis=1)
+    vf = np.concatenate([v[ok, None], tri[f[ok]]], axis=1)
+    e = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1), axis=0)
+    i, j = np.triu_indices(len(e), 1)
+    ee = np.concatenate([e[i], e[j]], axis=1)
+    ee = ee[(ee[:, :2, None] != ee[:, None, 2:]).all(axis=(1, 2))]
+    return vf, ee

@@ -8,7 +8,7 @@ import warnings
 import _meshes
 import numpy as np
 import pytest
-from _meshes import grid, stacked_sheets
+from _meshes import all_pairs, grid, stacked_sheets
 
 from modalfem.collision.ccd import edge_edge_ccd, vertex_face_ccd
 from modalfem.collision.obstacles import Plane, Sphere, TriangleMeshObstacle
@@ -19,22 +19,10 @@ from modalfem.errors import InputError, SceneError, SimulationError
 DT = 0.01
 
 
-def _all_pairs(tri):
-    """Every vertex-face and edge-edge pair not sharing a vertex (brute force, no BVH)."""
-    n = tri.max() + 1
-    v = np.repeat(np.arange(n), len(tri))
-    f = np.tile(np.arange(len(tri)), n)
-    ok = (tri[f] != v[:, None]).all(axis=1)
-    vf = np.concatenate([v[ok, None], tri[f[ok]]], axis=1)
-    e = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1), axis=0)
-    i, j = np.triu_indices(len(e), 1)
-    ee = np.concatenate([e[i], e[j]], axis=1)
-    ee = ee[(ee[:, :2, None] != ee[:, None, 2:]).all(axis=(1, 2))]
-    return vf, ee
 
 
 def _crossings(x0, x1, tri):
-    vf, ee = _all_pairs(tri)
+    vf, ee = all_pairs(tri)
     hv, _ = vertex_face_ccd(x0[vf], x1[vf])
     he, _ = edge_edge_ccd(x0[ee], x1[ee])
     return int(hv.sum() + he.sum())
@@ -151,7 +139,7 @@ def test_triangle_mesh_obstacle_static_and_moving(moving):
     # the exact CCD of every cloth primitive against every obstacle primitive over the step
     X0 = np.concatenate([x0, ob.positions(0.0)])
     X1 = np.concatenate([x1, ob.positions(DT)])
-    vf, ee = _all_pairs(np.concatenate([tri, otri + len(x0)]))
+    vf, ee = all_pairs(np.concatenate([tri, otri + len(x0)]))
     cloth = lambda q: q < len(x0)
     vf = vf[cloth(vf[:, 0]) != cloth(vf[:, 1])]
     ee = ee[cloth(ee[:, 0]) != cloth(ee[:, 2])]
@@ -291,7 +279,7 @@ def _approach_after_repulsion(iterations):
     masses = np.ones(len(x0))
     only_a = CollisionConfig(thickness=0.004, ccd=False, impact_zones=False, repulsion_iterations=iterations)
     v_a, _ = CollisionPipeline(tri, config=only_a).resolve(x0, v, masses, DT)
-    vf, ee = _all_pairs(tri)
+    vf, ee = all_pairs(tri)
     quads, w, n, target = repulsion_pairs(x0, vf, ee, thickness=0.004, dt=DT)
     vn = np.einsum("kj,kji,ki->k", w, v_a[quads], n)
     full = CollisionConfig(thickness=0.004, repulsion_iterations=iterations)
