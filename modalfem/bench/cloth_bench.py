@@ -48,6 +48,7 @@ def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 
     setup = scenes.SCENES[case](n, collisions=collisions)
     steps = setup.steps if steps is None else int(steps)
     late = late_timed = 0.0
+    step_ms: list = []  # wall ms of each step (None: a probe step, not timed)
     sc = setup.scene
     sc.solver.linear_solver = linear_solver
     sums = dict.fromkeys(STAGES, 0.0)
@@ -64,6 +65,7 @@ def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 
         c1 = time.process_time()
         if probe:
             sc.pipeline.config = base
+            step_ms.append(None)
             unculled += st.collision.pair_tests_unculled or 0
             culled += st.collision.pair_tests
             measured += 1
@@ -71,6 +73,7 @@ def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 
             timed += 1
             total += st.seconds["total"]
             cpu += c1 - c0
+            step_ms.append(1e3 * st.seconds["total"])
             if 2 * k >= steps:
                 late += st.seconds["total"]
                 late_timed += 1
@@ -92,6 +95,7 @@ def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 
     return {
         "case": case, "n": n, "steps": steps, "ms_per_step": 1e3 * total / max(timed, 1),
         "cpu_ms_per_step": 1e3 * cpu / max(timed, 1), "late_ms_per_step": 1e3 * late / max(late_timed, 1),
+        "step_ms": step_ms,
         "shares": {k: v / total for k, v in sums.items()},
         "pair_tests_unculled": unculled / max(measured, 1), "pair_tests": culled / max(measured, 1),
         "zones_per_step": zones / steps, "zone_steps": zone_steps, "max_zone": max_zone,
@@ -132,8 +136,44 @@ def _spawn(args: list[str], timeout: float) -> dict | None:
             return json.load(f)
 
 
-def render(results: list[dict], solvers: list[dict], *, command: str, date: str, machine: str, versions: str) -> str:
-    """The markdown section."""
+def plot_steps(results: list[dict], path: str) -> bool:
+    """PNG of the wall time of every step of each case (log scale; probe steps left out), written
+    atomically to ``path``; False (nothing written) when no case has per-step times."""
+    rows = [r for r in results if r.get("step_ms")]
+    if not rows:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes_ = sorted({r["case"] for r in rows})
+    fig, axes = plt.subplots(1, len(scenes_), figsize=(6.5 * len(scenes_), 4.2), squeeze=False)
+    for ax, case in zip(axes[0], scenes_):
+        for r in (r for r in rows if r["case"] == case):
+            ms = np.array([np.nan if v is None else v for v in r["step_ms"]], dtype=float)
+            ax.plot(np.arange(1, len(ms) + 1), ms, marker=".", ms=3, lw=1, label=f"{r['n']}x{r['n']}")
+        if case == "pile":
+            ax.axhline(1e3 / GOAL_STEPS_PER_S, color="k", ls="--", lw=0.8, label="goal (64x64)")
+        ax.set_yscale("log")
+        ax.set_xlabel("step (dt = 10 ms)")
+        ax.set_ylabel("wall time per step [ms] (log)")
+        ax.set_title(f"{case}: every stage on, one thread")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    tmp = os.path.join(d, f".{os.path.basename(path)}.{os.getpid()}.tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return True
+
+
+def render(results: list[dict], solvers: list[dict], *, command: str, date: str, machine: str, versions: str,
+           plot: str | None = None) -> str:
+    """The markdown section (``plot``: path of the per-step PNG relative to the markdown file, if any)."""
     L = [SECTION, "", f"- Date: {date}", f"- Machine: {machine}", f"- Versions: {versions}", f"- Command: `{command}`",
          ("- One thread per case (OMP/OpenBLAS/MKL_NUM_THREADS=1), one child process per case; all stages on "
           "(repulsion, CCD, impact zones, culling by normal cones and projected contours in the proximity "
@@ -168,6 +208,8 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
                  f"{cut:.0f} | {r['zones_per_step']:.2f} | {r['max_zone']} | {r['cg_iterations']:.0f} | "
                  f"{r.get('smooth_cg_iterations', float('nan')):.0f} | "
                  f"{r['intersections']} |")
+    if plot:
+        L += ["", f"![Wall time of every step of each case, log scale: the fall, then the settled pile]({plot})"]
     goal = [r for r in results if r.get("case") == "pile" and r.get("n") == 64 and "ms_per_step" in r]
     if goal:
         g = goal[0]
@@ -193,7 +235,7 @@ def _versions_line() -> str:
 
 def command(argv: list[str]) -> int:
     """``modalfem bench cloth [--out BENCHMARKS.md] [--sizes 32 64 128] [--steps S] [--scenes drape pile]
-    [--no-solvers] [--quick]``."""
+    [--no-solvers] [--quick] [--plot PNG]``."""
     ap = argparse.ArgumentParser(prog="modalfem bench cloth")
     ap.add_argument("--out", default="BENCHMARKS.md")
     ap.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128])
@@ -204,7 +246,9 @@ def command(argv: list[str]) -> int:
                     help="scenes to run (default: both)")
     ap.add_argument("--no-solvers", action="store_true", help="skip the linear solver table (twist scene)")
     ap.add_argument("--quick", action="store_true", help="tiny sizes and few steps (smoke test)")
+    ap.add_argument("--plot", default=None, help="per-step PNG (default: bench/cloth_steps.png next to --out)")
     a = ap.parse_args(argv)
+    plot = a.plot or os.path.join(os.path.dirname(os.path.abspath(a.out)), "bench", "cloth_steps.png")
     sizes, steps = ([8], 10) if a.quick else (a.sizes, a.steps)
     t0 = time.perf_counter()
     results, solvers = [], []
@@ -232,7 +276,11 @@ def command(argv: list[str]) -> int:
 
     cmd = "python -m modalfem bench cloth" + ("" if not argv else " " + shlex.join(argv))
     date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    section = render(results, solvers, command=cmd, date=date, machine=_machine(), versions=_versions_line())
+    rel = None
+    if plot_steps(results, plot):
+        rel = os.path.relpath(os.path.abspath(plot), os.path.dirname(os.path.abspath(a.out)))
+    section = render(results, solvers, command=cmd, date=date, machine=_machine(), versions=_versions_line(),
+                     plot=rel)
     print(section)
     update_section(a.out, section)
     print(f"cloth bench: {time.perf_counter() - t0:.0f} s, section written to {a.out}", file=sys.stderr)

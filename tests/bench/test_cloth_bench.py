@@ -23,6 +23,9 @@ def test_quick_bench_writes_its_section(tmp_path):
         assert float(cells[names.index("smoothing CG its")]) >= 0
         assert float(cells[names.index("ms/step 2nd half")]) > 0
     assert "multilevel-CG" in text
+    png = tmp_path / "bench" / "cloth_steps.png"  # the per-step picture, linked from the section
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "](bench/cloth_steps.png)" in text
+    assert not list((tmp_path / "bench").glob(".*tmp*"))  # written atomically
 
 
 def test_render_marks_failed_cases():
@@ -51,6 +54,10 @@ def test_scene_selection_and_no_solver_table(tmp_path):
 def test_a_case_runs_the_scenes_own_length_by_default():
     from modalfem.cloth import scenes
 
-    r = cloth_bench.run_case("pile", 6, check_every=1000)
+    r = cloth_bench.run_case("pile", 6, check_every=10)
     assert r["steps"] == scenes.pile(6).steps > 40  # the whole fall and settling, not a prefix
     assert r["late_ms_per_step"] > 0 and r["intersections"] == 0
+    ms = r["step_ms"]  # every step's wall time, None on the probe steps (every 10th, not timed)
+    assert len(ms) == r["steps"] and all((v is None) == ((k + 1) % 10 == 0) for k, v in enumerate(ms))
+    timed = [v for v in ms if v is not None]
+    assert abs(sum(timed) / len(timed) - r["ms_per_step"]) < 1e-9 * r["ms_per_step"]
