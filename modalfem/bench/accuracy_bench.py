@@ -466,12 +466,9 @@ def plot_pareto(results: list[dict], path: str) -> None:
             ax.legend(fontsize=8, loc="best")
     fig.suptitle("modalfem: accuracy versus time (lower left is better; errors vs a finer P2 reference)")
     fig.tight_layout()
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    tmp = os.path.join(d, f".{os.path.basename(path)}.{os.getpid()}.tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    from modalfem.bench.cli import save_figure
+
+    save_figure(fig, path, dpi=110)
 
 
 def _versions_line() -> str:

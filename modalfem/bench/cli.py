@@ -20,7 +20,7 @@ import time
 
 from modalfem.bench import modes_bench as mb
 
-__all__ = ["SECTION", "available", "main", "refine_reference", "replace_section", "update_section", "write_atomic"]
+__all__ = ["SECTION", "available", "main", "refine_reference", "replace_section", "save_figure", "update_section", "write_atomic"]
 
 SECTION = "## Modes: cantilever ladder"
 GOAL_DOFS = 130_000  # "140k-DOF P2" goal rung: the largest P2 rung with at least this many DOFs
@@ -281,6 +281,21 @@ def update_section(path: str, section: str) -> None:
         with open(path) as f:
             old = f.read()
     write_atomic(path, replace_section(old, section))
+
+
+def save_figure(fig, path: str, *, dpi: int) -> None:
+    """Write the matplotlib figure ``fig`` to ``path`` as PNG, atomically (:mod:`modalfem.atomic`), creating
+    its directory; the figure is closed either way."""
+    import matplotlib.pyplot as plt
+
+    from modalfem.atomic import write_atomic as _write
+    from modalfem.errors import ModalfemError
+
+    try:
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        _write(path, lambda f: fig.savefig(f, format="png", dpi=dpi), error=ModalfemError, kind="PNG")
+    finally:
+        plt.close(fig)
 
 
 def write_atomic(path: str, text: str) -> None:
