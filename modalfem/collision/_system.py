@@ -83,19 +83,19 @@ class PairStore:
             self.blocks = merged
             self._index = {}
 
-    def _vertex_index(self, q: np.ndarray, N: int):
-        """The block's :func:`_pair_kernels.vertex_index` (built once; blocks never change their pairs)."""
-        key = id(q)
-        if key not in self._index or self._index[key][0] is not q:
-            self._index[key] = (q, *_pair_kernels.vertex_index(q, N))
-        return self._index[key][1:]
+    def _vertex_index(self, b: int, N: int):
+        """Block ``b``'s :func:`_pair_kernels.vertex_index`, built at its first use (a block never changes
+        its pairs; blocks keep their numbers until a merge, which clears the indices)."""
+        if b not in self._index:
+            self._index[b] = _pair_kernels.vertex_index(self.blocks[b][1], N)
+        return self._index[b]
 
     def drop(self, dirty: np.ndarray) -> None:
         """Drop the pairs holding a vertex flagged in ``dirty`` ((N,) bool)."""
         verts = np.flatnonzero(dirty)
-        for _, q, alive in self.blocks:
+        for b, (_, q, alive) in enumerate(self.blocks):
             if len(q) >= self.INDEXED:
-                _pair_kernels.drop_indexed(alive, *self._vertex_index(q, len(dirty)), verts)
+                _pair_kernels.drop_indexed(alive, *self._vertex_index(b, len(dirty)), verts)
             else:
                 _pair_kernels.drop_pairs(q, alive, dirty)
 
@@ -105,11 +105,11 @@ class PairStore:
         flags = np.zeros(0, dtype=bool) if only is None else only
         verts = None if only is None else np.flatnonzero(only)
         parts = []
-        for k, q, alive in self.blocks:
+        for b, (k, q, alive) in enumerate(self.blocks):
             if k != kind:
                 continue
             if verts is not None and len(q) >= self.INDEXED:
-                parts.append(_pair_kernels.select_indexed(q, alive, *self._vertex_index(q, len(only)), verts))
+                parts.append(_pair_kernels.select_indexed(q, alive, *self._vertex_index(b, len(only)), verts))
             else:
                 parts.append(_pair_kernels.select_pairs(q, alive, flags))
         if not parts:

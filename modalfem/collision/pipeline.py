@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from modalfem.collision.repulsion import SWEEPS
 from modalfem.errors import InputError, SceneError, SimulationError
 
 __all__ = ["CollisionConfig", "CollisionPipeline", "CollisionStats"]
@@ -77,7 +78,7 @@ class CollisionConfig:
     self_collision: bool = True
     culling: bool = True
     swept_culling: bool = False
-    repulsion_iterations: int = 10
+    repulsion_iterations: int = SWEEPS
     ccd_passes: int = 3
     min_separation: float | None = None
     max_zone_iterations: int = 200

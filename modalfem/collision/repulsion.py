@@ -14,7 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["apply_pair_impulses", "contact_frames", "repulsion_impulses", "repulsion_pairs", "sequential_pair_impulses"]
+__all__ = ["SWEEPS", "apply_pair_impulses", "contact_frames", "repulsion_impulses", "repulsion_pairs",
+           "sequential_pair_impulses"]
+
+#: default number of sweeps of stage (a)'s pair-by-pair impulses (``CollisionConfig.repulsion_iterations``)
+SWEEPS = 10
 
 
 def contact_frames(X: np.ndarray, quads: np.ndarray, kind: str, Xref: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,7 +111,7 @@ def sequential_pair_impulses(
     target_vn: np.ndarray,
     *,
     friction: float = 0.0,
-    sweeps: int = 10,
+    sweeps: int = SWEEPS,
 ) -> tuple[np.ndarray, int, int]:
     """Raise the relative normal velocity of pairs to at least ``target_vn``, pair by pair (Gauss-Seidel).
 
@@ -150,7 +154,7 @@ def repulsion_impulses(
     thickness: float,
     dt: float,
     friction: float,
-    sweeps: int = 10,
+    sweeps: int = SWEEPS,
 ) -> tuple[np.ndarray, int]:
     """Stage (a): pairs closer than ``thickness`` at ``X0`` stop approaching and are pushed apart.
 
