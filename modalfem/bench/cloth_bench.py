@@ -47,7 +47,6 @@ def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 
 
     setup = scenes.SCENES[case](n, collisions=collisions)
     steps = setup.steps if steps is None else int(steps)
-    late = late_timed = 0.0
     step_ms: list = []  # wall ms of each step (None: a probe step, not timed)
     sc = setup.scene
     sc.solver.linear_solver = linear_solver
@@ -74,9 +73,6 @@ def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 
             total += st.seconds["total"]
             cpu += c1 - c0
             step_ms.append(1e3 * st.seconds["total"])
-            if 2 * k >= steps:
-                late += st.seconds["total"]
-                late_timed += 1
         if not probe:
             sums["implicit"] += st.seconds["forces"] + st.seconds["implicit"]
             sums["smoothing"] += st.seconds["smoothing"]
@@ -92,9 +88,10 @@ def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 
             max_zone = max([max_zone, *last.zone_sizes])
             if (k + 1) % check_every == 0 or k == steps - 1:
                 intersections += scenes.intersections(setup)
+    late = [v for v in step_ms[(steps + 1) // 2:] if v is not None]  # steps k with 2 k >= steps
     return {
         "case": case, "n": n, "steps": steps, "ms_per_step": 1e3 * total / max(timed, 1),
-        "cpu_ms_per_step": 1e3 * cpu / max(timed, 1), "late_ms_per_step": 1e3 * late / max(late_timed, 1),
+        "cpu_ms_per_step": 1e3 * cpu / max(timed, 1), "late_ms_per_step": sum(late) / max(len(late), 1),
         "step_ms": step_ms,
         "shares": {k: v / total for k, v in sums.items()},
         "pair_tests_unculled": unculled / max(measured, 1), "pair_tests": culled / max(measured, 1),
