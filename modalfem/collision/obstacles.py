@@ -48,7 +48,8 @@ class Plane:
 
     def signed_distance(self, x: np.ndarray, t: float) -> np.ndarray:
         """Signed distance [m] of points ``x`` (k, 3) [m] at time ``t`` [s] (> 0 on the free side)."""
-        return (np.asarray(x) - (self.point + t * self.velocity)) @ self.normal
+        # x . n - p . n: no (k, 3) temporary (the pipeline evaluates all cloth vertices many times a step)
+        return np.asarray(x, dtype=float) @ self.normal - float((self.point + t * self.velocity) @ self.normal)
 
     def normal_at(self, x: np.ndarray, t: float) -> np.ndarray:
         """(k, 3) unit normals [-] at points ``x`` [m], time ``t`` [s]."""
