@@ -35,17 +35,28 @@ SECTION = "## Cloth: drape and pile with collisions"
 GOAL_STEPS_PER_S = 10.0
 STAGES = ("implicit", "broad_phase", "repulsion", "ccd", "impact_zones", "smoothing")
 _ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+#: the stage ablation on the goal's scene: (what changes, scene options); the first row is the goal's setting
+ABLATIONS = (
+    ("every stage on (the goal's setting)", {}),
+    ("stage (d) off: no smoothing, so no re-check", {"smoothing": 0.0}),
+    ("stage (a) off: no repulsion (CCD and zones only)", {"repulsion": False}),
+    ("1 CCD pass instead of 3", {"ccd_passes": 1}),
+    ("no culling (proximity search unculled)", {"culling": False}),
+    ("swept searches culled too", {"swept_culling": True}),
+    ("self-collision off (ground only)", {"self_collision": False}),
+)
 
 
 def run_case(case: str, n: int, steps: int | None = None, *, check_every: int = 10, linear_solver: str = "cg",
-             collisions: bool = True) -> dict:
+             collisions: bool = True, options: dict | None = None) -> dict:
     """Step one scene in this process (``steps`` None: the scene's own length, ``Setup.steps``); returns the
-    per-step averages (see module docstring), ``late_ms_per_step`` over the second half of the steps."""
+    per-step averages (see module docstring), ``late_ms_per_step`` over the second half of the steps.
+    ``options``: keyword arguments of the scene function (``smoothing`` [s], ``CollisionConfig`` fields)."""
     import dataclasses
 
     from modalfem.cloth import scenes
 
-    setup = scenes.SCENES[case](n, collisions=collisions)
+    setup = scenes.SCENES[case](n, collisions=collisions, **(options or {}))
     steps = setup.steps if steps is None else int(steps)
     step_ms: list = []  # wall ms of each step (None: a probe step, not timed)
     sc = setup.scene
@@ -107,12 +118,29 @@ def _child(argv: list[str]) -> int:
     ap.add_argument("--steps", type=int, default=None, help="default: the scene's own length")
     ap.add_argument("--linear-solver", default="cg")
     ap.add_argument("--no-collisions", action="store_true")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=JSON",
+                    help="a scene option, e.g. smoothing=0 or culling=false (repeatable)")
     ap.add_argument("--json-out", required=True)
     a = ap.parse_args(argv)
-    r = run_case(a.case, a.n, a.steps, linear_solver=a.linear_solver, collisions=not a.no_collisions)
+    r = run_case(a.case, a.n, a.steps, linear_solver=a.linear_solver, collisions=not a.no_collisions,
+                 options=_options(a.option))
     with open(a.json_out, "w") as f:
         json.dump(r, f)
     return 0
+
+
+def _options(items: list[str]) -> dict:
+    """``["smoothing=0", "culling=false"]`` -> ``{"smoothing": 0, "culling": False}`` (values are JSON)."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"--option wants KEY=VALUE, got {item!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            raise SystemExit(f"--option {key}: value {value!r} is not JSON (numbers, true/false)") from None
+    return out
 
 
 def _spawn(args: list[str], timeout: float) -> dict | None:
@@ -166,8 +194,9 @@ def plot_steps(results: list[dict], path: str) -> bool:
 
 
 def render(results: list[dict], solvers: list[dict], *, command: str, date: str, machine: str, versions: str,
-           plot: str | None = None) -> str:
-    """The markdown section (``plot``: path of the per-step PNG relative to the markdown file, if any)."""
+           plot: str | None = None, ablation: list[dict] | None = None, ablation_n: int = 64) -> str:
+    """The markdown section (``plot``: path of the per-step PNG relative to the markdown file, if any;
+    ``ablation``: the stage ablation's runs, labelled, the first with every stage on)."""
     L = [SECTION, "", f"- Date: {date}", f"- Machine: {machine}", f"- Versions: {versions}", f"- Command: `{command}`",
          ("- One thread per case (OMP/OpenBLAS/MKL_NUM_THREADS=1), one child process per case; all stages on "
           "(repulsion, CCD, impact zones, culling by normal cones and projected contours in the proximity "
@@ -211,6 +240,8 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
         L += ["", (f"Goal (64x64 pile, all stages, >= {GOAL_STEPS_PER_S:g} steps/s on one core, zero "
                    f"intersections): {1e3 / g['ms_per_step']:.2f} steps/s, {g['intersections']} intersections: "
                    f"**{'met' if ok else 'not met'}**.")]
+    if ablation:
+        L += _ablation_table(ablation, ablation_n)
     if solvers:
         L += ["", ("Linear solver of the implicit step (the twist scene without collisions, first 10 steps: the "
                    "handles deform the sheet): ms per implicit step (assembly + solve)"),
@@ -219,6 +250,26 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
             L.append(f"| {s['n']}x{s['n']} | {s['cg']:.1f} | {s['cg_its']:.0f} | {s['splu']:.1f} | "
                      f"{s['cg'] / s['splu']:.2f}x |")
     return "\n".join(L) + "\n"
+
+
+def _ablation_table(rows: list[dict], n: int) -> list[str]:
+    """Markdown lines of the stage ablation: each setting's time against the first row's (every stage on),
+    and what it gives up (impact zones, intersections)."""
+    base = rows[0].get("ms_per_step") if rows else None
+    L = ["", (f"Stage ablation: the {n}x{n} pile (its whole length, one thread, one process per row), one "
+              "setting changed per row: what each stage costs and what switching it off gives up (impact "
+              "zones are the rigid fail-safe; intersections by the independent check every 10 steps)."), "",
+         ("| setting | ms/step | steps/s | x time of all stages | ms/step 2nd half | smoothing % | zones/step | "
+          "max zone | intersections |"), "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "ms_per_step" not in r:
+            L.append(f"| {r['label']} | {r.get('error', 'timeout')} |" + " |" * 7)
+            continue
+        rel = f"{r['ms_per_step'] / base:.2f}" if base else "-"
+        L.append(f"| {r['label']} | {r['ms_per_step']:.0f} | {1e3 / r['ms_per_step']:.2f} | {rel} | "
+                 f"{r['late_ms_per_step']:.0f} | {100 * r['shares']['smoothing']:.0f} | {r['zones_per_step']:.2f} | "
+                 f"{r['max_zone']} | {r['intersections']} |")
+    return L
 
 
 def _versions_line() -> str:
@@ -239,11 +290,14 @@ def command(argv: list[str]) -> int:
     ap.add_argument("--scenes", nargs="+", choices=("drape", "pile"), default=["drape", "pile"],
                     help="scenes to run (default: both)")
     ap.add_argument("--no-solvers", action="store_true", help="skip the linear solver table (twist scene)")
+    ap.add_argument("--no-ablation", action="store_true", help="skip the stage ablation table (pile)")
+    ap.add_argument("--ablation-n", type=int, default=64, help="vertices per side of the ablation's pile")
     ap.add_argument("--quick", action="store_true", help="tiny sizes and few steps (smoke test)")
     ap.add_argument("--plot", default=None, help="per-step PNG (default: bench/cloth_steps.png next to --out)")
     a = ap.parse_args(argv)
     plot = a.plot or os.path.join(os.path.dirname(os.path.abspath(a.out)), "bench", "cloth_steps.png")
     sizes, steps = ([8], 10) if a.quick else (a.sizes, a.steps)
+    ablation_n = 8 if a.quick else a.ablation_n
     t0 = time.perf_counter()
     results, solvers = [], []
     from modalfem.cloth import scenes
@@ -266,6 +320,14 @@ def command(argv: list[str]) -> int:
             row[f"{ls}_its"] = r["cg_iterations"]
         if "splu" in row:
             solvers.append(row)
+    ablation = []
+    for label, opts in [] if a.no_ablation else ABLATIONS:
+        print(f"cloth bench: ablation, pile {ablation_n}x{ablation_n}: {label}", file=sys.stderr, flush=True)
+        args = ["--case", "pile", "--n", str(ablation_n)] + ([] if steps is None else ["--steps", str(steps)])
+        for key, value in opts.items():
+            args += ["--option", f"{key}={json.dumps(value)}"]
+        r = _spawn(args, a.timeout)
+        ablation.append({"label": label, "options": opts, **(r or {"error": "timeout"})})
     from modalfem.bench.cli import _machine, update_section
 
     cmd = "python -m modalfem bench cloth" + ("" if not argv else " " + shlex.join(argv))
@@ -274,7 +336,7 @@ def command(argv: list[str]) -> int:
     if plot_steps(results, plot):
         rel = os.path.relpath(os.path.abspath(plot), os.path.dirname(os.path.abspath(a.out)))
     section = render(results, solvers, command=cmd, date=date, machine=_machine(), versions=_versions_line(),
-                     plot=rel)
+                     plot=rel, ablation=ablation, ablation_n=ablation_n)
     print(section)
     update_section(a.out, section)
     print(f"cloth bench: {time.perf_counter() - t0:.0f} s, section written to {a.out}", file=sys.stderr)

@@ -61,3 +61,35 @@ def test_a_case_runs_the_scenes_own_length_by_default():
     assert len(ms) == r["steps"] and all((v is None) == ((k + 1) % 10 == 0) for k, v in enumerate(ms))
     timed = [v for v in ms if v is not None]
     assert abs(sum(timed) / len(timed) - r["ms_per_step"]) < 1e-9 * r["ms_per_step"]
+
+
+def test_quick_bench_writes_the_stage_ablation(tmp_path):
+    out = tmp_path / "B.md"
+    assert cloth_bench.command(["--quick", "--scenes", "pile", "--no-solvers", "--out", str(out)]) == 0
+    lines = out.read_text().splitlines()
+    head = next(ln for ln in lines if ln.startswith("| setting |"))
+    names = [c.strip() for c in head.strip("|").split("|")]
+    start = lines.index(head) + 2
+    rows = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines[start:start + len(cloth_bench.ABLATIONS)]]
+    assert [r[0] for r in rows] == [label for label, _ in cloth_bench.ABLATIONS]
+    cells = {r[0]: dict(zip(names, r)) for r in rows}
+    base = cells[cloth_bench.ABLATIONS[0][0]]
+    assert float(base["x time of all stages"]) == 1.0 and float(base["ms/step"]) > 0
+    b = float(base["ms/step"])
+    for r in cells.values():  # every setting ran and is compared with the first row's time (cells rounded)
+        m = float(r["ms/step"])
+        assert m > 0
+        assert (m - 0.5) / (b + 0.5) - 0.005 <= float(r["x time of all stages"]) <= (m + 0.5) / (b - 0.5) + 0.005
+    assert float(cells["stage (d) off: no smoothing, so no re-check"]["smoothing %"]) == 0
+
+
+def test_scene_options_reach_the_scene():
+    r = cloth_bench.run_case("pile", 6, 12, options={"smoothing": 0.0, "ccd_passes": 1})
+    assert r["smooth_cg_iterations"] == 0 and r["shares"]["smoothing"] < 1e-3
+    assert cloth_bench._options(["smoothing=0.5", "culling=false", "ccd_passes=2"]) == {
+        "smoothing": 0.5, "culling": False, "ccd_passes": 2}
+    import pytest
+
+    for bad in ("smoothing", "=1", "culling=nope"):
+        with pytest.raises(SystemExit):
+            cloth_bench._options([bad])
