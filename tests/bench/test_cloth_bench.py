@@ -40,9 +40,10 @@ def test_render_marks_failed_cases():
 
 def test_scene_selection_and_no_solver_table(tmp_path):
     out = tmp_path / "B.md"
-    assert cloth_bench.command(["--quick", "--scenes", "pile", "--no-solvers", "--out", str(out)]) == 0
+    assert cloth_bench.command(["--quick", "--scenes", "pile", "--no-solvers", "--no-ablation", "--out", str(out)]) == 0
     text = out.read_text()
     lines = text.splitlines()
+    assert not any(ln.startswith("| setting |") for ln in lines)  # --no-ablation: no ablation table
     head = next(ln for ln in lines if ln.startswith("| scene"))
     rows = [ln for ln in lines if ln.startswith(("| drape", "| pile"))]
     assert len(rows) == 1 and rows[0].startswith("| pile") and rows[0].count("|") == head.count("|")
