@@ -94,3 +94,18 @@ def test_scene_options_reach_the_scene():
     for bad in ("smoothing", "=1", "culling=nope"):
         with pytest.raises(SystemExit):
             cloth_bench._options([bad])
+
+
+def test_a_failed_ablation_run_is_shown_and_fails_the_bench(tmp_path, monkeypatch):
+    real = cloth_bench._spawn
+
+    def spawn(args, timeout):
+        return {"error": "boom"} if "repulsion=false" in args else real(args, timeout)
+
+    monkeypatch.setattr(cloth_bench, "_spawn", spawn)
+    out = tmp_path / "B.md"
+    assert cloth_bench.command(["--quick", "--scenes", "pile", "--no-solvers", "--out", str(out)]) == 1
+    lines = out.read_text().splitlines()
+    head = next(ln for ln in lines if ln.startswith("| setting |"))
+    row = next(ln for ln in lines if ln.startswith("| stage (a) off"))
+    assert "boom" in row and row.count("|") == head.count("|")
