@@ -18,7 +18,9 @@ import shlex
 import sys
 import time
 
+from modalfem.atomic import write_atomic as _write
 from modalfem.bench import modes_bench as mb
+from modalfem.errors import ModalfemError
 
 __all__ = ["SECTION", "available", "main", "refine_reference", "replace_section", "save_figure", "update_section", "write_atomic"]
 
@@ -288,9 +290,6 @@ def save_figure(fig, path: str, *, dpi: int) -> None:
     its directory; the figure is closed either way."""
     import matplotlib.pyplot as plt
 
-    from modalfem.atomic import write_atomic as _write
-    from modalfem.errors import ModalfemError
-
     try:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         _write(path, lambda f: fig.savefig(f, format="png", dpi=dpi), error=ModalfemError, kind="PNG")
@@ -299,13 +298,8 @@ def save_figure(fig, path: str, *, dpi: int) -> None:
 
 
 def write_atomic(path: str, text: str) -> None:
-    d = os.path.dirname(os.path.abspath(path))
-    tmp = os.path.join(d, f".{os.path.basename(path)}.{os.getpid()}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    """Write ``text`` (UTF-8) to ``path`` atomically through :func:`modalfem.atomic.write_atomic`."""
+    _write(path, lambda f: f.write(text.encode("utf-8")), error=ModalfemError, kind="text")
 
 
 # ---------------------------------------------------------------------------------- command
