@@ -19,8 +19,13 @@ of it for beams, plates and cubes, free or clamped. Why about lambda_1:
 * K + alpha M stays positive definite with condition ~ lambda_max / alpha, so rigid modes come out
   with lambda ~ 0 to roundoff and a Cholesky-type factorisation applies (ENVIRONMENT.md's -1e4
   rad^2/s^2 for a steel beam is alpha ~ lambda_1 / 25);
-* a floor ``alpha >= 1e-9 * max(K_ii / M_ii)`` (~1e-9 lambda_max) bounds that condition if the trial
-  fields fail.
+* no floor: an earlier floor ``alpha >= 1e-9 max(K_ii / M_ii)`` grew with slivers (large K_ii) and
+  thin plates (~1/t^2) until it passed real modes.
+
+Rigid modes come from the mesh's structure, not from eigenvalues (``modalfem.eigen.rigid``): the
+zero-energy fields (rigid per piece, and any hinge a piece has) are known exactly, every solver
+works in their M-orthogonal complement, and they are returned as the rigid modes. The certificate
+checks that the elastic modes are M-orthogonal to them (``Certificate.rigid_coupling``).
 """
 
 from __future__ import annotations
@@ -46,7 +51,6 @@ __all__ = ["SHIFT_FRACTION", "SOLVERS", "estimate_shift", "modes"]
 SOLVERS = ("block", "slepc", "scipy")
 #: alpha = SHIFT_FRACTION * (Ritz upper bound of lambda_1): between lambda_1/6 and lambda_1/2 in practice
 SHIFT_FRACTION = 0.5
-_ALPHA_FLOOR = 1e-9
 
 
 def restrict(A, keep: np.ndarray):
@@ -144,9 +148,13 @@ def estimate_shift(mesh, degree: int, fixed: np.ndarray, K_ff, M_ff, *, rigid_co
     T = V[:, keep] / np.sqrt(s[keep])
     theta = np.linalg.eigvalsh(T.T @ Kr @ T)
     theta_1 = float(theta[min(rigid_count, len(theta) - 1)])
-    alpha = max(SHIFT_FRACTION * theta_1, _ALPHA_FLOOR * lam_max)
-    if not np.isfinite(alpha) or alpha <= 0:
-        raise SolverError(f"could not choose a shift: Ritz estimate {theta_1!r}, diagonal ratio {lam_max!r}")
+    alpha = SHIFT_FRACTION * theta_1
+    if not np.isfinite(alpha) or alpha <= np.finfo(float).eps * lam_max:
+        raise SolverError(
+            f"could not choose a shift: the Ritz bound of the first elastic eigenvalue is {theta_1:.3g} "
+            f"rad^2/s^2 against a largest diagonal ratio K_ii / M_ii of {lam_max:.3g} (outside what double "
+            "precision resolves: check the material and the mesh's size and units)"
+        )
     return -alpha, theta_1
 
 
@@ -239,75 +247,9 @@ def _mpi_comm(backend: str, solver: str):
     return MPI.COMM_WORLD if MPI.COMM_WORLD.size > 1 else None
 
 
-#: the interior shift sits in the first gap of the P1 bounds above the nev-th that is this wide (relative)
-INTERIOR_GAP = 0.02
-#: Use the one-factorisation interior-shift solve for serial P2 problems. Off by default: measured at
-#: the default tol = 1e-10, the lowest pairs (far below sigma) end a few x above their roundoff floor,
-#: so the solver falls back to the negative shift on most bodies (slender beams: 3e-6 against 5e-7),
-#: which then costs a second solve. It does pay off on the 139k-DOF thick cantilever at tol 1e-8.
-INTERIOR_SHIFT = False
-
-
-def interior_shift(mesh, material, fixed_spec, *, nev: int, shift: float, lumped: bool, backend_module):
-    """(sigma, start): sigma [rad^2/s^2] above the nev-th P2 eigenvalue from P1 eigenvalues on the same
-    mesh, and a Krylov start vector on the free P2 DOFs (the P1 modes interpolated to P2); or None.
-
-    The P1 space is a subspace of the P2 space on the same mesh (same constraints), so by min-max the
-    i-th P1 eigenvalue mu_i bounds the i-th P2 eigenvalue from above: sigma in the first clear gap of
-    the mu above mu_nev has at least nev P2 eigenvalues below it (the P2 solve counts them exactly by
-    Sylvester's law, so nothing here needs to be exact). The P1 problem has ~8x fewer DOFs than P2
-    (a ~20k-DOF solve at 140k P2 DOFs, about 0.5 s). Starting Krylov-Schur from the P1 modes
-    (interpolated: vertex values copied, edge midpoints averaged, a random positive combination)
-    instead of a random vector saved 20 % of the solves at 139k DOFs (45 instead of 56).
-    """
-    from scipy.sparse.linalg import (
-        ArpackError,
-        ArpackNoConvergence,
-        LinearOperator,
-        eigsh,
-    )
-
-    from modalfem.constraints import fixed_mask
-    from modalfem.eigen.pardiso import PardisoLDLT, have_pardiso
-
-    free1 = ~fixed_mask(mesh, 1, fixed_spec)
-    m = nev + max(4, nev // 2)
-    if int(free1.sum()) < max(3 * m, 200):
-        return None
-    K1, M1 = backend_module.assemble(mesh, material, degree=1, lumped=lumped)
-    K1, M1 = restrict(K1, free1), restrict(M1, free1)
-    A = (K1 - shift * M1).tocsr()
-    A.sort_indices()
-    try:
-        if have_pardiso():
-            f = PardisoLDLT(A, groups=np.flatnonzero(free1) // 3).refactor()
-            solve = f.solve
-        else:
-            from scipy.sparse.linalg import splu
-
-            solve = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A").solve
-        op = LinearOperator(A.shape, matvec=solve, dtype=np.float64)
-        rng = np.random.default_rng(0)
-        mu, V1 = eigsh(K1, k=m, M=M1, sigma=shift, OPinv=op, which="LM", tol=1e-8, v0=rng.standard_normal(A.shape[0]))
-    except (ArpackError, ArpackNoConvergence, RuntimeError, ValueError, SolverError):
-        return None
-    order = np.argsort(mu)
-    mu, V1 = mu[order], V1[:, order]
-    gaps = np.diff(mu[nev - 1 :]) / np.abs(mu[nev:])
-    wide = np.flatnonzero(gaps >= INTERIOR_GAP)
-    if not len(wide) or mu[nev - 1] <= 0:
-        return None
-    j = nev - 1 + int(wide[0])
-    u1 = np.zeros((mesh.point_count, 3))
-    u1.reshape(-1)[free1] = V1[:, : j + 1] @ rng.uniform(0.5, 1.5, j + 1)
-    E = mesh.edges
-    u2 = np.vstack([u1, 0.5 * (u1[E[:, 0]] + u1[E[:, 1]])])  # P2 canonical nodes: vertices, then edge midpoints
-    return float(0.5 * (mu[j] + mu[j + 1])), u2.reshape(-1)
-
-
-def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=None, groups=None):
-    """One eigen solve; ``interior`` = (sigma, start vector on the free DOFs) or None; ``groups`` = the
-    node of each free DOF (serial: PARDISO orders the node graph, a third of the DOF graph)."""
+def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, groups=None, deflate=None):
+    """One eigen solve of the lowest ``nev`` pairs, the ``deflate`` fields (n_free, r) first; ``groups``
+    = the node of each free DOF (serial: PARDISO orders the node graph, a third of the DOF graph)."""
     say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
     if comm is None and _have_pardiso():  # PARDISO's MKL threads own the cores (see eigen.blas_threads)
         from modalfem.eigen.blas_threads import one_openblas_thread
@@ -315,31 +257,19 @@ def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, interior=Non
         limit = one_openblas_thread()
     else:
         limit = contextlib.nullcontext()
-    from modalfem.eigen.base import InteriorShiftUnusable
-
     with limit:
         try:
-            if solver == "slepc":
+            n = K_ff.getSize()[0] if comm is not None else K_ff.shape[0]
+            if solver == "slepc" and (comm is not None or nev + 2 < n):
                 from modalfem.eigen.slepc import solve_slepc
 
                 kw = {"rows": rows, "comm": comm} if comm is not None else {"groups": groups}
-                if interior is not None:
-                    try:
-                        return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0],
-                                           start=interior[1], **kw)
-                    except InteriorShiftUnusable as why:
-                        say(f"interior shift not usable ({why}); solving at the negative shift")
-                return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, **kw)
+                return solve_slepc(K_ff, M_ff, nev=nev, shift=shift, tol=tol, deflate=deflate, **kw)
             from modalfem.eigen.scipy_solver import solve_scipy
 
+            # (a tiny problem whose k reaches every mode goes to the dense path whichever solver was asked)
             method = "block" if solver == "block" else "arpack"
-            if interior is not None:
-                try:
-                    return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, interior=interior[0], start=interior[1],
-                                       groups=groups, method=method)
-                except InteriorShiftUnusable as why:
-                    say(f"interior shift not usable ({why}); solving at the negative shift")
-            return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, groups=groups, method=method)
+            return solve_scipy(K_ff, M_ff, nev=nev, shift=shift, tol=tol, groups=groups, method=method, deflate=deflate)
         except (ModalfemError, ImportError):
             raise
         except Exception as exc:  # noqa: BLE001 - never a raw ARPACK/PETSc traceback
@@ -352,23 +282,20 @@ def _have_pardiso() -> bool:
     return have_pardiso()
 
 
-def _missed(raw, rigid_expected: int, shift: float) -> int:
-    """Eigenvalues the solve missed: Sylvester count minus computed below the inertia shift, or rigid shortfall."""
-    from modalfem.eigen.scipy_solver import ZERO_RTOL
-
+def _missed(raw) -> int:
+    """Eigenvalues the solve missed below the inertia shift: Sylvester count minus computed below it."""
     lam = np.asarray(raw.eigenvalues, dtype=float)
-    below = int(np.sum(lam < raw.inertia_shift))
-    rigid = int(np.sum(np.abs(lam) <= ZERO_RTOL * abs(shift)))
-    return max(int(raw.inertia_count) - below, rigid_expected - rigid, 0)
+    return max(int(raw.inertia_count) - int(np.sum(lam < raw.inertia_shift)), 0)
 
 
-def _labels(points, shapes) -> tuple[str, ...]:
+def _labels(points, shapes, pieces=None) -> tuple[str, ...]:
+    from modalfem.eigen.labels import label_modes
+
     try:
-        from modalfem.eigen.labels import label_modes
-    except ImportError:  # labels module not installed/written yet: plain names
-        return tuple(f"mode {i + 1}" for i in range(shapes.shape[1]))
-    try:
-        return tuple(label_modes(points, shapes))
+        try:
+            return tuple(label_modes(points, shapes, pieces=pieces))
+        except TypeError:  # a labeller without piece support
+            return tuple(label_modes(points, shapes))
     except Exception as exc:  # noqa: BLE001 - labels are cosmetic: never lose a certified solve over them
         warnings.warn(f"mode labelling failed ({type(exc).__name__}: {exc}); using 'mode i'", stacklevel=3)
         return tuple(f"mode {i + 1}" for i in range(shapes.shape[1]))
@@ -416,8 +343,7 @@ def modes(
     from modalfem.backends import get_backend, resolve_backend
     from modalfem.constraints import fixed_mask
     from modalfem.eigen.certify import build_certificate
-    from modalfem.eigen.rigid import expected_rigid_count
-    from modalfem.eigen.scipy_solver import ZERO_RTOL
+    from modalfem.eigen.rigid import analyse_rigid, node_pieces
 
     say = progress if callable(progress) else (lambda msg: None)
     t_start = time.perf_counter()
@@ -429,18 +355,20 @@ def modes(
 
     say("constraints")
     t = time.perf_counter()
-    fixed_spec = fixed
     fixed = fixed_mask(mesh, degree, fixed)
     free = ~fixed
     n_free = int(free.sum())
-    rigid_expected = expected_rigid_count(mesh, degree, fixed)
+    structure = analyse_rigid(mesh, degree, fixed)
+    r = structure.zero_energy_count  # rigid modes, plus the hinges of a mechanism (reported below)
     timings["constraints"] = time.perf_counter() - t
-    if k + rigid_expected > n_free - 1:
+    if k > n_free - r:
+        # one rule: a body has n_free - r deformation modes; the last of them is certified by placing the
+        # inertia shift above the whole spectrum (every eigenvalue computed), so k may reach it
         raise SolverError(
-            f"k={k} (+{rigid_expected} rigid modes) exceeds the {n_free} free DOFs: ask for at most "
-            f"{max(n_free - 1 - rigid_expected, 0)} modes or refine the mesh"
+            f"k={k} exceeds the {max(n_free - r, 0)} deformation modes this mesh has ({n_free} free DOFs "
+            f"minus {r} rigid): ask for at most {max(n_free - r, 0)} modes or refine the mesh"
         )
-    nev = k + rigid_expected
+    nev = k + r
 
     comm = _mpi_comm(backend, solver)
     say(f"assembly ({backend}, P{degree}, {3 * mesh.node_count(degree)} DOFs{', distributed' if comm else ''})")
@@ -459,29 +387,21 @@ def modes(
 
     say("shift")
     t = time.perf_counter()
-    shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=rigid_expected, rows=rows, comm=comm)
+    shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=r, rows=rows, comm=comm)
+    Z = structure.basis(free, M_ff) if comm is None else _distributed_basis(structure, free, M_ff, rows, comm)
     timings["shift"] = time.perf_counter() - t
-
-    interior = None
-    if INTERIOR_SHIFT and degree == 2 and comm is None and (solver == "slepc" or _have_pardiso()):
-        say("interior shift from P1 bounds")
-        t = time.perf_counter()
-        found = interior_shift(mesh, material, fixed_spec, nev=nev, shift=shift, lumped=lumped, backend_module=mod)
-        if found is not None:
-            interior = (found[0], found[1][free])
-        timings["interior_shift"] = time.perf_counter() - t
 
     t = time.perf_counter()
     groups = np.flatnonzero(free) // 3 if comm is None else None  # node of each free DOF
-    raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say, interior=interior,
-                 groups=groups)
-    missed = _missed(raw, rigid_expected, shift)
+    raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say, groups=groups,
+                 deflate=Z)
+    missed = _missed(raw)
     if missed > 0 and nev + missed + 4 <= n_free - 1:
-        # a Krylov solver can miss copies of a multiple eigenvalue (12 rigid modes of two free pieces):
-        # the Sylvester count says how many; one retry with a wider search usually recovers them
+        # a Krylov solver can miss copies of a multiple eigenvalue: the Sylvester count says how many;
+        # one retry with a wider search usually recovers them
         say(f"retry: {missed} eigenvalue(s) missed below the inertia shift")
         raw = _solve(solver, K_ff, M_ff, nev=nev + missed + 4, shift=shift, tol=tol, rows=rows, comm=comm, say=say,
-                     groups=groups)
+                     groups=groups, deflate=Z)
     timings["eigen"] = time.perf_counter() - t
     for key, val in raw.timings.items():
         timings[f"eigen.{key}"] = float(val)
@@ -490,22 +410,19 @@ def modes(
     t = time.perf_counter()
     lam = np.asarray(raw.eigenvalues, dtype=float)
     X = np.asarray(raw.vectors)
-    rigid_found = int(np.sum(np.abs(lam) <= ZERO_RTOL * abs(shift)))
-    if len(lam) < rigid_found + k:
-        raise SolverError(
-            f"found {rigid_found} rigid modes where {rigid_expected} were expected, leaving fewer than k={k} "
-            "deformation modes: the mesh may have a mechanism (pieces joined by a vertex or an edge)"
-        )
+    if len(lam) < r + k:
+        raise SolverError(f"the eigen solve returned {len(lam)} pairs, fewer than the {r} rigid + k={k} wanted")
     if "residual_floor" in raw.info and len(raw.info["residual_floor"]) == len(lam):
         floor = np.asarray(raw.info["residual_floor"], dtype=float)  # the solver computed it already
     else:
         floor = _residual_floor(K_ff, X, rows, comm)
-    cert = build_certificate(raw, rigid_found, rigid_found + k, tol=tol, keep=k, residual_floor=floor)
-    if rigid_found != rigid_expected:
+    coupling = _rigid_coupling(Z, X[:, r : r + k], M_ff, rows, comm)
+    cert = build_certificate(raw, r, r + k, tol=tol, keep=k, residual_floor=floor, rigid_coupling=coupling)
+    if structure.mechanisms:
         cert = replace(cert, passed=False)
         warnings.warn(
-            f"found {rigid_found} zero-frequency modes, expected {rigid_expected} from {mesh.piece_count} "
-            "piece(s) and the constraints: mechanism or under-resolved mesh; certificate failed",
+            f"mechanism: {'; '.join(structure.mechanisms)} ({r} zero-frequency modes where {structure.rigid_count} "
+            "rigid ones were expected); certificate failed",
             RuntimeWarning,
             stacklevel=2,
         )
@@ -513,29 +430,34 @@ def modes(
 
     n_dof = fixed.size
     shapes = np.zeros((n_dof, k))
-    shapes[free] = X[:, rigid_found : rigid_found + k]
-    rigid_shapes = np.zeros((n_dof, rigid_found))
-    rigid_shapes[free] = X[:, :rigid_found]
-    lam_def = lam[rigid_found : rigid_found + k]
+    shapes[free] = X[:, r : r + k]
+    rigid_shapes = np.zeros((n_dof, r))
+    rigid_shapes[free] = X[:, :r]
+    lam_def = lam[r : r + k]
     if np.any(lam_def <= 0):
-        raise SolverError(f"deformation eigenvalue {lam_def.min():.3g} rad^2/s^2 is not positive")
+        raise SolverError(
+            f"deformation eigenvalue {lam_def.min():.3g} rad^2/s^2 is not positive: K is not positive definite "
+            "off the rigid motions (check the material: nu close to 0.5 makes K too ill-conditioned)"
+        )
     points = mesh.dof_points(degree)
 
     say("labels")
     t = time.perf_counter()
-    labels = _labels(points, shapes)
+    labels = _labels(points, shapes, node_pieces(mesh, degree))
     timings["labels"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
     say(f"done: certificate {'passed' if cert.passed else 'FAILED'}")
     info = {
         "shift": float(shift),
         "shift_ritz_bound": float(theta),
-        "residual_floor": float(np.max(floor[rigid_found : rigid_found + k])),
+        "residual_floor": float(np.max(floor[r : r + k])),
         "nev": int(nev),
         "computed": len(lam),
         "n_free": n_free,
         "n_dof": int(n_dof),
-        "rigid_expected": int(rigid_expected),
+        "rigid_expected": int(structure.rigid_count),
+        "zero_energy_modes": int(r),
+        "mechanisms": list(structure.mechanisms),
         "pieces": int(mesh.piece_count),
         "backend": backend,
         "solver": solver,
@@ -545,8 +467,44 @@ def modes(
         "solver_info": dict(raw.info),
     }
     return ModalResult(
-        omega=np.sqrt(lam_def), shapes=shapes, rigid_shapes=rigid_shapes, rigid_mode_count=rigid_found,
+        omega=np.sqrt(lam_def), shapes=shapes, rigid_shapes=rigid_shapes, rigid_mode_count=r,
         labels=labels, certificate=cert, timings=timings, degree=int(degree), dof_points=points,
         fixed_dofs=fixed, backend=backend, solver=solver, info=info,
     )
 
+
+def _petsc_products(A, Y: np.ndarray, rows) -> np.ndarray:
+    """A @ Y on this rank's rows (n_local, c) for a distributed PETSc matrix A and a global (n, c) array Y."""
+    x, y = A.createVecs()
+    out = np.empty((len(rows), Y.shape[1]))
+    for j in range(Y.shape[1]):
+        x.setArray(Y[rows, j])
+        A.mult(x, y)
+        out[:, j] = y.getArray()
+    return out
+
+
+def _distributed_basis(structure, free, M_ff, rows, comm) -> np.ndarray:
+    """``structure.basis`` when M_ff is a distributed PETSc matrix: Z (n_free, r) on every rank."""
+    from mpi4py import MPI
+
+    B = structure.fields[free]
+    for _ in range(2):
+        G = comm.allreduce(B[rows].T @ _petsc_products(M_ff, B, rows), op=MPI.SUM)
+        B = B @ np.linalg.inv(np.linalg.cholesky(0.5 * (G + G.T))).T
+    return B
+
+
+def _rigid_coupling(Z: np.ndarray, X: np.ndarray, M_ff, rows, comm) -> float:
+    """max_j ||Z^T M x_j||: how far the elastic modes are from M-orthogonal to the rigid fields (0 exact)."""
+    if not Z.shape[1] or not X.shape[1]:
+        return 0.0
+    if comm is None:
+        from modalfem.eigen.spmm import spmm
+
+        C = spmm(M_ff, Z).T @ X
+    else:
+        from mpi4py import MPI
+
+        C = comm.allreduce(_petsc_products(M_ff, Z, rows).T @ X[rows], op=MPI.SUM)
+    return float(np.max(np.linalg.norm(C, axis=0)))

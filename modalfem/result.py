@@ -22,7 +22,12 @@ class Certificate:
         computed_below_shift: eigenvalues this solve returned (rigid included) below sigma.
         pairs: index pairs (i, j) of deformation modes forming degenerate pairs.
         tolerance: the residual bound used for ``passed``.
-        passed: residuals <= tolerance, orthonormality <= 1e-8 and inertia_count == computed_below_shift.
+        passed: residuals <= tolerance, orthonormality <= 1e-8, rigid_coupling <= 1e-8 and
+            inertia_count == computed_below_shift.
+        rigid_coupling: max over deformation modes of ||Z^T M x|| against the M-orthonormal rigid fields
+            Z known from the mesh's structure: how far a deformation mode is from the rigid subspace's
+            M-orthogonal complement (0 exact). Rigid modes are classified by that subspace, never by
+            an eigenvalue threshold.
     """
 
     residuals: np.ndarray
@@ -34,6 +39,7 @@ class Certificate:
     pairs: tuple[tuple[int, int], ...]
     tolerance: float
     passed: bool
+    rigid_coupling: float = 0.0
 
     @property
     def max_residual(self) -> float:
@@ -56,6 +62,7 @@ class Certificate:
             "computed_below_shift": int(self.computed_below_shift),
             "pairs": [list(map(int, p)) for p in self.pairs],
             "tolerance": float(self.tolerance),
+            "rigid_coupling": float(self.rigid_coupling),
         }
 
 

@@ -14,14 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from modalfem.errors import SolverError
-
-__all__ = ["InteriorShiftUnusable", "RawModes"]
-
-
-class InteriorShiftUnusable(SolverError):
-    """An interior shift does not give a proven count of at least nev eigenvalues below it (the
-    solver computed nothing; solve again at the negative shift)."""
+__all__ = ["RawModes"]
 
 
 @dataclass

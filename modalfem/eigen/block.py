@@ -120,6 +120,7 @@ def block_krylov_schur(
     seed: int = 0,
     strict: int | None = None,
     extra_tol: float = 1e-6,
+    deflate: tuple[np.ndarray, np.ndarray] | None = None,
 ):
     """The ``m`` largest eigenvalues theta of ``T = opinv(M @ .)`` and their M-orthonormal vectors.
 
@@ -140,6 +141,9 @@ def block_krylov_schur(
             ``extra_tol``. Pairs computed only to place the certificate's inertia shift need their
             eigenvalues to ~1e-3, not their vectors to 1e-12: the Sylvester count checks them.
         extra_tol: convergence tolerance of the pairs beyond ``strict``.
+        deflate: optional (Z, M Z), an M-orthonormal basis (n, r) of an invariant subspace of T to leave
+            out (the rigid fields): every block is kept M-orthogonal to it, so the pairs returned are
+            the m largest theta of T on its M-orthogonal complement.
 
     Returns:
         (theta (m,) descending, X (n, m) M-orthonormal, info dict with ``solves``, ``blocks``,
@@ -161,7 +165,11 @@ def block_krylov_schur(
     if start is not None:
         S = np.asarray(start, dtype=np.float64).reshape(n, -1)[:, :b]
         P[:, : S.shape[1]] = S
-    P, MP, _ = _new_block(P, M, [], rng)
+    fixed = [] if deflate is None or not deflate[0].shape[1] else [tuple(deflate)]
+    if fixed and m > n - fixed[0][0].shape[1] - 1:
+        raise SolverError(f"block Krylov-Schur: m={m} exceeds the {n - fixed[0][0].shape[1]} DOFs left after deflation")
+    P, _ = _orthogonalise(P, fixed)
+    P, MP, _ = _new_block(P, M, fixed, rng)
     V = np.empty((n, max_dim + b), order="F")  # column-major: V[:, :k] is one contiguous block
     MV = np.empty((n, max_dim + b), order="F")
     H = np.zeros((max_dim + b, max_dim + b))
@@ -171,13 +179,14 @@ def block_krylov_schur(
         W = np.asarray(opinv(MP), dtype=np.float64).reshape(n, b)  # T P
         solves += b
         blocks += 1
+        W, _ = _orthogonalise(W, fixed)  # T keeps span(Z) invariant: only roundoff to remove
         W, (_, C2) = _orthogonalise(W, [(V[:, :k], MV[:, :k]), (P, MP)])
         V[:, k : k + b], MV[:, k : k + b] = P, MP
         H[:k, k : k + b] = R.T  # = the coefficients on V in exact arithmetic (T is M-symmetric)
         H[k : k + b, :k] = R
         H[k : k + b, k : k + b] = 0.5 * (C2 + C2.T)
         k += b
-        P, MP, Rb = _new_block(W, M, [(V[:, :k], MV[:, :k])], rng)
+        P, MP, Rb = _new_block(W, M, [*fixed, (V[:, :k], MV[:, :k])], rng)
         R = np.zeros((b, k))
         R[:, k - b :] = Rb
         theta, Y = np.linalg.eigh(H[:k, :k])

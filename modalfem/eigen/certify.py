@@ -46,7 +46,7 @@ def _rel_gaps(lam: np.ndarray, floor: float) -> np.ndarray:
     return np.diff(lam) / np.maximum(np.maximum(np.abs(lam[1:]), np.abs(lam[:-1])), floor)
 
 
-def choose_inertia_shift(eigenvalues, nev: int, *, floor: float = 0.0) -> float:
+def choose_inertia_shift(eigenvalues, nev: int, *, floor: float = 0.0, complete: bool = False) -> float:
     """Shift sigma [rad^2/s^2] for the Sylvester count: between the nev-th and a later eigenvalue.
 
     sigma is the midpoint of the first gap ``(lam[j], lam[j+1])``, ``j >= nev - 1``, whose relative
@@ -57,6 +57,9 @@ def choose_inertia_shift(eigenvalues, nev: int, *, floor: float = 0.0) -> float:
         nev: number of wanted eigenvalues (rigid included).
         floor: eigenvalue scale [rad^2/s^2] under which gaps are measured absolutely (so that gaps
             among near-zero rigid eigenvalues are not inflated); 0 uses pure relative gaps.
+        complete: ``eigenvalues`` is the whole spectrum (a dense solve of a tiny problem). Then, if
+            no gap above the nev-th is clear, sigma goes above the largest eigenvalue (every
+            eigenvalue lies below it, which the count proves just as well).
 
     Returns:
         sigma, with lam[nev - 1] < sigma < lam[m - 1].
@@ -66,6 +69,9 @@ def choose_inertia_shift(eigenvalues, nev: int, *, floor: float = 0.0) -> float:
             (a cluster too wide for the computed eigenvalues to bracket).
     """
     lam = np.asarray(eigenvalues, dtype=float)
+    top = float(lam[-1] + max(abs(lam[-1]), np.finfo(float).tiny)) if lam.size else 0.0
+    if complete and lam.ndim == 1 and len(lam) == nev >= 1:
+        return top
     if lam.ndim != 1 or len(lam) < nev + 1 or nev < 1:
         raise SolverError(
             f"the inertia check needs at least nev + 1 = {nev + 1} computed eigenvalues, got {lam.size}"
@@ -73,6 +79,8 @@ def choose_inertia_shift(eigenvalues, nev: int, *, floor: float = 0.0) -> float:
     gaps = _rel_gaps(lam, max(floor, np.finfo(float).tiny))[nev - 1 :]
     wide = np.flatnonzero(gaps >= CLEAR_GAP)
     j = int(wide[0]) if len(wide) else int(np.argmax(gaps))
+    if complete and not len(wide):
+        return top
     if gaps[j] < PAIR_RTOL:
         raise SolverError(
             f"cannot place the inertia shift: eigenvalues {nev}..{len(lam)} form one cluster "
@@ -102,6 +110,7 @@ def build_certificate(
     tol: float = 1e-10,
     keep: int | None = None,
     residual_floor=None,
+    rigid_coupling: float = 0.0,
 ) -> Certificate:
     """Turn a solver's numbers into a ``Certificate``.
 
@@ -116,6 +125,8 @@ def build_certificate(
             beams reach 1e-8..1e-6: lambda_max / lambda_1 ~ 1e10), so the bound used is
             max(tol, FLOOR_FACTOR * max floor over the reported deformation modes): the pairs are then
             exact for a relative perturbation of K of a few eps, the best double precision can prove.
+        rigid_coupling: max_j ||Z^T M x_j|| of the reported deformation modes against the M-orthonormal
+            rigid fields Z (0 when they are exactly M-orthogonal); must be <= ``ORTHONORMALITY_TOL``.
 
     Returns:
         The Certificate: passed = all residuals <= tol, orthonormality <= 1e-8, and the Sylvester count
@@ -141,6 +152,8 @@ def build_certificate(
         and np.isfinite(raw.orthonormality_error)
         and raw.orthonormality_error <= ORTHONORMALITY_TOL
         and count_ok
+        and np.isfinite(rigid_coupling)
+        and rigid_coupling <= ORTHONORMALITY_TOL
     )
     return Certificate(
         residuals=deform,
@@ -152,4 +165,5 @@ def build_certificate(
         pairs=degenerate_pairs(lam[r : r + k]),
         tolerance=float(tol),
         passed=passed,
+        rigid_coupling=float(rigid_coupling),
     )

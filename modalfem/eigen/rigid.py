@@ -6,13 +6,23 @@ strain, so their nodal interpolants lie exactly in the null space of the assembl
 A constraint removes the rigid motions that do not vanish on the fixed DOFs; what survives per piece
 is the null space of the fixed rows of that piece's 6 fields (an SVD rank), e.g. 6 for a free body,
 0 when clamped on a face, 3 for a plate held only in z on its edges (in-plane motions survive).
+
+Mechanisms come from structure too. Tetrahedra that share a face form a rigid *part* (two tets
+sharing three non-collinear vertices cannot move rigidly with respect to each other), so the
+zero-energy fields of a piece are exactly the fields that are rigid on each part and continuous at
+the nodes parts share. A piece whose parts touch only at a vertex or along an edge has more of
+them than its 6 - (constrained) rigid motions: a hinge. ``analyse_rigid`` counts both and names
+the hinge, with no eigenvalue and no threshold tied to a shift.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
-__all__ = ["RANK_RTOL", "expected_rigid_count", "node_pieces", "rigid_basis", "rigid_fields"]
+__all__ = ["RANK_RTOL", "RigidStructure", "analyse_rigid", "cell_parts", "expected_rigid_count", "node_pieces",
+           "rigid_basis", "rigid_fields"]
 
 #: singular values of the fixed rows below RANK_RTOL * sqrt(nodes in the piece) count as zero. The
 #: columns are scaled to norm ~sqrt(nodes), so this is a relative test far above roundoff (1e-16) and
@@ -30,18 +40,9 @@ def node_pieces(mesh, degree: int) -> np.ndarray:
 
 def _piece_fields(points: np.ndarray) -> np.ndarray:
     """6 rigid fields (3n, 6) of one piece: translations, then rotations about the centroid / size."""
-    n = len(points)
     c = points.mean(axis=0)
-    d = points - c
-    scale = float(np.sqrt((d**2).sum(axis=1).mean())) or 1.0  # rotations of O(1) nodal size, like translations
-    d = d / scale
-    R = np.zeros((n, 3, 6))
-    R[:, 0, 0] = R[:, 1, 1] = R[:, 2, 2] = 1.0
-    # rotation about axis a: u = e_a x d
-    R[:, 1, 3], R[:, 2, 3] = -d[:, 2], d[:, 1]
-    R[:, 0, 4], R[:, 2, 4] = d[:, 2], -d[:, 0]
-    R[:, 0, 5], R[:, 1, 5] = -d[:, 1], d[:, 0]
-    return R.reshape(3 * n, 6)
+    scale = float(np.sqrt(((points - c) ** 2).sum(axis=1).mean())) or 1.0  # rotations of O(1) nodal size
+    return _frame_fields(points, c, scale)
 
 
 def rigid_fields(mesh, degree: int) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -123,3 +124,186 @@ def rigid_basis(mesh, degree: int, fixed_mask: np.ndarray, M_ff=None) -> np.ndar
     G = B.T @ (M_ff @ B)
     L = np.linalg.cholesky(0.5 * (G + G.T))
     return np.linalg.solve(L, B.T).T
+
+
+def cell_parts(mesh) -> np.ndarray:
+    """Face-connected part label (m,) of every cell: cells sharing a triangle face are in one part."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from modalfem.mesh.core import TET_FACES, unique_rows
+
+    m = mesh.cell_count
+    faces = np.sort(mesh.cells[:, TET_FACES].reshape(-1, 3), axis=1)
+    _, inv = unique_rows(faces, mesh.point_count, return_inverse=True)
+    inv = np.asarray(inv).ravel()
+    cells = np.repeat(np.arange(m), 4)
+    n = m + int(inv.max()) + 1  # bipartite graph: cells, then faces
+    g = coo_matrix((np.ones(len(cells)), (cells, m + inv)), shape=(n, n))
+    _, labels = connected_components(g, directed=False)
+    _, parts = np.unique(labels[:m], return_inverse=True)
+    return parts.astype(np.int64)
+
+
+@dataclass(frozen=True)
+class RigidStructure:
+    """Zero-energy motions of a constrained mesh, read from its structure.
+
+    Attributes:
+        rigid_count: rigid motions that survive the constraints, summed over pieces (6 per free piece).
+        zero_energy_count: dimension of all zero-strain fields (rigid motions plus mechanisms).
+        mechanisms: one line per piece with a mechanism, naming the piece and where it hinges.
+        fields: a basis (N_dof, zero_energy_count) of the zero-energy fields over all DOFs (zero on
+            fixed DOFs), dimensionless; ``basis`` turns it into an M-orthonormal one on the free DOFs.
+    """
+
+    rigid_count: int
+    zero_energy_count: int
+    mechanisms: tuple[str, ...]
+    fields: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
+
+    def basis(self, free: np.ndarray, M_ff) -> np.ndarray:
+        """M-orthonormal basis Z (n_free, zero_energy_count) of the zero-energy fields: Z^T M_ff Z = I.
+
+        Args:
+            free: bool mask (N_dof,) of the free DOFs.
+            M_ff: mass matrix [kg] on the free DOFs (scipy sparse).
+        """
+        B = self.fields[np.asarray(free, dtype=bool)]
+        if not B.shape[1]:
+            return B
+        from modalfem.eigen.spmm import spmm
+
+        G = B.T @ spmm(M_ff, B)
+        s, U = np.linalg.eigh(0.5 * (G + G.T))
+        T = U / np.sqrt(s)  # the fields are independent by construction (an SVD null space): s > 0
+        Z = B @ T
+        for _ in range(2):  # re-orthonormalise once against rounding in the first pass
+            G = Z.T @ spmm(M_ff, Z)
+            Z = Z @ np.linalg.inv(np.linalg.cholesky(0.5 * (G + G.T))).T
+        return Z
+
+    @property
+    def mechanism_count(self) -> int:
+        return self.zero_energy_count - self.rigid_count
+
+
+def _describe_hinge(mesh, piece: int, shared: np.ndarray, parts: int, extra: int) -> str:
+    v = np.unique(shared[shared < mesh.point_count])
+    where = ", ".join(f"{int(i)} ({', '.join(f'{c:.4g}' for c in mesh.points[i])})" for i in v[:4])
+    x = mesh.points[v]
+    sv = np.linalg.svd(x - x.mean(axis=0), compute_uv=False) if len(v) > 1 else np.zeros(1)
+    line = len(v) > 1 and sv[1] <= 1e-9 * max(float(sv[0]), np.finfo(float).tiny)
+    kind = "vertex" if len(v) == 1 else (f"a line of edges (an edge hinge) through {len(v)} vertices" if line
+                                         else f"{len(v)} vertices")
+    more = ", ..." if len(v) > 4 else ""
+    return (f"piece {piece} is {parts} parts joined only at {kind} {where}{more} [m], a hinge with {extra} "
+            "free motion(s): join the parts through a face or mesh them apart")
+
+
+def analyse_rigid(mesh, degree: int, fixed_mask: np.ndarray) -> RigidStructure:
+    """Rigid-motion and mechanism counts of a mesh under its constraints, from its structure.
+
+    Args:
+        mesh: the ``Mesh``.
+        degree: Lagrange degree (1 or 2).
+        fixed_mask: bool (3 * N_nodes,) from ``modalfem.constraints.fixed_mask``.
+
+    Returns:
+        ``RigidStructure``: per piece, the rigid count is 6 minus the rank the constraints remove from
+        the piece's 6 rigid fields; the zero-energy count is the null space of "rigid on every
+        face-connected part, continuous at shared nodes, zero on fixed DOFs" (an SVD rank at
+        ``RANK_RTOL``, relative, like the rigid count).
+    """
+    fixed = np.asarray(fixed_mask, dtype=bool)
+    rigid = expected_rigid_count(mesh, degree, fixed)
+    parts = cell_parts(mesh)
+    piece_of_cell = mesh.point_piece[mesh.cells[:, 0]]
+    pts = mesh.dof_points(degree)
+    cell_nodes = mesh.cell_nodes(degree)
+    zero, notes, cols = 0, [], []
+    n_dof = fixed.size
+    for nodes_p, R_p in rigid_fields(mesh, degree):
+        piece = int(node_pieces(mesh, degree)[nodes_p[0]])
+        cells = np.flatnonzero(piece_of_cell == piece)
+        plabels = np.unique(parts[cells])
+        null = _piece_null(R_p, fixed[_piece_dofs(nodes_p)], len(nodes_p))
+        held = null.shape[1]
+        if len(plabels) == 1:
+            zero += held
+            if held:
+                full = np.zeros((n_dof, held))
+                full[_piece_dofs(nodes_p)] = R_p @ null
+                full[fixed] = 0.0
+                cols.append(full)
+            continue
+        # several parts: unknowns are 6 rigid coefficients per part
+        blocks, owner_nodes = [], []
+        for a in plabels:
+            nodes = np.unique(cell_nodes[cells[parts[cells] == a]])
+            owner_nodes.append(nodes)
+        all_nodes = np.concatenate(owner_nodes)
+        owner = np.concatenate([np.full(len(n), j) for j, n in enumerate(owner_nodes)])
+        P = len(plabels)
+        c = pts[nodes_p].mean(axis=0)
+        scale = float(np.sqrt(((pts[nodes_p] - c) ** 2).sum(axis=1).mean())) or 1.0
+
+        def fields_at(nodes):  # the piece's 6 rigid fields (one frame for every part) at these nodes
+            return _frame_fields(pts[nodes], c, scale)
+
+        for j, nodes in enumerate(owner_nodes):
+            F = fields_at(nodes)
+            rows = fixed[_piece_dofs(nodes)]
+            if rows.any():
+                G = F[rows].T @ F[rows]
+                s, V = np.linalg.eigh(0.5 * (G + G.T))
+                blk = np.zeros((6, 6 * P))
+                blk[:, 6 * j : 6 * j + 6] = (np.sqrt(np.maximum(s, 0.0))[:, None] * V.T)
+                blocks.append(blk)
+        order = np.argsort(all_nodes, kind="stable")
+        sn, so = all_nodes[order], owner[order]
+        dup = np.flatnonzero(sn[1:] == sn[:-1]) + 1
+        shared = np.unique(sn[dup])
+        first = {}
+        for i in range(len(sn)):
+            first.setdefault(int(sn[i]), int(so[i]))
+        for i in dup:
+            node, a, b = int(sn[i]), first[int(sn[i])], int(so[i])
+            if a == b:
+                continue
+            F = fields_at(np.array([node]))
+            blk = np.zeros((3, 6 * P))
+            blk[:, 6 * a : 6 * a + 6] = F
+            blk[:, 6 * b : 6 * b + 6] = -F
+            blocks.append(blk)
+        C = np.vstack(blocks) if blocks else np.zeros((0, 6 * P))
+        if len(C):
+            _, s, vt = np.linalg.svd(C, full_matrices=True)
+        else:
+            s, vt = np.zeros(0), np.eye(6 * P)
+        rank = int(np.sum(s > RANK_RTOL * max(1.0, float(s.max()) if len(s) else 1.0)))
+        z = 6 * P - rank
+        zero += z
+        if z:
+            N = vt[rank:].T  # (6 P, z): rigid coefficients of every part
+            full = np.zeros((n_dof, z))
+            for j, nodes in enumerate(owner_nodes):
+                full[_piece_dofs(nodes)] = fields_at(nodes) @ N[6 * j : 6 * j + 6]
+            full[fixed] = 0.0
+            cols.append(full)
+        if z > held:
+            notes.append(_describe_hinge(mesh, piece, shared, P, z - held))
+    fields = np.hstack(cols) if cols else np.zeros((n_dof, 0))
+    return RigidStructure(rigid_count=int(rigid), zero_energy_count=int(zero), mechanisms=tuple(notes), fields=fields)
+
+
+def _frame_fields(points: np.ndarray, c: np.ndarray, scale: float) -> np.ndarray:
+    """6 rigid fields (3n, 6) at ``points`` about the centre ``c`` [m], rotations divided by ``scale`` [m]."""
+    d = (points - c) / scale
+    n = len(points)
+    R = np.zeros((n, 3, 6))
+    R[:, 0, 0] = R[:, 1, 1] = R[:, 2, 2] = 1.0
+    R[:, 1, 3], R[:, 2, 3] = -d[:, 2], d[:, 1]
+    R[:, 0, 4], R[:, 2, 4] = d[:, 2], -d[:, 0]
+    R[:, 0, 5], R[:, 1, 5] = -d[:, 1], d[:, 0]
+    return R.reshape(3 * n, 6)

@@ -28,11 +28,11 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from modalfem.eigen.base import InteriorShiftUnusable, RawModes
+from modalfem.eigen.base import RawModes
 from modalfem.eigen.spmm import spmm
 from modalfem.errors import SolverError
 
-__all__ = ["ZERO_RTOL", "extra_count", "inertia_count", "residual_floor", "residuals", "solve_scipy"]
+__all__ = ["ZERO_RTOL", "Deflation", "extra_count", "inertia_count", "residual_floor", "residuals", "solve_scipy"]
 
 #: eigenvalues with |lambda| <= ZERO_RTOL * |shift| are "zero" (rigid): residuals divide by ||K|| ||x||.
 ZERO_RTOL = 1e-3
@@ -47,15 +47,20 @@ def extra_count(nev: int) -> int:
     return max(4, nev // 5)
 
 
-def residuals(K, M, X: np.ndarray, lam: np.ndarray, *, shift: float, KX=None, MX=None, absK=None) -> np.ndarray:
-    """Relative residuals ||K x - lam M x|| / ||K x|| (m,); for zero-like lam, / (||K||_inf ||x||).
-    ``KX``, ``MX`` (products already computed) and ``absK`` (|K|) are optional."""
+def residuals(K, M, X: np.ndarray, lam: np.ndarray, *, shift: float, KX=None, MX=None, absK=None,
+              rigid: int | None = None) -> np.ndarray:
+    """Relative residuals ||K x - lam M x|| / ||K x|| (m,); for rigid pairs, / (||K||_inf ||x||).
+
+    ``rigid``: the number of leading columns that are zero-energy fields by construction (known from
+    the mesh's structure, see ``modalfem.eigen.rigid``); None (direct calls on a bare pencil) treats
+    |lam| <= ZERO_RTOL |shift| as rigid. ``KX``, ``MX`` (products already computed) and ``absK`` (|K|)
+    are optional."""
     KX = spmm(K, X) if KX is None else KX
     R = KX - (spmm(M, X) if MX is None else MX) * lam
     rn = np.linalg.norm(R, axis=0)
     kx = np.linalg.norm(KX, axis=0)
     knorm = float(np.max(spmm(_abs(K) if absK is None else absK, np.ones(K.shape[1])))) if K.shape[0] else 0.0
-    zero = np.abs(lam) <= ZERO_RTOL * abs(shift)
+    zero = np.abs(lam) <= ZERO_RTOL * abs(shift) if rigid is None else np.arange(len(lam)) < rigid
     den = np.where(zero, knorm * np.linalg.norm(X, axis=0), kx)
     return rn / np.maximum(den, np.finfo(float).tiny)
 
@@ -76,16 +81,17 @@ def residual_floor(K, X: np.ndarray, *, KX=None, absK=None) -> np.ndarray:
     return eps * np.linalg.norm(num, axis=0) / np.maximum(np.linalg.norm(den, axis=0), np.finfo(float).tiny)
 
 
-def _pair_numbers(K, M, X, lam, shift, absK):
+def _pair_numbers(K, M, X, lam, shift, absK, rigid=None):
     """(residuals, roundoff floors, M X) of M-normalised pairs, with one product by K and one by M."""
     KX, MX = spmm(K, X), spmm(M, X)
-    res = residuals(K, M, X, lam, shift=shift, KX=KX, MX=MX, absK=absK)
+    res = residuals(K, M, X, lam, shift=shift, KX=KX, MX=MX, absK=absK, rigid=rigid)
     return res, residual_floor(K, X, KX=KX, absK=absK), MX
 
 
-def _elastic_floor(lam: np.ndarray, floor: np.ndarray, nev: int, shift: float) -> float:
-    """Largest roundoff floor among the lowest ``nev`` pairs that are not rigid (0 if all are)."""
-    elastic = np.abs(lam[:nev]) > ZERO_RTOL * abs(shift)
+def _elastic_floor(lam: np.ndarray, floor: np.ndarray, nev: int, shift: float, deflated: bool) -> float:
+    """Largest roundoff floor among the lowest ``nev`` pairs that are not rigid (0 if all are); with a
+    deflated rigid subspace every computed pair is elastic."""
+    elastic = np.ones(nev, dtype=bool) if deflated else np.abs(lam[:nev]) > ZERO_RTOL * abs(shift)
     return float(np.max(floor[:nev][elastic])) if elastic.any() else 0.0
 
 
@@ -172,14 +178,19 @@ def inertia_count(K, M, sigma: float, *, lower: float | None = None, upper: floa
     )
 
 
-def _dense_solve(K, M, m: int):
+def _dense_solve(K, M, m: int, defl=None):
+    """Lowest m pairs by dense eigh, in the M-orthogonal complement of the deflated fields if any."""
     from scipy.linalg import eigh
 
+    Q = None if defl is None or not defl.count else defl.complement()
+    Kd, Md = K.toarray(), M.toarray()
+    if Q is not None:
+        Kd, Md = Q.T @ Kd @ Q, Q.T @ Md @ Q
     try:
-        lam, X = eigh(K.toarray(), M.toarray(), subset_by_index=[0, m - 1])
+        lam, X = eigh(0.5 * (Kd + Kd.T), 0.5 * (Md + Md.T), subset_by_index=[0, m - 1])
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise SolverError(f"dense eigh failed: {exc}") from None
-    return lam, X
+    return lam, (X if Q is None else Q @ X)
 
 
 def _rayleigh_ritz(K, M, Y: np.ndarray):
@@ -246,10 +257,44 @@ def _use_pardiso(factor: str) -> bool:
     return factor == "pardiso" or (factor == "auto" and have_pardiso())
 
 
+class Deflation:
+    """The rigid (zero-energy) subspace, handled exactly: an M-orthonormal basis Z (n, r) of fields with
+    K Z = 0 up to roundoff, known from the mesh's structure (``modalfem.eigen.rigid``).
+
+    Solvers keep their Krylov spaces M-orthogonal to Z (``project``), so they compute the elastic pairs
+    only; the rigid pairs are Z itself. Z is invariant under (K - shift M)^-1 M (eigenvalue -1/shift),
+    so the projection only removes what roundoff lets in."""
+
+    def __init__(self, Z: np.ndarray | None, M) -> None:
+        n = M.shape[0]
+        self.Z = np.zeros((n, 0)) if Z is None else np.ascontiguousarray(Z, dtype=np.float64)
+        self.MZ = spmm(M, self.Z) if self.Z.shape[1] else np.zeros((n, 0))
+
+    @property
+    def count(self) -> int:
+        return int(self.Z.shape[1])
+
+    def project(self, Y: np.ndarray) -> np.ndarray:
+        """Y minus its M-projection on span(Z), twice ("twice is enough")."""
+        if not self.count:
+            return Y
+        for _ in range(2):
+            Y = Y - self.Z @ (self.MZ.T @ Y)
+        return Y
+
+    def complement(self) -> np.ndarray:
+        """Euclidean-orthonormal basis (n, n - r) of the M-orthogonal complement of Z (dense problems)."""
+        n = self.Z.shape[0]
+        if not self.count:
+            return np.eye(n)
+        q, _ = np.linalg.qr(self.MZ, mode="complete")
+        return q[:, self.count :]
+
+
 def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: int | None = None,
-                factor: str = "auto", interior: float | None = None, start: np.ndarray | None = None,
-                groups: np.ndarray | None = None, method: str = "arpack") -> RawModes:
-    """Lowest ``nev`` (+ a few) eigenpairs of K x = lam M x by shift-invert ARPACK at a negative shift.
+                factor: str = "auto", start: np.ndarray | None = None, groups: np.ndarray | None = None,
+                method: str = "arpack", deflate: np.ndarray | None = None) -> RawModes:
+    """Lowest ``nev`` (+ a few) eigenpairs of K x = lam M x by shift-invert at a negative shift.
 
     Args:
         K_ff: stiffness on the free DOFs [N/m], symmetric sparse (n, n).
@@ -259,22 +304,21 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         tol: target relative residual; ARPACK is run to machine precision (tol=0) when tol < 1e-8.
         ncv: Lanczos basis size (default max(2 m + 1, 20) for m computed pairs).
         factor: ``"pardiso"`` (MKL), ``"superlu"``, or ``"auto"`` (PARDISO where it loads).
-        interior: optional sigma [rad^2/s^2] above the nev-th eigenvalue (PARDISO only, ignored
-            otherwise): K - sigma M is factorised once, its inertia c is the certificate's count, and
-            ARPACK returns the c most negative 1 / (lambda - sigma), i.e. every eigenvalue below sigma.
-            Raises ``InteriorShiftUnusable`` (nothing computed) when c < nev or the count is unproven.
-        start: optional ARPACK start vector (n,), e.g. approximate eigenvectors from a coarser space.
+        start: optional start vector (n,), e.g. approximate eigenvectors from a coarser space.
         groups: optional node of each free DOF (n,), for PARDISO's ordering (see ``PardisoLDLT``).
         method: ``"arpack"`` (``eigsh``, one solve per Lanczos vector) or ``"block"`` (block
             Krylov-Schur, ``modalfem.eigen.block``: 4 right-hand sides per solve, ~2x faster on a
-            PARDISO factor; at an ``interior`` shift ARPACK is used).
+            PARDISO factor).
+        deflate: optional M-orthonormal basis (n, r) of the rigid (zero-energy) fields, r < nev. The
+            iteration runs in their M-orthogonal complement for the nev - r elastic pairs; the
+            returned pairs are Z (first, eigenvalues = Rayleigh quotients ~ 0) then the elastic ones.
 
     Returns:
         RawModes with m = nev + ``extra_count(nev)`` eigenpairs (fewer if n is tiny: then a dense
         solve is used), M-orthonormal vectors, residuals and the inertia count.
 
     Raises:
-        SolverError: the factorisation or ARPACK failed, or the inertia count could not be proven.
+        SolverError: the factorisation or the iteration failed, or the inertia count could not be proven.
     """
     from scipy.sparse.linalg import (
         ArpackError,
@@ -292,24 +336,27 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
     n = K.shape[0]
     if shift >= 0:
         raise SolverError(f"solve_scipy needs a negative shift, got {shift:g} rad^2/s^2")
-    if not 1 <= nev < n:
-        raise SolverError(f"nev={nev} must lie in [1, {n - 1}] for {n} free DOFs")
-    m = min(nev + extra_count(nev), n)
+    if not 1 <= nev <= n:
+        raise SolverError(f"nev={nev} must lie in [1, {n}] for {n} free DOFs")
+    defl = Deflation(deflate, M)
+    r = defl.count
+    if r >= nev:
+        raise SolverError(f"nev={nev} must exceed the {r} deflated rigid modes")
+    m = min(nev - r + extra_count(nev), n - r)  # elastic pairs computed
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
-    info = {"solver": "scipy", "shift": float(shift), "nev": int(nev), "computed": int(m)}
+    info = {"solver": "scipy", "shift": float(shift), "nev": int(nev), "computed": int(m + r), "deflated": r}
     pardiso = None
-    if n <= max(200, 3 * m):  # ARPACK needs ncv < n; tiny problems are solved densely
-        lam, X = _dense_solve(K, M, m)
-        lu, interior = None, None
+    if n - r <= max(200, 3 * m):  # ARPACK needs ncv < n; tiny problems are solved densely
+        lam, X = _dense_solve(K, M, m, defl)
+        lu = None
         info["method"] = "dense eigh"
         timings["factor"] = 0.0
         timings["solve"] = time.perf_counter() - t0
     elif _use_pardiso(factor):
         from modalfem.eigen.pardiso import PardisoLDLT
 
-        at = shift if interior is None else float(interior)
-        A = (K - at * M).tocsr()
+        A = (K - shift * M).tocsr()
         A.sort_indices()
         # Bunch-Kaufman pivots for the solves even where K - shift M is positive definite: diagonal pivots
         # were 15-30 % faster but left the lowest pair of a slender beam at 0.1 x its roundoff floor instead
@@ -317,18 +364,7 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         pardiso = lu = PardisoLDLT(A, groups=groups).refactor()
         timings["factor"] = time.perf_counter() - t0
         info.update(factor="pardiso-ldlt", **pardiso.info())
-        if interior is not None:
-            neg, zero, _ = pardiso.inertia
-            if pardiso.perturbed_pivots or zero or not nev <= neg < n - 1:
-                pardiso.close()
-                raise InteriorShiftUnusable(
-                    f"{neg} eigenvalues below sigma = {interior:.6g} (nev = {nev}, zero pivots {zero}, "
-                    f"perturbed pivots {pardiso.perturbed_pivots})"
-                )
-            m = int(neg)
-            info.update(computed=m, interior_shift=float(interior))
     else:
-        interior = None  # the interior mode needs PARDISO's inertia
         # K - shift M is SPD: diagonal pivots (a Cholesky-like LDL^T) are stable and keep the MMD
         # ordering's sparsity; measured 5x faster with half the fill of the pivoting default (19,683 DOFs).
         A = (K - shift * M).tocsc()
@@ -338,30 +374,32 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
             lu = _splu(A, what)
         timings["factor"] = time.perf_counter() - t0
         info.update(factor="superlu", ordering="MMD_AT_PLUS_A", factor_nnz=int(lu.nnz))
-    if lu is not None and interior is None and method == "block":
+    v0 = None if start is None else defl.project(np.asarray(start, dtype=np.float64).reshape(n, -1))
+    if lu is not None and method == "block":
         # one multi-RHS PARDISO solve per block of vectors (see modalfem.eigen.block)
         from modalfem.eigen.block import block_krylov_schur
 
         t1 = time.perf_counter()
-        theta, X, binfo = block_krylov_schur(lu.solve, M, m, tol=max(tol * 1e-2, 1e-14), start=start, strict=nev)
+        theta, X, binfo = block_krylov_schur(lu.solve, M, m, tol=max(tol * 1e-2, 1e-14), start=v0,
+                                             strict=nev - r, deflate=(defl.Z, defl.MZ) if r else None)
         timings["solve"] = time.perf_counter() - t1
         order = np.argsort(shift + 1.0 / theta)
         lam, X = (shift + 1.0 / theta)[order], X[:, order]
         info.update(method="block krylov-schur shift-invert", **{f"block_{k}": v for k, v in binfo.items()
                                                                  if k != "residual_estimates"})
     elif lu is not None:
-        op = LinearOperator((n, n), matvec=lu.solve, matmat=lu.solve, dtype=np.float64)
-        ncv = ncv or min(n - 1, max(2 * m + 1, 20))
+        def opinv(b):
+            return defl.project(np.asarray(lu.solve(b)).reshape(n, -1)).reshape(np.shape(b))
+
+        op = LinearOperator((n, n), matvec=opinv, matmat=opinv, dtype=np.float64)
+        ncv = ncv or min(n - r - 1, max(2 * m + 1, 20))
         t1 = time.perf_counter()
         rng = np.random.default_rng(12345)
         try:
-            # interior: the most negative 1 / (lambda - sigma) are the eigenvalues just below sigma down
-            # to the lowest, exactly m = inertia of them
             mu, X = eigsh(
-                K, k=m, M=M, sigma=shift if interior is None else interior,
-                which="LM" if interior is None else "SA", OPinv=op, ncv=ncv,
+                K, k=m, M=M, sigma=shift, which="LM", OPinv=op, ncv=ncv,
                 tol=0.0 if tol < 1e-8 else tol * 1e-2, maxiter=max(1000, 50 * m),
-                v0=rng.standard_normal(n) if start is None else np.asarray(start, dtype=np.float64),
+                v0=(defl.project(rng.standard_normal((n, 1))) if v0 is None else v0[:, :1]).ravel(),
             )
         except ArpackNoConvergence as exc:
             raise SolverError(
@@ -374,37 +412,38 @@ def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: 
         lam, X = mu[order], X[:, order]
         info.update(method="arpack shift-invert", ncv=int(ncv))
     t2 = time.perf_counter()
-    lam, X = _rayleigh_ritz(K, M, X)
+    lam, X = _rayleigh_ritz(K, M, defl.project(X))
     absK = _abs(K)
-    res, floor, MX = _pair_numbers(K, M, X, lam, shift, absK)
+    res, floor, MX = _pair_numbers(K, M, X, lam, shift, absK, rigid=0 if r else None)
     refinements = 0
-    # ARPACK's Ritz vectors carry errors ~ eps * lam / |shift|; one subspace-iteration step with the
-    # same factor plus Rayleigh-Ritz (m solves) removes them (measured: 3e-9 -> 8e-12 at shift -1e4).
-    # (at an interior shift over span(X, Y): inverse iteration there alone would amplify the modes just
-    # above sigma; the two-block space contains X, so its lowest Ritz pairs are never worse)
-    # refine while a wanted pair is above 0.1 tol and above the largest roundoff floor of the wanted
+    # the iteration's Ritz vectors carry errors ~ eps * lam / |shift|; one subspace-iteration step with
+    # the same factor plus Rayleigh-Ritz (m solves) removes them (measured: 3e-9 -> 8e-12 at shift -1e4).
+    # Refine while a wanted pair is above 0.1 tol and above the largest roundoff floor of the wanted
     # elastic pairs: the certificate's bound is FLOOR_FACTOR x that floor (certify.build_certificate)
-    while lu is not None and refinements < 2 and np.max(res[:nev]) > max(0.1 * tol, _elastic_floor(lam, floor, nev, shift)):
-        Y = lu.solve(np.asarray(MX))
-        m_keep = X.shape[1]
-        lam, X = _rayleigh_ritz(K, M, Y if interior is None else np.hstack([X, Y]))
-        lam, X = lam[:m_keep], X[:, :m_keep]
-        res, floor, MX = _pair_numbers(K, M, X, lam, shift, absK)
+    want = nev - r
+    while lu is not None and refinements < 2 and np.max(res[:want]) > max(
+            0.1 * tol, _elastic_floor(lam, floor, want, shift, deflated=bool(r))):
+        lam, X = _rayleigh_ritz(K, M, defl.project(np.asarray(lu.solve(np.asarray(MX)))))
+        res, floor, MX = _pair_numbers(K, M, X, lam, shift, absK, rigid=0 if r else None)
         refinements += 1
     info["refinements"] = refinements
+    if r:  # the rigid pairs are the deflated fields themselves: first, with their Rayleigh quotients
+        Z, MZ = defl.Z, defl.MZ
+        KZ = spmm(K, Z)
+        lam_z = np.einsum("ij,ij->j", Z, KZ)
+        res_z = residuals(K, M, Z, lam_z, shift=shift, KX=KZ, MX=MZ, absK=absK, rigid=r)
+        floor_z = residual_floor(K, Z, KX=KZ, absK=absK)
+        lam, X = np.concatenate([lam_z, lam]), np.hstack([Z, X])
+        res, floor, MX = np.concatenate([res_z, res]), np.concatenate([floor_z, floor]), np.hstack([MZ, MX])
     info["residual_floor"] = [float(f) for f in floor]
     G = X.T @ MX
     orth = float(np.max(np.abs(G - np.eye(len(lam)))))
     timings["residuals"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     count = None
-    if interior is not None:
-        sigma, count, inertia_method = float(interior), int(m), "pardiso-ldlt"
-        pardiso.close()
-    else:
-        sigma = choose_inertia_shift(lam, nev, floor=ZERO_RTOL * abs(shift))
-        j = int(np.searchsorted(lam, sigma))
-    if pardiso is not None and count is None:
+    sigma = choose_inertia_shift(lam, nev, floor=ZERO_RTOL * abs(shift) if not r else 0.0, complete=len(lam) == n)
+    j = min(int(np.searchsorted(lam, sigma)), len(lam) - 1)
+    if pardiso is not None:
         try:
             count, inertia_method = _pardiso_inertia(pardiso, K, M, sigma, groups), "pardiso-ldlt"
         finally:

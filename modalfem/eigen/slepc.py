@@ -38,11 +38,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from modalfem.eigen.base import InteriorShiftUnusable, RawModes
+from modalfem.eigen.base import RawModes
 from modalfem.eigen.pardiso import PardisoLDLT, have_pardiso
 from modalfem.errors import BackendUnavailableError, InputError, SolverError
 
-__all__ = ["RIGID_KX_RTOL", "InteriorShiftUnusable", "SlepcOptions", "solve_slepc"]
+__all__ = ["RIGID_KX_RTOL", "SlepcOptions", "solve_slepc"]
 
 #: A pair is "rigid-like" (its residual is divided by ||K||_inf ||x|| instead of ||K x||) when
 #: ||K x|| <= RIGID_KX_RTOL * ||K||_inf * ||x||. Rigid modes found at a negative shift have
@@ -51,8 +51,6 @@ __all__ = ["RIGID_KX_RTOL", "InteriorShiftUnusable", "SlepcOptions", "solve_slep
 RIGID_KX_RTOL = 1e-10
 #: a pair is refined when its residual exceeds max(tol, REFINE_FLOOR_FACTOR * its roundoff floor)
 REFINE_FLOOR_FACTOR = 10.0
-#: interior mode: refine down to this fraction of the floor, else fall back to the negative shift
-INTERIOR_FLOOR_FACTOR = 0.05
 
 _ORDERINGS = {0: "AMD", 1: "user", 2: "AMF", 3: "SCOTCH", 4: "PORD", 5: "METIS", 6: "QAMD", 7: "auto"}
 _counter = itertools.count()
@@ -138,10 +136,6 @@ def _import_petsc():
 
 _HAVE_CHOLMOD: bool | None = None
 
-
-def _ascending(a, b, *_args) -> int:
-    """SLEPc user comparison: the smaller (back-transformed) eigenvalue comes first."""
-    return -1 if a.real < b.real else (1 if a.real > b.real else 0)
 
 _FACTOR_NAMES = {"mumps": "MUMPS LDL^T", "cholmod": "CHOLMOD Cholesky", "pardiso": "PARDISO LDL^T"}
 
@@ -252,13 +246,14 @@ def _abs_matrix(K, PETSc):
     return A
 
 
-def _pair_stats(K, Kabs, X, MX, PETSc):
+def _pair_stats(K, Kabs, X, MX, PETSc, rigid=None):
     """Rayleigh quotients, relative residuals and their roundoff floors of M-normalised pairs.
 
     residual_j = ||K x - lambda M x|| / ||K x|| (``||K||_inf ||x||`` for rigid-like pairs);
     floor_j = sqrt(r) eps ||(|K| |x|)|| / (same denominator), r the most nonzeros in a row of K: the
     probabilistic bound on the roundoff of computing K x (Higham and Mary 2019: sqrt(r) u |K| |x|
-    per row), i.e. what double precision allows for that pair.
+    per row), i.e. what double precision allows for that pair. ``rigid``: how many leading pairs are
+    rigid fields by construction (None: pairs with ||K x|| <= RIGID_KX_RTOL ||K|| ||x|| count as rigid).
     """
     m = len(X)
     lam, res, floor = np.empty(m), np.empty(m), np.empty(m)
@@ -272,7 +267,8 @@ def _pair_stats(K, Kabs, X, MX, PETSc):
         kx.copy(r)
         r.axpy(-lam[j], mx)
         xn = x.norm()
-        den = kxn if kxn > RIGID_KX_RTOL * knorm * xn else knorm * xn
+        is_rigid = kxn <= RIGID_KX_RTOL * knorm * xn if rigid is None else j < rigid
+        den = knorm * xn if is_rigid else kxn
         x.copy(ax)
         ax.abs()
         Kabs.mult(ax, kax)
@@ -297,13 +293,14 @@ class _SerialStats:
         self.knorm = float(np.max(self.Kabs @ np.ones(n))) if n else 0.0
         self.eps = np.finfo(float).eps * np.sqrt(int(np.max(np.diff(indptr))) if n else 0)
 
-    def __call__(self, X, MX):
+    def __call__(self, X, MX, rigid=None):
         Xa = np.column_stack([x.getArray(readonly=True) for x in X])
         MXa = np.column_stack([mx.getArray(readonly=True) for mx in MX])
         KX = self.K @ Xa
         lam = np.einsum("ij,ij->j", Xa, KX)
         kxn, xn = np.linalg.norm(KX, axis=0), np.linalg.norm(Xa, axis=0)
-        den = np.where(kxn > RIGID_KX_RTOL * self.knorm * xn, kxn, self.knorm * xn)
+        is_rigid = kxn <= RIGID_KX_RTOL * self.knorm * xn if rigid is None else np.arange(len(kxn)) < rigid
+        den = np.where(is_rigid, self.knorm * xn, kxn)
         safe = np.where(den > 0, den, 1.0)
         res = np.where(den > 0, np.linalg.norm(KX - MXa * lam, axis=0) / safe, np.inf)
         floor = np.where(den > 0, self.eps * np.linalg.norm(self.Kabs @ np.abs(Xa), axis=0) / safe, np.inf)
@@ -316,18 +313,19 @@ def _short_of_floor(lam, res, floor, nev: int, tol: float, *, factor: float = RE
     return bool(np.any(res[low] > np.maximum(tol, factor * floor[low])))
 
 
-def _refine(ksp, K, M, X, MX, *, augment: bool = False):
-    """One block inverse-iteration step Y = (K - shift M)^{-1} M X, then Rayleigh-Ritz on span(Y), or
-    with ``augment`` on span(X, Y) keeping the lowest len(X) Ritz pairs: at an interior shift the
-    inverse iteration alone amplifies the modes just above it, but the two-block space contains X,
-    so its lowest Ritz pairs are never worse than X's and the new directions remove X's errors."""
+def _refine(ksp, K, M, X, MX, *, deflate=((), ())):
+    """One block inverse-iteration step Y = (K - shift M)^{-1} M X, kept M-orthogonal to the deflated
+    fields ``deflate`` = (Z, M Z) (lists of vectors), then Rayleigh-Ritz on span(Y)."""
     Y = []
     for mx in MX:
         y = mx.duplicate()
         ksp.solve(mx, y)
+        for _ in range(2):  # M-orthogonal to the rigid fields, twice
+            for z, mz in zip(*deflate):
+                y.axpy(-mz.dot(y), z)
         Y.append(y)
     m = len(Y)
-    B = (list(X) + Y) if augment else Y
+    B = Y
     nb = len(B)
     KB = [K.createVecLeft() for _ in range(nb)]
     MB = [K.createVecLeft() for _ in range(nb)]
@@ -362,7 +360,7 @@ def _refine(ksp, K, M, X, MX, *, augment: bool = False):
         mx.scale(1.0 / np.sqrt(s))
         Xn.append(x)
         MXn.append(mx)
-    for v in (B[m:] if augment else B) + KB + MB:
+    for v in B + KB + MB:
         v.destroy()
     return Xn, MXn
 
@@ -428,9 +426,9 @@ def solve_slepc(
     comm=None,
     tol: float = 1e-10,
     options: SlepcOptions | None = None,
-    interior: float | None = None,
     start: np.ndarray | None = None,
     groups: np.ndarray | None = None,
+    deflate: np.ndarray | None = None,
 ) -> RawModes:
     """Lowest ``nev`` eigenpairs of K x = lambda M x with SLEPc, and the certificate numbers.
 
@@ -446,17 +444,12 @@ def solve_slepc(
             ignored for PETSc Mats, which carry their own.
         tol: wanted bound on the relative residuals; SLEPc runs at ``tol * options.tol_factor``.
         options: ``SlepcOptions`` tuning knobs (defaults are the measured fastest robust choice).
-        interior: optional sigma [rad^2/s^2] above the nev-th eigenvalue (e.g. the midpoint of a gap of
-            upper bounds from a coarser space). Then ONE factorisation serves everything: K - sigma M
-            is factorised (LDL^T), its inertia c (eigenvalues below sigma) is read at once, and
-            Krylov-Schur on (K - sigma M)^-1 M keeps the Ritz values with the smallest lambda, which
-            are exactly the c negative ones of the transformed operator (an end of its spectrum, so
-            they converge like the usual ones), until all c are found. The count at sigma is then
-            the certificate's inertia count: no second factorisation. Raises ``InteriorShiftUnusable``
-            (nothing computed) when c < nev, a pivot is zero or perturbed: call again without it.
         start: optional Krylov start vector (n,) in the canonical free order (serial only), e.g.
             approximate eigenvectors from a coarser space; default SLEPc's random vector.
         groups: optional node of each free DOF (n,), for PARDISO's ordering (see ``PardisoLDLT``).
+        deflate: optional M-orthonormal basis (n, r) of the rigid (zero-energy) fields in canonical free
+            order, r < nev: SLEPc's deflation space, so Krylov-Schur computes the nev - r elastic pairs
+            in its M-orthogonal complement; the returned pairs are Z (first) then the elastic ones.
 
     Returns:
         ``RawModes`` with nev + extra (or every converged, if SLEPc returns more) eigenpairs in
@@ -479,8 +472,6 @@ def solve_slepc(
         raise InputError(f"shift must be negative and finite (K - shift M positive definite), got {shift!r}")
     if not (np.isfinite(tol) and 0 < tol < 1):
         raise InputError(f"tol must be in (0, 1), got {tol!r}")
-    if interior is not None and not (np.isfinite(interior) and interior > shift):
-        raise InputError(f"interior shift must be finite and above the shift {shift!r}, got {interior!r}")
 
     t0 = time.perf_counter()
     is_mat = isinstance(K_ff, PETSc.Mat)
@@ -514,7 +505,11 @@ def solve_slepc(
         raise InputError(f"nev = {nev} must be below the number of free DOFs ({n})")
     mpi_comm = pcomm.tompi4py()
     nproc = pcomm.getSize()
-    nreq = int(min(nev + max(int(opt.extra), 1), n - 1))
+    Zg = np.zeros((n, 0)) if deflate is None else np.asarray(deflate, dtype=np.float64).reshape(n, -1)
+    r = int(Zg.shape[1])
+    if r >= nev:
+        raise InputError(f"nev = {nev} must exceed the {r} deflated rigid fields")
+    nreq = int(min(nev - r + max(int(opt.extra), 1), n - 1 - r))
     slepc_tol = float(tol * opt.tol_factor)
     ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
     timings["convert"] = time.perf_counter() - t0
@@ -528,8 +523,6 @@ def solve_slepc(
         raise InputError("factor='cholmod' needs one process and a PETSc built with SuiteSparse")
     elif factor == "pardiso" and (nproc > 1 or not have_pardiso()):
         raise InputError("factor='pardiso' needs one process and MKL PARDISO (pip install mkl)")
-    if interior is not None and factor == "cholmod":
-        raise InteriorShiftUnusable("CHOLMOD (LL^T) cannot factorise the indefinite K - sigma M")
     prefix = f"modalfem_slepc{next(_counter)}_"
     db = PETSc.Options()
     settings = {
@@ -540,8 +533,6 @@ def solve_slepc(
         settings["st_mat_cholmod_nmethods"] = 2  # AMD and METIS, keep the smaller fill
     if nproc > 1:
         settings["st_mat_mumps_icntl_13"] = 1  # inertia is wrong with a ScaLAPACK root (MUMPS doc)
-    if interior is not None:
-        settings["st_mat_mumps_icntl_24"] = 1  # null-pivot detection: the solve's factor gives the inertia
     settings.update({str(k): v for k, v in opt.petsc_options.items()})
     for k, v in settings.items():
         db[prefix + k] = v
@@ -557,13 +548,20 @@ def solve_slepc(
         eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
         eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
         eps.setTolerances(slepc_tol, int(opt.max_it))
-        target = shift if interior is None else float(interior)
+        target = shift
         eps.setTarget(target)
-        if interior is None:
-            eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
-        else:  # smallest lambda first: the negative end of 1 / (lambda - sigma)
-            eps.setEigenvalueComparison(_ascending)
+        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
         eps.setPurify(bool(opt.purify))
+        Zv, MZv = [], []  # the rigid fields as PETSc vectors (this rank's rows), and M times them
+        for j in range(r):
+            z = K.createVecRight()
+            z.setArray(Zg[rows, j])
+            mz = z.duplicate()
+            M.mult(z, mz)
+            Zv.append(z)
+            MZv.append(mz)
+        if Zv:
+            eps.setDeflationSpace(Zv)
         v0 = None
         if start is not None and nproc == 1:
             v0 = K.createVecRight()
@@ -582,7 +580,7 @@ def solve_slepc(
             pc.setType(PETSc.PC.Type.CHOLESKY)
             pc.setFactorSolverType(factor)
         eps.setFromOptions()
-        stage = f"factorising K - {'sigma' if interior is not None else 'shift'} M ({_FACTOR_NAMES[factor]})"
+        stage = f"factorising K - shift M ({_FACTOR_NAMES[factor]})"
         t1, c1 = time.perf_counter(), time.process_time()
         eps.setUp()
         timings["factor"] = time.perf_counter() - t1
@@ -591,25 +589,6 @@ def solve_slepc(
         F = pc.getFactorMatrix() if pardiso is None else None
         A = ksp.getOperators()[1]
         timings["inertia_factor"] = 0.0
-        if interior is not None:
-            if pardiso is not None:
-                neg, zero, _pos = pardiso.factor.inertia
-                cert_info = {**pardiso.factor.info(), "inertia_factor": "pardiso-ldlt"}
-                unproven = pardiso.factor.perturbed_pivots > 0
-            else:
-                neg, zero, _pos = F.getInertia()
-                cert_info = {**_mumps_info(F), "inertia_factor": "mumps-ldlt"} if factor == "mumps" else {}
-                unproven = factor != "mumps"
-            if unproven or zero or neg < nev or neg >= n - 1:
-                raise InteriorShiftUnusable(
-                    f"{neg} eigenvalues below sigma = {interior:.6g} (nev = {nev}, zero pivots {zero}, "
-                    f"{'unproven count' if unproven else 'proven count'})"
-                )
-            nreq = int(neg)
-            ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
-            eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
-            if v0 is not None:  # new dimensions re-run the set-up, which consumes the initial space
-                eps.setInitialSpace([v0])  # SLEPc's K - shift M, factorised above
         struct = PETSc.Mat.Structure.SAME if _same_pattern(A, M, mpi_comm) else PETSc.Mat.Structure.SUBSET
         from modalfem.eigen.certify import choose_inertia_shift
 
@@ -626,27 +605,25 @@ def solve_slepc(
                 eps.solve()
                 nconv = eps.getConverged()
                 its += eps.getIterationNumber()
-                # (classical: one more than nev, for the certificate's gap; interior: the count at sigma
-                # itself bounds the spectrum, so nev suffice)
-                if nconv + len(X) < nev + (interior is None):
+                # one more than nev, for the certificate's gap
+                if nconv + len(X) + r < nev + 1:
                     raise SolverError(
                         f"SLEPc Krylov-Schur converged only {nconv + len(X)} of the {nreq + len(X)} eigenpairs "
                         f"requested (nev = {nev}) after {its} restarts (tol {slepc_tol:g}, ncv {ncv}); "
                         "try a larger ncv or max_it"
                     )
                 lam_new = [eps.getEigenvalue(i).real for i in range(nconv)]
-                lam_all = np.sort(np.concatenate([prev_lam, lam_new]))
-                done = (_clear_gap_above(lam_all, nev) if interior is None
-                        else int(np.sum(lam_all < interior)) >= int(neg))
-                if done or rounds >= opt.max_rounds or nreq + len(X) >= n - 1:
+                lam_all = np.sort(np.concatenate([np.zeros(r), prev_lam, lam_new]))
+                done = _clear_gap_above(lam_all, nev)
+                if done or rounds >= opt.max_rounds or nreq + len(X) + r >= n - 1:
                     break
                 # the eigenvalues above the nev-th form a cluster: continue with more, from the current
                 # Ritz vectors (the factorisation is kept: same operators)
                 start = [K.createVecRight() for _ in range(nconv)]
                 for i, v in enumerate(start):
                     eps.getEigenvector(i, v)
-                nreq = int(min(nreq + max(int(opt.extra_step), 1), n - 1 - len(X)))
-                ncv = int(min(max(2 * nreq, nreq + 8, ncv), n - len(X)))
+                nreq = int(min(nreq + max(int(opt.extra_step), 1), n - 1 - len(X) - r))
+                ncv = int(min(max(2 * nreq, nreq + 8, ncv), n - len(X) - r))
                 eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
                 eps.setInitialSpace(start)
                 rounds += 1
@@ -677,49 +654,40 @@ def solve_slepc(
                 else:
                     Kabs = _abs_matrix(K, PETSc)
                     stats = functools.partial(_pair_stats, K, Kabs, PETSc=PETSc)
-            lam, res, floor = stats(X, MX)
+            lam, res, floor = stats(X, MX, rigid=0 if r else None)
             timings["residuals"] += time.perf_counter() - t1
-            # (in interior mode over span(X, Y): inverse iteration at an interior sigma alone would
-            # amplify the modes just above sigma over the lowest ones)
-            # (interior mode: the lowest pairs, far below sigma, converge to a few x their floor only,
-            # so they are refined down to the floor itself)
-            while (_short_of_floor(lam, res, floor, nev, tol, factor=REFINE_FLOOR_FACTOR if interior is None else INTERIOR_FLOOR_FACTOR)
-                   and factor_is_solve_operator and refinements < 2):
+            while _short_of_floor(lam, res, floor, nev - r, tol) and factor_is_solve_operator and refinements < 2:
                 # one of the lowest nev pairs stopped short of what double precision allows (SLEPc's
                 # criterion is on the shift-inverted problem): one block inverse-iteration step with
                 # the factorisation in hand, then Rayleigh-Ritz over all pairs (keeps M-orthonormality)
                 stage = "refining the eigenpairs (one inverse-iteration + Rayleigh-Ritz step)"
                 t1 = time.perf_counter()
-                X, MX = _refine(st.getKSP(), K, M, X, MX, augment=interior is not None)
-                lam, res, floor = stats(X, MX)
+                X, MX = _refine(st.getKSP(), K, M, X, MX, deflate=(Zv, MZv))
+                lam, res, floor = stats(X, MX, rigid=0 if r else None)
                 refinements += 1
                 timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t1
-            if interior is not None and _short_of_floor(lam, res, floor, nev, tol, factor=INTERIOR_FLOOR_FACTOR):
-                # ill-conditioned bodies (slender beams: lambda_max / lambda_1 ~ 1e10) keep the lowest
-                # pairs a few x above what the negative-shift path reaches: solve that way instead
-                raise InteriorShiftUnusable(
-                    f"lowest pairs' residual {np.max(res[np.argsort(lam)[:nev]]):.1e} stays above "
-                    f"{INTERIOR_FLOOR_FACTOR} x its roundoff floor after {refinements} refinement(s)"
-                )
             t1 = time.perf_counter()
-            m = len(X)
             perm = np.argsort(lam, kind="stable")
             lam, res, floor = lam[perm], res[perm], floor[perm]
             X, MX = [X[i] for i in perm], [MX[i] for i in perm]
+            if r:  # the rigid pairs are the deflated fields themselves, first
+                lam_z, res_z, floor_z = stats(Zv, MZv, rigid=r)
+                lam, res, floor = (np.concatenate([lam_z, lam]), np.concatenate([res_z, res]),
+                                   np.concatenate([floor_z, floor]))
+            XA, MXA = Zv + X, MZv + MX
+            m = len(XA)
             G = np.empty((m, m))
-            for j, mx in enumerate(MX):
+            for j, mx in enumerate(MXA):
                 for i in range(j + 1):
-                    G[i, j] = G[j, i] = X[i].dot(mx)
+                    G[i, j] = G[j, i] = XA[i].dot(mx)
             ortho = float(np.max(np.abs(G - np.eye(m))))
             timings["residuals"] += time.perf_counter() - t1
 
             stage = "choosing the inertia shift"
-            sigma = choose_inertia_shift(lam, nev) if interior is None else float(interior)
+            sigma = choose_inertia_shift(lam, nev)
             t1, c1 = time.perf_counter(), time.process_time()
-            factorisations += 0 if interior is not None else 1  # interior: the solve's factor gave the count
-            if interior is not None:
-                pass
-            elif factor == "cholmod":
+            factorisations += 1
+            if factor == "cholmod":
                 stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T)"
                 (neg, zero, _pos), cert_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
             elif pardiso is not None:
@@ -757,7 +725,7 @@ def solve_slepc(
             # Krylov-Schur missed `missing` eigenvalues below sigma (a many-fold cluster, e.g. the rigid
             # modes of several pieces): restore K - shift M (numeric refactorisation) and solve again
             # with the pairs found so far as a deflation space.
-            if factor in ("mumps", "pardiso") and interior is None:
+            if factor in ("mumps", "pardiso"):
                 stage = "refactorising K - shift M to search for missed eigenvalues"
                 t1 = time.perf_counter()
                 A.axpy(sigma - shift, M, struct)
@@ -768,16 +736,16 @@ def solve_slepc(
                 F = pc.getFactorMatrix() if pardiso is None else None
                 timings["factor"] += time.perf_counter() - t1
             attempts += 1
-            prev_lam = lam
-            nreq = int(min(missing + max(int(opt.extra), 1), n - 1 - len(X)))
-            ncv = int(min(max(2 * nreq, nreq + 8), n - len(X)))
-            eps.setDeflationSpace(X)
+            prev_lam = lam[r:]
+            nreq = int(min(missing + max(int(opt.extra), 1), n - 1 - len(X) - r))
+            ncv = int(min(max(2 * nreq, nreq + 8), n - len(X) - r))
+            eps.setDeflationSpace(Zv + X)
             eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
         timings["certificate"] = timings["residuals"] + timings["inertia_factor"]
 
         stage = "gathering the eigenvectors"
         t1 = time.perf_counter()
-        local = np.column_stack([x.getArray(readonly=True) for x in X])
+        local = np.column_stack([x.getArray(readonly=True) for x in Zv + X])
         vectors = _gather(local, rows, n, mpi_comm)
         timings["gather"] = time.perf_counter() - t1
 
@@ -785,12 +753,12 @@ def solve_slepc(
             "solver": "slepc",
             "eps_type": "krylovschur",
             "st": "sinvert",
-            "which": "target_magnitude" if interior is None else "smallest_real",
-            "interior_shift": None if interior is None else float(interior),
+            "which": "target_magnitude",
+            "deflated": r,
             "shift": float(shift),
             "nev": int(nev),
             "nev_requested": nreq,
-            "nconv": len(X),
+            "nconv": len(X) + r,
             "retries": int(attempts),
             "factorisations": int(factorisations),
             "refinements": int(refinements),

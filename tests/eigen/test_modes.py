@@ -3,6 +3,7 @@
 import warnings
 
 import numpy as np
+import scipy.linalg
 import pytest
 
 import modalfem
@@ -47,17 +48,28 @@ def test_square_beam_pairs_and_public_entry(beam, steel):
     assert res.certificate.pairs == ((0, 1), (2, 3))
     stages = [c.split(" ")[0] for c in calls]
     assert stages[:3] == ["constraints", "assembly", "shift"] and "eigen" in stages
-    assert stages.index("eigen") <= 4  # after the optional "interior" shift stage
+    assert stages.index("eigen") <= 3
     assert calls[-1].startswith("done")
     for key in ("assembly", "constraints", "eigen", "certificate", "labels", "total"):
         assert res.timings[key] >= 0
     assert {"numpy", "scipy"} <= set(res.info["versions"]) and res.info["n_free"] == int((~res.fixed_dofs).sum())
 
 
-def test_k_too_large(cube, steel):
+@pytest.mark.parametrize("solver", ["scipy", "block", "slepc"])
+def test_one_rule_for_k_on_tiny_problems(cube, steel, solver, assemble_km):
+    """A free body has n_free - 6 deformation modes: every k up to that is solved and certified (the
+    last ones by an inertia shift above the whole spectrum), one more is refused with the same limit."""
+    if solver == "slepc":
+        pytest.importorskip("slepc4py")
     n_free = 3 * cube.node_count(1)
-    with pytest.raises(SolverError, match=rf"k={n_free - 6} .*exceeds the {n_free} free DOFs"):
-        modes(cube, steel, k=n_free - 6, degree=1, backend="skfem", solver="scipy")
+    K, M = assemble_km(cube, steel, degree=1)
+    ref = scipy.linalg.eigh(K.toarray(), M.toarray(), eigvals_only=True)[6:]
+    for k in (1, 2, 3, n_free - 7, n_free - 6):
+        res = modes(cube, steel, k=k, degree=1, backend="skfem", solver=solver)
+        assert res.certificate.passed and res.rigid_mode_count == 6
+        np.testing.assert_allclose(res.eigenvalues, ref[:k], rtol=1e-9)
+    with pytest.raises(SolverError, match=rf"k={n_free - 5} exceeds the {n_free - 6} deformation modes.*at most {n_free - 6}"):
+        modes(cube, steel, k=n_free - 5, degree=1, backend="skfem", solver=solver)
 
 
 @pytest.mark.parametrize(
@@ -87,18 +99,35 @@ def test_wrong_types(cube, steel):
         modes("cube.msh", steel, k=2)
 
 
-def test_mechanism_is_not_silently_certified(make_box, steel):
-    # two cubes touching at one vertex: one connected piece (6 rigid modes expected), but the second
-    # cube can rotate about the shared vertex: 3 extra zero modes must fail the certificate loudly
+@pytest.mark.parametrize("solver", ["scipy", "block"])
+@pytest.mark.parametrize("hinge, origin, extra, where", [
+    ("vertex", (0.1, 0.1, 0.1), 3, r"at vertex \d+ \(0\.1, 0\.1, 0\.1\)"),
+    ("edge", (0.1, 0.1, 0.0), 1, r"at a line of edges \(an edge hinge\) through 2 vertices"),
+])
+def test_mechanism_is_reported_where_it_hinges(make_box, steel, hinge, origin, extra, where, solver):
+    """Two cubes touching at one vertex (or along one edge) are one piece (6 rigid modes) with a hinge:
+    3 (or 1) more zero-energy motions. Found from the structure, named, and the certificate fails."""
     a = make_box((0.1, 0.1, 0.1), (1, 1, 1))
-    b = make_box((0.1, 0.1, 0.1), (1, 1, 1), origin=(0.1, 0.1, 0.1))
+    b = make_box((0.1, 0.1, 0.1), (1, 1, 1), origin=origin)
     pts = np.vstack([a.points, b.points])
     _, first, inv = np.unique(np.round(pts, 12), axis=0, return_index=True, return_inverse=True)
     mesh = Mesh(pts[first], inv.ravel()[np.vstack([a.cells, b.cells + a.point_count])])
     assert mesh.piece_count == 1
-    with pytest.warns(RuntimeWarning, match="found 9 zero-frequency modes, expected 6"):
-        res = modes(mesh, steel, k=2, degree=1, backend="skfem", solver="scipy")
-    assert not res.certificate.passed and res.rigid_mode_count == 9
+    with pytest.warns(RuntimeWarning, match=rf"mechanism: piece 0 is 2 parts joined only {where}.* "
+                                            rf"hinge with {extra} free motion.*{6 + extra} zero-frequency modes where 6"):
+        res = modes(mesh, steel, k=2, degree=1, backend="skfem", solver=solver)
+    assert not res.certificate.passed and res.rigid_mode_count == 6 + extra
+    assert res.info["rigid_expected"] == 6 and len(res.info["mechanisms"]) == 1
+    # the elastic modes are still right: both cubes' deformation modes (K restricted off the hinge motions)
+    K, M = _assemble(mesh, steel)
+    ref = scipy.linalg.eigh(K.toarray(), M.toarray(), eigvals_only=True)
+    np.testing.assert_allclose(res.eigenvalues, ref[6 + extra : 8 + extra], rtol=1e-8)
+
+
+def _assemble(mesh, material, degree=1):
+    from modalfem.backends.skfem import assemble
+
+    return assemble(mesh, material, degree=degree)
 
 
 @pytest.mark.fenicsx
@@ -117,46 +146,6 @@ def test_slepc_finds_twelve_rigid_modes_of_two_pieces(two_cubes, steel):
     pytest.importorskip("modalfem.eigen.slepc")
     res = modes(two_cubes, steel, k=3, degree=2, backend="fenicsx", solver="slepc")
     assert res.rigid_mode_count == 12 and res.certificate.passed
-
-
-@pytest.mark.parametrize("fixed", ["x0", None, Fix("z0", components="z")])
-def test_interior_shift_from_p1_bounds_lies_above_the_wanted_p2_eigenvalues(make_box, steel, assemble_km, fixed):
-    """P1 eigenvalues on the same mesh bound the P2 ones from above (nested spaces): the interior shift
-    has at least nev P2 eigenvalues below it (dense P2 reference), and sits in a clear gap of the P1 ones."""
-    import scipy.linalg as sla
-
-    from modalfem.backends import skfem as skfem_backend
-    from modalfem.constraints import fixed_mask
-    from modalfem.eigen.rigid import expected_rigid_count
-    from modalfem.modes import INTERIOR_GAP, interior_shift
-
-    mesh = make_box((1.0, 0.1, 0.1), (10, 2, 2))
-    mask = fixed_mask(mesh, 2, fixed)
-    nev = 8 + expected_rigid_count(mesh, 2, mask)
-    found = interior_shift(mesh, steel, fixed, nev=nev, shift=-1e4, lumped=False, backend_module=skfem_backend)
-    assert found is not None
-    sigma, start = found
-    assert start.shape == (3 * mesh.node_count(2),) and np.all(start[mask] == 0) and np.linalg.norm(start) > 0
-    K, M = assemble_km(mesh, steel, degree=2)
-    free = ~mask
-    w = sla.eigh(K[free][:, free].toarray(), M[free][:, free].toarray(), eigvals_only=True)
-    assert int(np.sum(w < sigma)) >= nev
-    assert np.min(np.abs(w - sigma)) > 1e-6 * sigma  # not on an eigenvalue
-    assert INTERIOR_GAP > 0
-
-
-def test_serial_slepc_p2_uses_one_factorisation_at_the_interior_shift(make_box, steel, monkeypatch):
-    """With ``INTERIOR_SHIFT`` on (off by default, see modalfem.modes) and a tolerance the interior path
-    reaches (it falls back to the negative shift otherwise), one factorisation serves everything."""
-    import sys
-
-    pytest.importorskip("slepc4py")
-    monkeypatch.setattr(sys.modules["modalfem.modes"], "INTERIOR_SHIFT", True)
-    res = modes(make_box((1.0, 0.1, 0.1), (20, 2, 2)), steel, k=8, fixed="x0", solver="slepc", tol=1e-8)
-    si = res.info["solver_info"]
-    assert si["which"] == "smallest_real" and si["interior_shift"] == res.certificate.inertia_shift
-    assert res.certificate.passed and res.certificate.inertia_count == res.certificate.computed_below_shift
-    assert si["factorisations"] == 1  # the solve's LDL^T gave the count: no second factorisation
 
 
 def test_restrict_equals_fancy_indexing():
