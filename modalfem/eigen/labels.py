@@ -1,4 +1,5 @@
-"""Mode labels read from the mode shapes: ``"bending-y 1"``, ``"torsion 1"``, ``"axial 1"``, ``"plate (2,1)"``.
+"""Mode labels read from the mode shapes: ``"bending-y 1"``, ``"torsion 1"``, ``"plate (2,1)"`` on beams
+and plates; neutral labels (``"bending about x"``, ``"breathing"``, ``"mode 7"``) on every other body.
 
 Convention (what a label means):
 
@@ -10,8 +11,27 @@ Convention (what a label means):
   plates ``"p1"``, ``"p2"`` in-plane and ``"n"`` normal. If the two transverse spreads are within 5 % of
   each other (a square or round section) and the long axis is a global axis, the other two global axes
   are used.
-* **Kind.** ``"beam"`` when the longest extent is >= 3x the second; ``"plate"`` when the smallest is
-  <= 0.2x the second; otherwise ``"solid"`` (analysed like a beam along its longest axis).
+* **Kind** (beam- and plate-likeness, decided from the geometry of the points alone). The extents
+  ``L1 >= L2 >= L3`` are the ranges of the points along ``e1, e2, e3``. The points are binned into an
+  occupancy grid aligned with the frame whose cell edge along each axis is the node spacing along it
+  (median over the nodes of the largest offset along that axis among the 12 nearest neighbours, so
+  anisotropic structured meshes are measured per axis); **fill** = occupied cells / all cells of the
+  oriented bounding box, and the occupied cells' 26-connected components count the **pieces** (or the
+  ``pieces`` labels decide, when given). The body is
+
+  - ``"beam"`` when ``L1 >= 3 L2`` (slender), fill >= 0.6, one piece, and the section is
+    roughly prismatic: every slice of the grid along ``e1`` spans at least half of the largest slice
+    width along ``e2`` and along ``e3`` (a tuning fork's stem is a third of its prongs' width; a
+    hammer's handle a fraction of its head);
+  - ``"plate"`` when ``L3 <= 0.2 L2`` (flat), fill >= 0.6 and one piece;
+  - ``"solid"`` otherwise (two bars side by side, an L bracket, a bell, a bunny, a CAD part).
+
+  Why 0.6: a filled round section already reads ~0.8 (pi / 4 plus the cells its boundary cuts), a
+  rectangle or a structured box mesh reads 1.0, while bodies made of separated arms (an L or U of
+  bars, a fork, two bars) leave most of their box empty and read ~0.2-0.5. Hollow sections (tubes)
+  also fill their box poorly and are treated as solids. The 3x and 0.2x extent ratios are the
+  usual slenderness / thinness limits of beam and plate theory (a beam 3x longer than wide still has
+  well separated bending, torsion and axial families; a plate 5x wider than thick bends out of plane).
 * **Beam decomposition.** The displacement is fitted (least squares over all nodes, piecewise-linear
   functions of the axial coordinate s) by rigid section motions plus two section modes:
   ``u = t(s) + theta(s) x r + eps(s) (eta e2 + zeta e3) + w(s) eta zeta e1 + residual``
@@ -20,8 +40,8 @@ Convention (what a label means):
   ``axial`` = t1 and the Poisson breathing eps; ``bending-<e2>`` = t2 and the section rotation theta3
   (displacement along e2); ``bending-<e3>`` = t3 and theta2; ``torsion`` = theta1 and the warping w;
   the rest is ``residual``. A component with fraction >= ``threshold`` (default 0.6) names the mode,
-  provided its rigid-section part alone (t1, t2, t3 or theta1) holds >= 50 % (so a non-prismatic body
-  whose motion is mostly "breathing" or "warping", such as tuning-fork prongs, is ``"mixed"``).
+  provided its rigid-section part alone (t1, t2, t3 or theta1) holds >= 50 % (so a motion that is
+  mostly "breathing" or "warping" is ``"mixed"``).
 * **Order** counts sign changes (with 10 % hysteresis) along the axis of the dominant function
   (t2/t3 projected on the bending direction, t1 for axial, theta1 for torsion). An end is *held* when
   the displacement of that component at the end face is below 1e-6 of the mode's maximum (clamped,
@@ -38,7 +58,29 @@ Convention (what a label means):
   ``m`` / ``n`` are the numbers of nodal lines crossed moving along in-plane axis 1 / axis 2 (median
   over grid lines, 10 % hysteresis), so a twisting mode is ``plate (1,1)`` and
   ``sin(2 pi x / a) sin(pi y / b)`` is ``plate (1,0)``. Mostly in-plane modes are ``"in-plane"``.
-* Anything else is ``"mixed"``.
+  Beam or plate modes that fit no family are ``"mixed"``.
+* **Neutral labels** (solids, and any mode of a beam or plate whose numbered label is already taken).
+  The motion is projected (least squares over the nodes, coordinates about the centroid) on a few
+  global low-order fields, and the field family holding >= ``threshold`` of ``sum |u|^2`` names it:
+  ``"sway along x"`` (uniform translation, e.g. a clamped body swaying), ``"rocking about x"`` (rigid
+  rotation), the uniform strain read from its principal strains ``"stretch along x"`` (one principal
+  strain holds >= ``threshold`` of the strain field), ``"breathing"`` (all three of one sign),
+  ``"stretch in x-y"`` / ``"shear in x-y"`` (two principal strains of equal / opposite sign, named by
+  their plane), ``"twist about z"`` (rotation about z growing along z) and ``"bending about z"`` (rotation
+  about z growing along x or y, Euler-Bernoulli kinematics). An axis or plane is named only when the
+  motion's axis lies within ~27 degrees of a global axis (80 % of its square on it), else it is left
+  out (``"bending"``). A motion no family explains is ``"mode <i>"`` (i = its 1-based column). These
+  labels carry no order number: a solid has no beam-theory ordering to number.
+* **Pieces.** With ``pieces`` (a piece label per point, e.g. ``modalfem.eigen.rigid.node_pieces``),
+  a mode whose squared displacement lies >= 90 % in one piece is labelled on that piece alone, with
+  that piece's own kind, as ``"piece <p>: <label>"`` (p = the given piece label). A run of consecutive
+  modes none of which is dominated is first rotated inside its span to piece-local vectors when the span
+  is a sum of such vectors (degenerate modes of identical pieces come out of the solver mixed); the
+  rotated modes are labelled and each original takes the label of the rotated mode it overlaps most.
+  Modes still shared by several pieces get a neutral label of the whole body: never a beam or plate
+  label across pieces.
+* **Uniqueness.** A numbered label (beam or plate family) appears at most once per call: a later mode
+  that reads the same label gets its neutral label instead.
 """
 
 from __future__ import annotations
@@ -55,6 +97,16 @@ KINDS = ("beam", "plate", "solid")
 _HELD_RTOL = 1e-6
 _HYSTERESIS = 0.1
 _SNAP_COS = np.cos(np.radians(1.0))
+#: kind thresholds (module doc): slenderness, thinness, fill of the oriented box, slice width ratio
+BEAM_RATIO = 3.0
+PLATE_RATIO = 0.2
+FILL_MIN = 0.6
+SLICE_MIN = 0.5
+#: share of sum |u|^2 in one piece for that piece to name the mode
+PIECE_SHARE = 0.9
+_AXIS_SHARE = 0.8  # a direction is named after a global axis when >= 80 % of its square lies on it
+_GRID_MAX = 64  # occupancy cells per axis at most
+_NEIGHBOURS = 12
 
 
 @dataclass(frozen=True)
@@ -67,6 +119,9 @@ class BodyFrame:
         extents: ranges of the nodes along e1, e2, e3 (3,) [m].
         names: axis names used in labels, global letters where aligned (see module doc).
         kind: ``"beam"``, ``"plate"`` or ``"solid"``.
+        fill: occupied fraction of the oriented bounding box (see module doc), in (0, 1].
+        pieces: connected pieces (given, or seen in the occupancy grid).
+        slice_width: smallest slice width over the largest, along ``e1`` (worst of e2, e3), in [0, 1].
     """
 
     center: np.ndarray
@@ -74,6 +129,9 @@ class BodyFrame:
     extents: np.ndarray
     names: tuple[str, str, str]
     kind: str
+    fill: float = 1.0
+    pieces: int = 1
+    slice_width: float = 1.0
 
 
 def _check_points(points) -> np.ndarray:
@@ -85,17 +143,63 @@ def _check_points(points) -> np.ndarray:
     return p
 
 
-def body_frame(points, *, kind: str | None = None) -> BodyFrame:
+def _check_pieces(pieces, n: int) -> np.ndarray | None:
+    if pieces is None:
+        return None
+    a = np.asarray(pieces)
+    if a.shape != (n,):
+        raise InputError(f"pieces must have shape ({n},) (one label per point), got {a.shape}")
+    if a.dtype.kind not in "iub":
+        if a.dtype.kind != "f" or not np.all(np.isfinite(a)) or not np.all(a == np.round(a)):
+            raise InputError("pieces must be integer labels")
+    return a.astype(np.int64)
+
+
+def _occupancy(q: np.ndarray, ext: np.ndarray) -> tuple[float, int, float]:
+    """Fill of the oriented box, 26-connected pieces and slice-width ratio of local points q (N, 3)."""
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    n = len(q)
+    k = min(_NEIGHBOURS + 1, n)
+    sample = q[:: max(1, n // 2000)]
+    _, idx = cKDTree(q).query(sample, k=k)
+    h = np.median(np.abs(q[idx[:, 1:]] - sample[:, None, :]).max(axis=1), axis=0)
+    # one cell per node level: ext / h + 1 cells, nodes rounded to the nearest cell centre
+    bins = np.where(h > 1e-12 * max(float(ext.max()), 1e-300),
+                    np.floor(ext / np.maximum(h, 1e-300)) + 1, 1).astype(np.int64)
+    bins = np.clip(bins, 1, _GRID_MAX)
+    t = (q - q.min(axis=0)) / np.maximum(ext, 1e-300)
+    ij = np.clip(np.rint(t * (bins - 1)).astype(np.int64), 0, bins - 1)
+    occ = np.zeros(tuple(bins), dtype=bool)
+    occ[ij[:, 0], ij[:, 1], ij[:, 2]] = True
+    pieces = int(ndimage.label(occ, structure=np.ones((3, 3, 3), dtype=bool))[1])
+    lo = np.full((bins[0], 2), np.inf)
+    hi = np.full((bins[0], 2), -np.inf)
+    for a in (1, 2):
+        np.minimum.at(lo[:, a - 1], ij[:, 0], q[:, a])
+        np.maximum.at(hi[:, a - 1], ij[:, 0], q[:, a])
+    filled = np.isfinite(lo[:, 0])
+    width = np.where(filled[:, None], hi - lo, 0.0)
+    big = width.max(axis=0)
+    ratio = float(np.min(np.where(big > 0, width / np.where(big > 0, big, 1.0), 1.0)))
+    return float(occ.mean()), pieces, ratio
+
+
+def body_frame(points, *, kind: str | None = None, pieces=None) -> BodyFrame:
     """Principal axes, extents, axis names and kind of a node cloud (see module doc).
 
     Args:
         points: node coordinates (N, 3) [m].
-        kind: force ``"beam"``, ``"plate"`` or ``"solid"``; None detects it from the extents.
+        kind: force ``"beam"``, ``"plate"`` or ``"solid"``; None detects it from the extents, the fill
+            of the oriented bounding box, the slice widths and the pieces.
+        pieces: optional piece label per point (N,); more than one piece makes the body a ``"solid"``.
 
     Raises:
-        InputError: bad points or kind.
+        InputError: bad points, kind or pieces.
     """
     p = _check_points(points)
+    given = _check_pieces(pieces, len(p))
     if kind is not None and kind not in KINDS:
         raise InputError(f"kind must be one of {', '.join(KINDS)} or None, got {kind!r}")
     center = p.mean(axis=0)
@@ -131,17 +235,22 @@ def body_frame(points, *, kind: str | None = None) -> BodyFrame:
         q, _ = np.linalg.qr(axes.T)
         q = q * np.sign(np.sum(q * axes.T, axis=0))
         axes = q.T
-    ext = np.ptp(X @ axes.T, axis=0)
+    q = X @ axes.T
+    ext = np.ptp(q, axis=0)
+    fill, seen, slice_width = _occupancy(q, ext)
+    n_pieces = len(np.unique(given)) if given is not None else seen
     if kind is None:
-        if ext[0] >= 3.0 * ext[1]:
-            kind = "beam"
-        elif ext[2] <= 0.2 * ext[1]:
-            kind = "plate"
+        whole = fill >= FILL_MIN and n_pieces == 1
+        if ext[0] >= BEAM_RATIO * ext[1]:
+            kind = "beam" if whole and slice_width >= SLICE_MIN else "solid"
+        elif ext[2] <= PLATE_RATIO * ext[1]:
+            kind = "plate" if whole else "solid"
         else:
             kind = "solid"
     default = ("p1", "p2", "n") if kind == "plate" else ("a", "t1", "t2")
     names = tuple(n if n else default[i] for i, n in enumerate(names))
-    return BodyFrame(center=center, axes=axes, extents=ext, names=names, kind=kind)
+    return BodyFrame(center=center, axes=axes, extents=ext, names=names, kind=kind, fill=fill, pieces=n_pieces,
+                     slice_width=slice_width)
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -397,34 +506,118 @@ def _bending_order(fit: _BeamFit, i: int) -> int:
     return _sign_changes(v @ vt[0])
 
 
-def label_modes(points, shapes, *, kind: str | None = None, threshold: float = 0.6) -> tuple[str, ...]:
-    """Name each mode from its shape: ``"bending-y 1"``, ``"torsion 1"``, ``"axial 2"``, ``"plate (2,1)"``, ``"mixed"``.
+# ----------------------------------------------------------------------------- neutral labels
+_EYE = np.eye(3)
 
-    See the module docstring for the frame, the decomposition, the order convention and the handling
-    of degenerate bending pairs.
 
-    Args:
-        points: node coordinates (N, 3) [m] (e.g. ``ModalResult.dof_points``).
-        shapes: mode shapes (3 N, k), node-major (DOF ``3 a + c``), any normalisation; rigid modes
-            should be left out (they are labelled by their largest component, not meaningfully).
-        kind: ``"beam"``, ``"plate"``, ``"solid"``, or None to detect from the extents.
-        threshold: minimum energy-like fraction of the dominant component, in (0.5, 1].
+def _axis_name(v: np.ndarray) -> str:
+    """Global axis letter of direction v (3,) when >= _AXIS_SHARE of |v|^2 lies on it, else ''."""
+    s = np.asarray(v, dtype=float) ** 2
+    tot = float(s.sum())
+    if tot <= 0.0:
+        return ""
+    g = int(np.argmax(s))
+    return "xyz"[g] if s[g] >= _AXIS_SHARE * tot else ""
 
-    Returns:
-        One label per column of ``shapes``.
 
-    Raises:
-        InputError: inconsistent shapes, bad kind or threshold.
-    """
-    if not (0.5 < threshold <= 1.0):
-        raise InputError(f"threshold must lie in (0.5, 1], got {threshold!r}")
-    p_all = _check_points(points)
-    S = _check_shapes(shapes, len(p_all))
-    frame = body_frame(p_all, kind=kind)
+def _plane_name(normal: np.ndarray) -> str:
+    g = _axis_name(normal)
+    return {"x": "y-z", "y": "x-z", "z": "x-y"}.get(g, "")
+
+
+def _named(word: str, joiner: str, where: str) -> str:
+    return f"{word} {joiner} {where}" if where else word
+
+
+class _Neutral:
+    """Projections of modes on global low-order field families over one set of points (module doc)."""
+
+    def __init__(self, points: np.ndarray):
+        d = points - points.mean(axis=0)
+        x = d / (float(np.sqrt((d**2).sum(axis=1).mean())) or 1.0)
+        n = len(x)
+        self.C = x.T @ x / n  # second moments of the scaled coordinates
+
+        def vec_field(vec):  # a constant direction per node (n, 3) from (3,) or per-node weights
+            return np.broadcast_to(vec, (n, 3))
+
+        T = [vec_field(_EYE[j]) for j in range(3)]  # translations
+        R = [np.cross(_EYE[j], x) for j in range(3)]  # rotations about the centroid
+        E = [x[:, i:i + 1] * _EYE[i] for i in range(3)]  # u_i = x_i
+        E += [x[:, j:j + 1] * _EYE[i] + x[:, i:i + 1] * _EYE[j] for i, j in ((1, 2), (0, 2), (0, 1))]
+        W = [x[:, j:j + 1] * np.cross(_EYE[j], x) for j in range(3)]  # rotation about e_j growing along e_j
+        B, bend_axis = [], []
+        for j in range(3):  # rotation about e_j growing along e_i: deflection x_i^2 / 2 along e_j x e_i,
+            for i in range(3):  # plane sections normal to the axis (Euler-Bernoulli kinematics)
+                if i != j:
+                    dvec = np.cross(_EYE[j], _EYE[i])
+                    B.append(0.5 * x[:, i:i + 1] ** 2 * dvec - (x @ dvec)[:, None] * x[:, i:i + 1] * _EYE[i])
+                    bend_axis.append(j)
+        # twist and bending fields minus their mean, so a sway never reads as bending
+        W = [f - f.mean(axis=0) for f in W]
+        B = [f - f.mean(axis=0) for f in B]
+        base = {"T": T, "R": R, "E": E, "W": W, "B": B}
+        # each family carries the rigid fields a clamp mixes into it: a clamped body sways about its
+        # clamp (translation + rotation), stretches from it (translation + strain), twists and bends
+        # from it (rotation + twist / bending)
+        self.parts = {"rigid": ("T", "R"), "strain": ("T", "E"), "twist": ("R", "W"), "bending": ("R", "B")}
+        self.axis_of = {"T": [0, 1, 2], "R": [0, 1, 2], "E": [-1] * 6, "W": [0, 1, 2], "B": bend_axis}
+        self.fields = {fam: np.column_stack([np.ravel(f) for part in parts for f in base[part]])
+                       for fam, parts in self.parts.items()}
+        self.Q = {fam: np.linalg.qr(F)[0] for fam, F in self.fields.items()}
+
+    def _axis_energy(self, family: str, coef: np.ndarray, parts: tuple[str, ...]) -> np.ndarray:
+        """Energy (3,) of the fitted field's parts about / along each global axis."""
+        B = self.fields[family]
+        axes = [a for part in self.parts[family] for a in (self.axis_of[part] if part in parts else
+                                                             [-1] * len(self.axis_of[part]))]
+        e = np.zeros(3)
+        for j in range(3):
+            cols = [c for c, a in enumerate(axes) if a == j]
+            part = B[:, cols] @ coef[cols]
+            e[j] = part @ part
+        return e
+
+    def label(self, u: np.ndarray, threshold: float, number: int) -> str:
+        """Neutral label of one mode u (3n,); ``number`` is its 1-based column for ``"mode <i>"``."""
+        tot = float(u @ u)
+        if tot <= 0.0:
+            return f"mode {number}"
+        share = {key: float(np.sum((Q.T @ u) ** 2)) / tot for key, Q in self.Q.items()}
+        best = max(share, key=share.get)
+        if share[best] < threshold:
+            return f"mode {number}"
+        coef = np.linalg.lstsq(self.fields[best], u, rcond=None)[0]
+        if best == "rigid":
+            et, er = self._axis_energy(best, coef, ("T",)), self._axis_energy(best, coef, ("R",))
+            if et.sum() >= er.sum():
+                return _named("sway", "along", _axis_name(np.sqrt(et)))
+            return _named("rocking", "about", _axis_name(np.sqrt(er)))
+        if best in ("twist", "bending"):
+            return _named(best, "about", _axis_name(np.sqrt(self._axis_energy(best, coef, ("R", "W", "B")))))
+        coef = coef[3:]
+        # uniform strain E (u = E x): principal strains, each with its displacement energy
+        E = np.zeros((3, 3))
+        for i in range(3):
+            E[i, i] = coef[i]
+        for c, (i, j) in enumerate(((1, 2), (0, 2), (0, 1))):
+            E[i, j] = E[j, i] = coef[3 + c]
+        lam, vec = np.linalg.eigh(E)
+        energy = lam**2 * np.einsum("ia,ij,ja->a", vec, self.C, vec)
+        order = np.argsort(-energy)
+        lam, vec, energy = lam[order], vec[:, order], energy[order]
+        if energy[0] >= threshold * energy.sum():
+            return _named("stretch", "along", _axis_name(vec[:, 0]))
+        if np.all(lam > 0) or np.all(lam < 0):
+            return "breathing"
+        word = "stretch" if lam[0] * lam[1] > 0 else "shear"
+        return _named(word, "in", _plane_name(vec[:, 2]))
+
+
+# ----------------------------------------------------------------------------- labelling one body
+def _beam_body_labels(frame: BodyFrame, p_all: np.ndarray, S: np.ndarray, threshold: float) -> list[str]:
     p, U = _local(frame, p_all, S)
     k = S.shape[1]
-    if frame.kind == "plate":
-        return tuple(_plate_label(p, U[:, :, i], threshold) for i in range(k))
     fit = _beam_fit(p, U)
     labels = _beam_labels(frame, p, U, fit, threshold)
     n2, n3 = frame.names[1], frame.names[2]
@@ -446,4 +639,153 @@ def label_modes(points, shapes, *, kind: str | None = None, threshold: float = 0
             i += 2
         else:
             i += 1
+    return labels
+
+
+def _label_body(points: np.ndarray, S: np.ndarray, numbers: list[int], kind: str | None,
+                threshold: float) -> tuple[list[str], list[bool], list[str]]:
+    """Labels, numbered flags and neutral labels of the columns of S on one body (one piece or all)."""
+    k = S.shape[1]
+    neutral_of = _Neutral(points)
+    neutral = [neutral_of.label(S[:, i], threshold, numbers[i]) for i in range(k)]
+    frame = body_frame(points, kind=kind)
+    if frame.kind == "plate":
+        p, U = _local(frame, points, S)
+        labels = [_plate_label(p, U[:, :, i], threshold) for i in range(k)]
+        return labels, [lab.startswith("plate (") for lab in labels], neutral
+    if frame.kind == "beam":
+        labels = _beam_body_labels(frame, points, S, threshold)
+        return labels, [lab != "mixed" for lab in labels], neutral
+    return list(neutral), [False] * k, neutral
+
+
+def _unmix_pieces(S: np.ndarray, pieces: np.ndarray, ids: np.ndarray, shares: np.ndarray):
+    """Rotate runs of consecutive undominated modes to piece-local vectors where their span allows.
+
+    Returns (S_work, assign): S_work has the rotated vectors in place of each such run; original column
+    i takes the label of S_work column assign[i].
+    """
+    k = S.shape[1]
+    S_work = S.copy()
+    assign = np.arange(k)
+    dominated = shares.max(axis=0) >= PIECE_SHARE
+    i = 0
+    while i < k:
+        if dominated[i]:
+            i += 1
+            continue
+        j = i
+        while j < k and not dominated[j]:
+            j += 1
+        cols = np.arange(i, j)
+        i = j
+        if len(cols) < 2:
+            continue
+        A = S[:, cols]
+        G = A.T @ A
+        if np.linalg.matrix_rank(G) < len(cols):
+            continue
+        vecs = []
+        for pid in ids:
+            rows = np.repeat(pieces == pid, 3)
+            Gp = A[rows].T @ A[rows]
+            import scipy.linalg
+
+            mu, V = scipy.linalg.eigh(Gp, G)
+            vecs += [V[:, m] for m in range(len(cols)) if mu[m] >= PIECE_SHARE]
+        if len(vecs) != len(cols):
+            continue
+        W = A @ np.column_stack(vecs)  # piece-local vectors, grouped by piece
+        W = W / np.linalg.norm(W, axis=0)
+        An = A / np.linalg.norm(A, axis=0)
+        overlap = np.abs(An.T @ W)
+        taken = np.full(len(cols), -1)
+        used = np.zeros(len(cols), dtype=bool)
+        for flat in np.argsort(-overlap, axis=None):
+            a, b = divmod(int(flat), len(cols))
+            if taken[a] < 0 and not used[b]:
+                taken[a], used[b] = b, True
+        S_work[:, cols] = W
+        assign[cols] = cols[taken]
+    return S_work, assign
+
+
+def label_modes(points, shapes, *, kind: str | None = None, threshold: float = 0.6,
+                pieces: np.ndarray | None = None) -> tuple[str, ...]:
+    """Name each mode from its shape: ``"bending-y 1"``, ``"torsion 1"``, ``"axial 2"``, ``"plate (2,1)"``, ``"mixed"`` on beams and plates,
+    ``"bending about x"``, ``"breathing"``, ``"mode 7"`` elsewhere, ``"piece 1: ..."`` on one piece.
+
+    See the module docstring for the frame, the decomposition, the order convention and the handling
+    of degenerate bending pairs.
+
+    Args:
+        points: node coordinates (N, 3) [m] (e.g. ``ModalResult.dof_points``).
+        shapes: mode shapes (3 N, k), node-major (DOF ``3 a + c``), any normalisation; rigid modes
+            should be left out (they are labelled by their largest component, not meaningfully).
+        kind: ``"beam"``, ``"plate"``, ``"solid"`` (neutral labels), or None to detect from the geometry
+            (extents, fill, slice widths, pieces; module doc). Applies to each labelled piece.
+        threshold: minimum energy-like fraction of the dominant component, in (0.5, 1].
+        pieces: optional connected-piece label per point (N,) ints, e.g.
+            ``modalfem.eigen.rigid.node_pieces(mesh, degree)``; modes held by one piece are labelled on
+            it (``"piece <p>: ..."``), the others by neutral labels of the whole body.
+
+    Returns:
+        One label per column of ``shapes``.
+
+    Raises:
+        InputError: inconsistent shapes or pieces, bad kind or threshold.
+    """
+    if not (0.5 < threshold <= 1.0):
+        raise InputError(f"threshold must lie in (0.5, 1], got {threshold!r}")
+    if kind is not None and kind not in KINDS:
+        raise InputError(f"kind must be one of {', '.join(KINDS)} or None, got {kind!r}")
+    p_all = _check_points(points)
+    S = _check_shapes(shapes, len(p_all))
+    given = _check_pieces(pieces, len(p_all))
+    k = S.shape[1]
+    numbers = list(range(1, k + 1))
+    ids = np.unique(given) if given is not None else np.zeros(1, dtype=np.int64)
+    if len(ids) <= 1:
+        labels, numbered, neutral = _label_body(p_all, S, numbers, kind, threshold)
+    else:
+        U2 = (S**2).reshape(len(p_all), 3, k).sum(axis=1)
+        tot = U2.sum(axis=0)
+        shares = np.array([U2[given == pid].sum(axis=0) for pid in ids]) / np.where(tot > 0, tot, 1.0)
+        S_work, assign = _unmix_pieces(S, given, ids, shares)
+        U2 = (S_work**2).reshape(len(p_all), 3, k).sum(axis=1)
+        tot = U2.sum(axis=0)
+        shares = np.array([U2[given == pid].sum(axis=0) for pid in ids]) / np.where(tot > 0, tot, 1.0)
+        owner = np.where(shares.max(axis=0) >= PIECE_SHARE, np.argmax(shares, axis=0), -1)
+        # work column j labels original column i with assign[i] == j: number it as that original
+        number_of = np.empty(k, dtype=np.int64)
+        number_of[assign] = np.arange(1, k + 1)
+        labels, numbered, neutral = [""] * k, [False] * k, [""] * k
+        for m, pid in enumerate(ids):
+            cols = np.flatnonzero(owner == m)
+            if len(cols) == 0:
+                continue
+            mask = given == pid
+            nums = [int(number_of[c]) for c in cols]
+            if int(mask.sum()) < 4:
+                lab, num, neu = [f"mode {n}" for n in nums], [False] * len(cols), [f"mode {n}" for n in nums]
+            else:
+                rows = np.repeat(mask, 3)
+                lab, num, neu = _label_body(p_all[mask], S_work[rows][:, cols], nums, kind, threshold)
+            for c, a, b, d in zip(cols, lab, num, neu):
+                labels[c], numbered[c], neutral[c] = f"piece {pid}: {a}", b, f"piece {pid}: {d}"
+        rest = np.flatnonzero(owner < 0)
+        if len(rest):
+            whole = _Neutral(p_all)
+            for c in rest:
+                labels[c] = neutral[c] = whole.label(S_work[:, c], threshold, int(number_of[c]))
+        labels = [labels[assign[i]] for i in range(k)]
+        numbered = [numbered[assign[i]] for i in range(k)]
+        neutral = [neutral[assign[i]] for i in range(k)]
+    seen: set[str] = set()
+    for i in range(k):
+        if numbered[i]:
+            if labels[i] in seen:
+                labels[i] = neutral[i]
+            else:
+                seen.add(labels[i])
     return tuple(labels)
