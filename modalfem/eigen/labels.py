@@ -564,7 +564,10 @@ class _Neutral:
         self.axis_of = {"T": [0, 1, 2], "R": [0, 1, 2], "E": [-1] * 6, "W": [0, 1, 2], "B": bend_axis}
         self.fields = {fam: np.column_stack([np.ravel(f) for part in parts for f in base[part]])
                        for fam, parts in self.parts.items()}
-        self.Q = {fam: np.linalg.qr(F)[0] for fam, F in self.fields.items()}
+        self.Q = {}
+        for fam, F in self.fields.items():  # orthonormal basis of the span (the three twists sum to 0)
+            Uf, s, _ = np.linalg.svd(F, full_matrices=False)
+            self.Q[fam] = Uf[:, s > 1e-10 * s[0]]
 
     def _axis_energy(self, family: str, coef: np.ndarray, parts: tuple[str, ...]) -> np.ndarray:
         """Energy (3,) of the fitted field's parts about / along each global axis."""
@@ -593,8 +596,16 @@ class _Neutral:
             if et.sum() >= er.sum():
                 return _named("sway", "along", _axis_name(np.sqrt(et)))
             return _named("rocking", "about", _axis_name(np.sqrt(er)))
-        if best in ("twist", "bending"):
-            return _named(best, "about", _axis_name(np.sqrt(self._axis_energy(best, coef, ("R", "W", "B")))))
+        if best == "twist":
+            # x_j (e_j x x) summed over j is 0: the minimum-norm twist rates tau have zero mean, and a
+            # twist about e_j alone reads tau ~ 3/2 e_j - 1/2 (1, 1, 1)
+            tau = coef[3:]
+            pure = 1.5 * _EYE - 0.5
+            cos2 = (pure @ tau) ** 2 / max(float(tau @ tau) * 1.5, 1e-300)
+            j = int(np.argmax(cos2))
+            return _named("twist", "about", "xyz"[j] if cos2[j] >= _AXIS_SHARE else "")
+        if best == "bending":
+            return _named(best, "about", _axis_name(np.sqrt(self._axis_energy(best, coef, ("R", "B")))))
         coef = coef[3:]
         # uniform strain E (u = E x): principal strains, each with its displacement energy
         E = np.zeros((3, 3))
@@ -712,8 +723,9 @@ def _unmix_pieces(S: np.ndarray, pieces: np.ndarray, ids: np.ndarray, shares: np
 
 def label_modes(points, shapes, *, kind: str | None = None, threshold: float = 0.6,
                 pieces: np.ndarray | None = None) -> tuple[str, ...]:
-    """Name each mode from its shape: ``"bending-y 1"``, ``"torsion 1"``, ``"axial 2"``, ``"plate (2,1)"``, ``"mixed"`` on beams and plates,
-    ``"bending about x"``, ``"breathing"``, ``"mode 7"`` elsewhere, ``"piece 1: ..."`` on one piece.
+    """Name each mode from its shape: ``"bending-y 1"``, ``"torsion 1"``, ``"axial 2"``, ``"plate (2,1)"``,
+    ``"mixed"`` on beams and plates; ``"bending about x"``, ``"breathing"``, ``"mode 7"`` on other bodies;
+    ``"piece 1: ..."`` for a mode held by one piece.
 
     See the module docstring for the frame, the decomposition, the order convention and the handling
     of degenerate bending pairs.

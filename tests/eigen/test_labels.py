@@ -253,3 +253,200 @@ def test_end_to_end_free_plate():
     assert res.labels[0] == "plate (1,1)"
     assert all(label.startswith("plate (") for label in res.labels)
     assert len(set(res.labels)) == len(res.labels)
+
+
+# ----------------------------------------------------------------------------- beam-/plate-likeness
+BEAM_FAMILY = ("bending-", "torsion ", "axial ", "plate (", "in-plane", "mixed")
+
+
+def _no_family_labels(labels):
+    """No beam or plate label (also after a 'piece p: ' prefix)."""
+    return not any(lab.split(": ")[-1].startswith(BEAM_FAMILY) for lab in labels)
+
+
+def test_kind_needs_a_filled_single_prismatic_body():
+    """Slender or flat extents alone are not enough: the body must fill its box, be one piece and (beams)
+    keep its section width along the axis."""
+    bar = grid((1.0, 0.05, 0.05), (21, 2, 2))
+    two_bars = np.vstack([bar, bar + [0.0, 0.3, 0.0]])  # flat extents (1 x 0.35 x 0.05): was a "plate"
+    f = body_frame(two_bars)
+    assert f.kind == "solid" and f.pieces == 2
+    # the same cloud with its pieces given
+    assert body_frame(two_bars, pieces=np.repeat([0, 1], len(bar))).kind == "solid"
+    # one bar, one piece label: still a beam
+    assert body_frame(bar, pieces=np.zeros(len(bar), dtype=int)).kind == "beam"
+    # an L of two bars in a plane: flat extents, but fills ~1/4 of its box
+    arm = grid((0.1, 1.0, 0.1), (3, 21, 3), origin=(0.9, 0.1, 0.0))
+    L_shape = np.vstack([grid((1.0, 0.1, 0.1), (21, 3, 3), origin=(0.0, 0.0, 0.0)), arm])
+    f = body_frame(L_shape)
+    assert f.kind == "solid" and f.fill < 0.5
+    # a fork: 20 mm stem then two 4 mm prongs 8 mm apart: slender, but the stem is 1/4 of the width
+    stem = grid((0.04, 0.004, 0.004), (21, 3, 3), origin=(0.0, 0.006, 0.0))
+    prongs = [grid((0.08, 0.004, 0.004), (41, 3, 3), origin=(0.04, y, 0.0)) for y in (0.0, 0.012)]
+    f = body_frame(np.vstack([stem, *prongs]))
+    assert f.kind == "solid" and f.slice_width <= 0.5
+    # a round rod (unstructured-like rings): fills pi/4 of its box, a beam
+    t = np.linspace(0.0, 2 * np.pi, 16, endpoint=False)
+    rings = [np.column_stack([np.full(len(t) + 1, x), r * np.append(np.cos(t), 0.0), r * np.append(np.sin(t), 0.0)])
+             for x in np.linspace(0.0, 1.0, 51) for r in (0.02, 0.04)]
+    assert body_frame(np.unique(np.vstack(rings), axis=0)).kind == "beam"
+    with pytest.raises(InputError):
+        body_frame(bar, pieces=np.zeros(len(bar) - 1, dtype=int))
+    with pytest.raises(InputError):
+        body_frame(bar, pieces=np.full(len(bar), 0.5))
+
+
+# ----------------------------------------------------------------------------- neutral labels
+@pytest.fixture(scope="module")
+def cube_points():
+    return grid((0.2, 0.2, 0.2), (9, 9, 9), origin=(-0.1, -0.1, 0.0))
+
+
+def test_neutral_labels_read_the_motion(cube_points):
+    """A cube is neither beam nor plate: analytic fields get the label of their kinematics, no number."""
+    P = cube_points
+    x, y, z = P[:, 0], P[:, 1], P[:, 2] - 0.1  # about the centroid
+    o = np.zeros_like(x)
+    fields = {
+        "breathing": (x, y, z),
+        "stretch along x": (x, -0.3 * y, -0.3 * z),  # uniaxial with Poisson contraction
+        "shear in x-y": (y, x, o),
+        "shear in x-z": (x, o, -z),  # pure shear along the principal strains
+        "twist about z": (-z * y, z * x, o),
+        "bending about z": (-x * y, 0.5 * x**2, o),  # Euler-Bernoulli: deflection along y growing along x
+        "bending about x": (o, 0.5 * z**2, -y * z),  # deflection along y growing along z
+        "sway along x": (P[:, 2], o, -x),  # rotation about the base line (y axis at z = 0)
+        "rocking about y": (z, o, -x),  # rigid rotation
+        "stretch along z": (o, o, P[:, 2]),  # clamped base, stretching from it
+    }
+    S = np.column_stack([np.column_stack(c).ravel() for c in fields.values()])
+    assert label_modes(P, S) == tuple(fields)
+    assert label_modes(P, -2.5 * S) == tuple(fields)  # sign and scale do not matter
+
+
+def test_neutral_axis_named_only_near_a_global_axis(cube_points):
+    """Sway along the x = y diagonal (rotation about a base line at 45 degrees): no axis letter; at
+    20 degrees from x (cos^2 = 0.88 >= 0.8): named x."""
+    P = cube_points
+    x, y, z = P[:, 0], P[:, 1], P[:, 2]
+
+    def sway(deg):
+        c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+        # rotation about the base line along (-s, c, 0) through the origin: u = omega x r
+        return np.cross(np.array([-s, c, 0.0]), np.column_stack([x, y, z])).ravel()
+
+    assert label_modes(P, np.column_stack([sway(45.0), sway(20.0)])) == ("sway", "sway along x")
+
+
+def test_neutral_noise_and_zero_are_mode_numbers(cube_points):
+    rng = np.random.default_rng(1)
+    n = 3 * len(cube_points)
+    S = np.column_stack([rng.standard_normal(n), rng.standard_normal(n), np.zeros(n)])
+    assert label_modes(cube_points, S) == ("mode 1", "mode 2", "mode 3")
+    assert label_modes(cube_points, S, kind="solid") == ("mode 1", "mode 2", "mode 3")
+
+
+def test_numbered_labels_are_unique(beam_points):
+    """Two modes reading the same beam label: the first keeps it, the second gets its neutral label."""
+    P = beam_points
+    b1 = bending(P, 1, "free-free", 1)  # deflection along y, mean 0: a rotation about z growing along x
+    S = np.column_stack([b1, bending(P, 1, "free-free", 2), 2.0 * b1, torsion(P, 1, "free-free")])
+    assert label_modes(P, S) == ("bending-y 1", "bending-z 1", "bending about z", "torsion 1")
+
+
+# ----------------------------------------------------------------------------- real non-beam bodies
+def _solve(mesh, **kw):
+    import modalfem
+    from modalfem import STEEL
+
+    return modalfem.modes(mesh, STEEL, backend="skfem", solver="scipy", **kw)
+
+
+def test_bell_gets_neutral_labels():
+    """A bell is neither beam nor plate. Its lowest pair is the (2,0) 'ovalling' pair: the rim squeezed
+    along one diameter and pushed out along the other, a pure shear in the plane of the rim (x-y)."""
+    from modalfem.mesh import bell
+
+    res = _solve(bell(h=0.012), k=8, degree=1)
+    labels = label_modes(res.dof_points, res.shapes)
+    assert body_frame(res.dof_points).kind == "solid"
+    assert _no_family_labels(labels), labels
+    assert labels[:2] == ("shear in x-y", "shear in x-y")
+
+
+def test_tuning_fork_gets_no_beam_labels():
+    """The fork is slender (127 x 16 x 6 mm) but a stem and two prongs: no beam-theory family."""
+    from modalfem.mesh import tuning_fork
+
+    res = _solve(tuning_fork(h=0.003), k=6, degree=1)
+    labels = label_modes(res.dof_points, res.shapes)
+    assert body_frame(res.dof_points).kind == "solid"
+    assert _no_family_labels(labels), labels
+
+
+def test_clamped_block_sways_twists_and_stretches():
+    """A cube clamped on its base (z = 0): the lowest pair sways sideways (x and y, mixed by the solver),
+    then it twists about the vertical axis, then it stretches vertically (shear waves are slower than
+    the compression wave, and torsion stiffness sits between the shear-sway and the axial one)."""
+    from modalfem.mesh import box
+
+    res = _solve(box((0.1, 0.1, 0.1), (4, 4, 4)), k=4, degree=1, fixed="z0")
+    labels = label_modes(res.dof_points, res.shapes)
+    assert [lab.split(" along")[0] for lab in labels[:2]] == ["sway", "sway"]
+    assert labels[2:] == ("twist about z", "stretch along z")
+
+
+# ----------------------------------------------------------------------------- pieces
+def _two_bars(second_length, gap=0.25, cells=(20, 2, 2)):
+    from modalfem.mesh import box
+    from modalfem.mesh.core import Mesh
+
+    a = box((1.0, 0.05, 0.04), cells)
+    b = box((second_length, 0.05, 0.04), (max(2, round(cells[0] * second_length)), *cells[1:]), origin=(0.0, gap, 0.0))
+    return Mesh(np.vstack([a.points, b.points]), np.vstack([a.cells, b.cells + a.point_count]))
+
+
+def test_two_bars_labelled_per_piece_in_theory_order():
+    """Two free-free bars (1.0 m and 0.7 m, 50 x 40 mm): every mode lives in one bar and carries that bar's
+    beam label; the order is the Euler-Bernoulli order of both bars together."""
+    from modalfem import STEEL, theory
+    from modalfem.eigen.rigid import node_pieces
+
+    mesh = _two_bars(0.7)
+    res = _solve(mesh, k=6, degree=2)
+    labels = label_modes(res.dof_points, res.shapes, pieces=node_pieces(mesh, 2))
+    sec = theory.rectangle_section(0.05, 0.04)
+    ref = [(w, f"piece {p}: bending-{d} {n}") for p, length in ((0, 1.0), (1, 0.7)) for d in "yz"
+           for n, w in enumerate(theory.euler_bernoulli_omegas(STEEL, length, sec, direction=d, boundary="free-free",
+                                                                count=3), start=1)]
+    assert labels == tuple(lab for _, lab in sorted(ref))[:6]
+    # without the piece labels the two bars are never read as one plate or one beam
+    plain = label_modes(res.dof_points, res.shapes)
+    assert _no_family_labels(plain), plain
+
+
+def test_identical_bars_mixed_by_the_solver_are_unmixed():
+    """Two identical bars: each frequency is double, the solver returns any mix of the two bars' modes.
+    The run of shared modes is rotated to one-bar vectors, so the labels still name one bar each."""
+    from modalfem.eigen.rigid import node_pieces
+
+    mesh = _two_bars(1.0, cells=(16, 2, 2))
+    res = _solve(mesh, k=4, degree=2)
+    pieces = node_pieces(mesh, 2)
+    c, s = np.cos(0.6), np.sin(0.6)
+    mixed = res.shapes.copy()
+    mixed[:, :2] = res.shapes[:, :2] @ np.array([[c, -s], [s, c]])  # a 34 degree mix of the first pair
+    for S in (res.shapes, mixed):
+        labels = label_modes(res.dof_points, S, pieces=pieces)
+        assert sorted(labels[:2]) == ["piece 0: bending-z 1", "piece 1: bending-z 1"], labels
+        assert sorted(labels[2:]) == ["piece 0: bending-y 1", "piece 1: bending-y 1"], labels
+    # an equal mix of both bars that is not part of a splittable run: neutral label of the whole body
+    shared = (res.shapes[:, 0] + res.shapes[:, 1])[:, None]
+    (lab,) = label_modes(res.dof_points, shared / np.linalg.norm(shared), pieces=pieces)
+    assert not lab.startswith("piece") and _no_family_labels([lab])
+
+
+def test_bad_pieces(beam_points):
+    P = beam_points
+    with pytest.raises(InputError):
+        label_modes(P, np.zeros((3 * len(P), 1)), pieces=np.zeros(len(P) + 1, dtype=int))
