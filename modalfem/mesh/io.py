@@ -26,6 +26,11 @@ dolfinx's gmshio can use the file. ``.vtu`` and ``.xdmf`` (XML data: one self-co
 .h5) are written by meshio with the ``tag:<name>`` arrays above. Writes are atomic: a temporary
 file in the same directory is renamed over the target with ``os.replace``.
 
+Reading fails with one line (``MeshError``) saying what is wrong with the file: missing, empty,
+an unknown extension (the known ones are listed), not the format its extension says, truncated
+(which section or closing tag is missing) or corrupt. A body larger than 50 m or smaller than
+0.1 mm after ``unit_scale`` gives one ``UnitWarning`` suggesting the ``unit_scale`` that fixes it.
+
 Only tetrahedra and boundary triangles are kept: several volume regions (e.g. gmsh Physical
 Volumes) are read as one body, and other cell types (lines, vertices, quads) are ignored.
 """
@@ -36,10 +41,12 @@ import contextlib
 import importlib.util
 import io
 import os
+import re
 import sys
 import tempfile
 import threading
 import types
+import warnings
 from collections import Counter
 from contextlib import contextmanager
 from pathlib import Path
@@ -49,7 +56,7 @@ import numpy as np
 from modalfem.errors import InputError, MeshError
 from modalfem.mesh.core import Mesh
 
-__all__ = ["read", "write", "WRITE_FORMATS"]
+__all__ = ["read", "write", "WRITE_FORMATS", "UnitWarning", "LARGE_BODY", "SMALL_BODY"]
 
 #: file suffix -> meshio format name, for :func:`write`
 WRITE_FORMATS = {".msh": "gmsh", ".vtu": "vtu", ".xdmf": "xdmf"}
@@ -97,6 +104,16 @@ def _as_path(path, what: str) -> Path:
 
 
 # ---------------------------------------------------------------------- read
+#: bounding-box diagonal [m] above or below which :func:`read` warns that the unit looks wrong
+#: (modalfem's bodies range from millimetre parts to structures of a few metres; see read())
+LARGE_BODY = 50.0
+SMALL_BODY = 1e-4
+
+
+class UnitWarning(UserWarning):
+    """A mesh read from a file is implausibly large or small: its unit is probably not metres."""
+
+
 def read(path, *, unit_scale: float = 1.0) -> Mesh:
     """Read a tetrahedral mesh and its boundary tags.
 
@@ -110,19 +127,30 @@ def read(path, *, unit_scale: float = 1.0) -> Mesh:
 
     Raises:
         InputError: ``unit_scale`` is not a finite number > 0, or ``path`` is not a path.
-        MeshError: the file is missing, unreadable or malformed, has no tetrahedra (the message
-            lists the cell types it has), or fails the ``Mesh`` quality checks; the message names
-            the file.
+        MeshError: one line naming the file and what is wrong with it: missing, a directory,
+            unreadable, empty (0 bytes, no points or no cells), not a mesh of a known format (the
+            message lists the known extensions), not the format its extension says (e.g. binary
+            data in a .msh), truncated or corrupt (the message names the format and what was
+            expected, e.g. the section cut off), no tetrahedra (the message lists the cell types
+            it has), or failing the ``Mesh`` quality checks.
+
+    Warns:
+        UnitWarning: the body's bounding-box diagonal (after ``unit_scale``) is larger than
+            ``LARGE_BODY`` = 50 m or smaller than ``SMALL_BODY`` = 1e-4 m. Bodies simulated with
+            modalfem range from millimetre parts (a 1 mm part has a diagonal of ~2e-3 m) to
+            structures of a few metres (a church bell, a frame: up to ~10 m), so both thresholds
+            keep a factor 5 or more from real bodies; beyond them the file's unit is most likely
+            not metres (a part of 50 mm or more exported in millimetres reads as 50 m or more),
+            and the warning suggests the ``unit_scale`` (CLI ``--unit-scale``) that fixes it.
+            Parts under 50 mm exported in millimetres look like plausible metre-sized bodies and
+            cannot be told apart.
     """
     scale = _check_unit_scale(unit_scale)
     p = _as_path(path, "mesh")
-    if not p.exists():
-        raise MeshError(f"mesh file not found: {p}")
-    if not p.is_file():
-        raise MeshError(f"mesh path is not a file: {p}")
+    kind = _check_file(p)
     import meshio
 
-    no_h5py = p.suffix.lower() == ".xdmf" and importlib.util.find_spec("h5py") is None
+    no_h5py = kind.suffix == ".xdmf" and importlib.util.find_spec("h5py") is None
     try:
         with _xdmf_without_h5py():
             m = _meshio_read(meshio, p)
@@ -133,11 +161,226 @@ def read(path, *, unit_scale: float = 1.0) -> Mesh:
             ) from exc
         if isinstance(exc, MeshError):
             raise
-        raise MeshError(f"cannot read mesh file {p}: {_one_line(exc)}") from exc
+        raise MeshError(_failure(p, kind, exc)) from exc
     try:
-        return _from_meshio(m, scale, p)
+        empty = _emptiness(m)
+        if empty:
+            raise MeshError(_structure_problem(p, kind) or f"empty mesh file {p}: {empty}")
+        mesh = _from_meshio(m, scale, p)
     except MeshError as exc:
-        raise MeshError(f"{p}: {exc}") from None
+        text = str(exc)
+        raise MeshError(text if str(p) in text else f"{p}: {text}") from None
+    except Exception as exc:
+        raise MeshError(
+            f"corrupt {kind.name} file {p}: its cells, tags or data arrays do not fit together ({_one_line(exc)})"
+        ) from exc
+    _warn_about_size(mesh, p, scale)
+    return mesh
+
+
+class _Kind:
+    """What the file's extension says it is: ``suffix`` (lower case) and a readable ``name``."""
+
+    NAMES = {".msh": "gmsh .msh", ".vtu": "VTK XML .vtu", ".xdmf": "XDMF", ".xmf": "XDMF"}
+
+    def __init__(self, suffix: str, filetypes: list[str]):
+        self.suffix = suffix
+        self.name = self.NAMES.get(suffix) or f"{suffix} ({'/'.join(filetypes)})"
+
+
+def _known_suffix(p: Path, table: dict) -> str | None:
+    """The longest registered suffix of ``p`` (``.vol.gz`` before ``.gz``), lower case, or None."""
+    suffixes = [x.lower() for x in p.suffixes]
+    for n in range(min(len(suffixes), 2), 0, -1):
+        candidate = "".join(suffixes[-n:])
+        if candidate in table:
+            return candidate
+    return None
+
+
+def _check_file(p: Path) -> _Kind:
+    """Reject, in one line each, what is not a readable mesh file, before meshio sees it."""
+    try:
+        if not p.exists():
+            raise MeshError(f"mesh file not found: {p}")
+        if p.is_dir():
+            raise MeshError(f"mesh path is a directory, not a file: {p}")
+        if not p.is_file():
+            raise MeshError(f"mesh path is not a regular file: {p}")
+        size = p.stat().st_size
+        with open(p, "rb") as f:
+            head = f.read(4096)
+    except ValueError as exc:  # e.g. an embedded NUL byte in the name
+        raise InputError(f"mesh path {str(p)!r} is not a valid file name: {_one_line(exc)}") from None
+    except OSError as exc:
+        raise MeshError(f"cannot open mesh file {p}: {exc.strerror or _one_line(exc)}") from None
+    import meshio
+
+    table = meshio.extension_to_filetypes
+    suffix = _known_suffix(p, table)
+    if suffix is None:
+        others = sorted(s for s in table if s not in WRITE_FORMATS)
+        what = f"extension {p.suffix!r}" if p.suffix else "no extension"
+        raise MeshError(
+            f"{p} is not a mesh of a known format ({what}); known extensions: "
+            f"{', '.join(WRITE_FORMATS)} (tested) and, through meshio, {', '.join(others)}"
+        )
+    kind = _Kind(suffix, table[suffix])
+    if size == 0:
+        raise MeshError(f"empty mesh file {p}: it has 0 bytes")
+    problem = _signature_problem(suffix, head)
+    if problem:
+        raise MeshError(f"{p} is not a valid {kind.name} file: {problem}")
+    return kind
+
+
+def _looks_binary(head: bytes) -> bool:
+    if b"\x00" in head:
+        return True
+    sample = head[:1024]
+    try:
+        sample.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return exc.start < len(sample) - 4  # a character cut at the end of the sample is no evidence
+    return False
+
+
+def _signature_problem(suffix: str, head: bytes) -> str | None:
+    """Why the first bytes cannot start a file of this suffix, or None (only .msh/.vtu/.xdmf checked)."""
+    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    data = " (it holds binary data)" if _looks_binary(head) else ""
+    if suffix == ".msh":
+        if text.startswith((b"$NOD", b"$NOE")):
+            return "it is in gmsh's MSH 1 format, which is not supported; re-save it as MSH 4.1 or 2.2"
+        if not text.startswith(b"$MeshFormat"):
+            return f"it does not begin with $MeshFormat{data}"
+        lines = text.split(b"\n", 2)
+        fields = lines[1].split() if len(lines) > 1 else []
+        version = fields[0].decode("ascii", "replace") if fields else ""
+        if not version.startswith(("2.", "4.")):
+            return f"its $MeshFormat line gives version {version or '(none)'!r}; readable are MSH 2.2, 4.0 and 4.1"
+    elif suffix == ".vtu":
+        if not text.startswith((b"<?xml", b"<VTKFile")):
+            return f"it does not begin with '<?xml' or '<VTKFile'{data}"
+        match = re.search(rb'<VTKFile[^>]*\stype="([^"]*)"', head)
+        if match and match.group(1) != b"UnstructuredGrid":
+            return f"it is a VTK {match.group(1).decode('ascii', 'replace')} file, not an UnstructuredGrid"
+    elif suffix in (".xdmf", ".xmf"):
+        if not text.startswith((b"<?xml", b"<Xdmf")):
+            return f"it does not begin with '<?xml' or '<Xdmf'{data}"
+    return None
+
+
+def _emptiness(m) -> str | None:
+    """Why a meshio mesh is empty (no points, or no cells), or None."""
+    if len(np.asarray(m.points)) == 0:
+        return "it has no points"
+    if sum(len(b.data) for b in m.cells) == 0:
+        return f"it has {len(m.points)} points but no cells"
+    return None
+
+
+def _structure_problem(p: Path, kind: _Kind) -> str | None:
+    """A one-line message if the file is visibly truncated or empty, else None."""
+    try:
+        data = p.read_bytes()
+    except OSError:
+        return None
+    if kind.suffix == ".msh":
+        return _msh_structure(p, data)
+    closing = {".vtu": b"</VTKFile>", ".xdmf": b"</Xdmf>", ".xmf": b"</Xdmf>"}.get(kind.suffix)
+    if closing and closing not in data[-65536:]:
+        return f"truncated {kind.name} file {p}: it ends before the closing {closing.decode()} tag"
+    if kind.suffix == ".vtk":  # legacy VTK: the POINTS keyword line is ASCII even in binary files
+        match = re.search(rb"^POINTS\s+(\d+)", data[: 1 << 20], flags=re.MULTILINE)
+        if match and int(match.group(1)) == 0:
+            return f"empty mesh file {p}: it has no points (POINTS 0)"
+        cells = re.search(rb"^CELLS\s+(\d+)\s+(\d+)", data, flags=re.MULTILINE)
+        if match and (cells is None or int(cells.group(2)) == 0):
+            return f"empty mesh file {p}: it has {match.group(1).decode()} points but no cells"
+    if kind.suffix == ".vtu":
+        head = data[: 1 << 20]
+        for key, noun in ((b"NumberOfPoints", "points"), (b"NumberOfCells", "cells")):
+            counts = [int(v) for v in re.findall(rb"\s" + key + rb'="(\d+)"', head)]
+            if counts and not any(counts):
+                return f'empty mesh file {p}: it has no {noun} ({key.decode()}="0")'
+    return None
+
+
+def _msh_format(data: bytes) -> str:
+    """``"gmsh MSH 4.1 binary"`` from the $MeshFormat line (``"gmsh .msh"`` if unreadable)."""
+    lines = data.lstrip().split(b"\n", 2)
+    fields = lines[1].split() if len(lines) > 1 else []
+    if len(fields) >= 2 and fields[1] in (b"0", b"1"):
+        return f"gmsh MSH {fields[0].decode('ascii', 'replace')} {'binary' if fields[1] == b'1' else 'ASCII'}"
+    return "gmsh .msh"
+
+
+def _msh_structure(p: Path, data: bytes) -> str | None:
+    """Truncation of a .msh file: a section without its $End line, or no $Nodes/$Elements."""
+    fmt = _msh_format(data)
+    sections: list[str] = []
+    open_section = None
+    for match in re.finditer(rb"^\$(\w+)[ \t]*\r?$", data, flags=re.MULTILINE):
+        name = match.group(1).decode("ascii", "replace")
+        if open_section is None:
+            open_section = name
+            sections.append(name)
+        elif name == "End" + open_section:
+            open_section = None
+        elif open_section != "Comments":
+            break  # another section starts inside this one: this one was cut
+    if open_section is not None and open_section != "Comments":
+        return (
+            f"truncated {fmt} file {p}: the ${open_section} section has no $End{open_section} "
+            "(the file ends inside it)"
+        )
+    for needed in ("Nodes", "Elements"):
+        if needed not in sections:
+            return f"truncated or incomplete {fmt} file {p}: it has no ${needed} section"
+    for section, noun in (("Nodes", "points"), ("Elements", "cells")):
+        if _msh_count(data, section) == 0:
+            return f"empty mesh file {p}: it has no {noun} (its ${section} section is empty)"
+    return None
+
+
+def _msh_count(data: bytes, section: str) -> int | None:
+    """The node or element count in the header of a .msh section (None if it cannot be read)."""
+    lines = data.lstrip().split(b"\n", 2)
+    fields = lines[1].split() if len(lines) > 1 else []
+    start = data.find(b"\n$" + section.encode() + b"\n")
+    if len(fields) < 3 or start < 0:
+        return None
+    body = data[start + len(section) + 3 :]
+    try:
+        major, binary, size = fields[0][:1], fields[1] == b"1", int(fields[2])
+        if major == b"2":
+            return int(body.split(b"\n", 1)[0].split()[0])
+        if not binary:
+            return int(body.split(b"\n", 1)[0].split()[1])
+        if size not in (4, 8) or len(body) < 2 * size:
+            return None
+        return int(np.frombuffer(body[: 2 * size], dtype=f"<u{size}")[1])
+    except (ValueError, IndexError):
+        return None
+
+
+def _failure(p: Path, kind: _Kind, exc: Exception) -> str:
+    """One line saying what is wrong with a file meshio could not read."""
+    structural = _structure_problem(p, kind)
+    if structural:
+        return structural
+    detail = _one_line(exc)
+    if kind.suffix == ".msh":
+        try:
+            with open(p, "rb") as f:
+                fmt = _msh_format(f.read(4096))
+        except OSError:
+            fmt = kind.name
+        return f"corrupt {fmt} file {p}: its sections are complete but their contents do not parse ({detail})"
+    if kind.suffix in (".vtu", ".xdmf", ".xmf"):
+        return f"corrupt {kind.name} file {p}: it is complete but its XML or data arrays do not parse ({detail})"
+    return f"cannot read mesh file {p} as {kind.name}: corrupt, truncated or not in that format ({detail})"
 
 
 def _meshio_read(meshio, p: Path):
@@ -153,6 +396,34 @@ def _meshio_read(meshio, p: Path):
     except SystemExit:  # meshio exits the process when no reader accepts the file
         known = ", ".join(meshio.extension_to_filetypes.get(p.suffix.lower(), [])) or "none"
         raise MeshError(f"cannot read mesh file {p}: no meshio reader accepted it (tried: {known})") from None
+
+
+#: file units a unit warning may suggest, most likely first: metres per file unit -> name
+_FILE_UNITS = {1e-3: "millimetres", 1.0: "metres", 1e-2: "centimetres", 0.0254: "inches", 1e-6: "micrometres",
+               0.3048: "feet", 1e3: "kilometres"}
+
+
+def _warn_about_size(mesh: Mesh, p: Path, scale: float) -> None:
+    """One ``UnitWarning`` if the body is outside [SMALL_BODY, LARGE_BODY], with the likely fix."""
+    lo, hi = mesh.bounds
+    size = float(np.linalg.norm(hi - lo))
+    if SMALL_BODY <= size <= LARGE_BODY:
+        return
+    bound = f"larger than the {LARGE_BODY:g} m" if size > LARGE_BODY else f"smaller than the {SMALL_BODY:g} m"
+    fits = [u for u in _FILE_UNITS if u != scale and SMALL_BODY <= size * u / scale <= LARGE_BODY]
+    if not fits:
+        advice = "check the file's unit and pass unit_scale = metres per file unit (CLI: --unit-scale)"
+    elif fits[0] == 1.0:
+        advice = "if the file is in metres, drop unit_scale (CLI: --unit-scale 1)"
+    else:
+        u = fits[0]
+        advice = f"if the file is in {_FILE_UNITS[u]}, pass unit_scale={u:g} (CLI: --unit-scale {u:g})"
+    warnings.warn(
+        f"mesh {p}: the body is {size:.3g} m across (bounding-box diagonal with unit_scale={scale:g}), "
+        f"{bound} expected of a body; {advice}",
+        UnitWarning,
+        stacklevel=3,
+    )
 
 
 def _check_unit_scale(unit_scale) -> float:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import re
+import warnings
 
 import meshio
 import numpy as np
@@ -144,25 +146,153 @@ def test_second_order_tets_read_by_corners(tmp_path):
 
 
 # ---------------------------------------------------------------------- errors
+def _read_error(path, **kwargs) -> str:
+    """The MeshError message of ``read(path)``: exactly MeshError, one line, naming the file, no warnings."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning cascade on the way to the error
+        with pytest.raises(MeshError) as info:
+            read(path, **kwargs)
+    assert type(info.value) is MeshError
+    text = str(info.value)
+    assert "\n" not in text and os.path.basename(str(path)) in text, text
+    return text
+
+
 def test_missing_file(tmp_path):
-    with pytest.raises(MeshError, match=r"not found: .*nothere\.msh"):
-        read(tmp_path / "nothere.msh")
+    assert "not found" in _read_error(tmp_path / "nothere.msh")
 
 
-@pytest.mark.parametrize("name", ["junk.msh", "junk.vtu", "junk.xdmf", "junk.stl"])
-def test_garbage_file(tmp_path, name):
+def test_directory(tmp_path):
+    (tmp_path / "folder.msh").mkdir()
+    assert "is a directory" in _read_error(tmp_path / "folder.msh")
+
+
+@pytest.mark.parametrize("name", ["zero.msh", "zero.vtu", "zero.xdmf", "zero.stl", "zero.vtk"])
+def test_zero_byte_file(tmp_path, name):
+    (tmp_path / name).write_bytes(b"")
+    assert re.search(r"empty mesh file .*: it has 0 bytes", _read_error(tmp_path / name))
+
+
+@pytest.mark.parametrize("name", ["m.foo", "m.txt", "mesh", "m.msh.bak"])
+def test_unknown_extension(tmp_path, tagged, name):
+    write(tagged, tmp_path / "m.msh")
+    os.replace(tmp_path / "m.msh", tmp_path / name)  # a valid mesh, but under a name no reader claims
+    text = _read_error(tmp_path / name)
+    assert "not a mesh of a known format" in text
+    listed = set(re.findall(r"\.[a-z0-9.]*[a-z0-9]", text.split("known extensions:")[1]))
+    assert {".msh", ".vtu", ".xdmf", ".vtk", ".inp", ".med", ".stl"} <= listed
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("name, fmt", [("r.msh", "gmsh .msh"), ("r.vtu", "VTK XML .vtu"), ("r.xdmf", "XDMF")])
+def test_random_binary_bytes(tmp_path, seed, name, fmt):
     path = tmp_path / name
+    path.write_bytes(np.random.default_rng(seed).bytes(3000))
+    text = _read_error(path)
+    assert f"is not a valid {fmt} file" in text and "binary data" in text
+
+
+def test_text_that_is_not_the_format(tmp_path):
+    (tmp_path / "notes.msh").write_text("solid cube\nfacet normal 0 0 1\n")
+    assert "does not begin with $MeshFormat" in _read_error(tmp_path / "notes.msh")
+    (tmp_path / "old.msh").write_text("$NOD\n0\n$ENDNOD\n")
+    assert "MSH 1 format, which is not supported" in _read_error(tmp_path / "old.msh")
+    (tmp_path / "v3.msh").write_text("$MeshFormat\n3.0 0 8\n$EndMeshFormat\n")
+    assert "version '3.0'" in _read_error(tmp_path / "v3.msh")
+    (tmp_path / "image.vtu").write_text('<?xml version="1.0"?>\n<VTKFile type="ImageData" version="0.1">\n')
+    assert "VTK ImageData file, not an UnstructuredGrid" in _read_error(tmp_path / "image.vtu")
+
+
+def test_garbage_in_other_meshio_formats(tmp_path):
+    path = tmp_path / "junk.stl"
     path.write_bytes(b"\x00\x01garbage\xff\xfe not a mesh\n" * 3)
-    with pytest.raises(MeshError, match=rf"cannot read mesh file .*{name}"):
-        read(path)
+    text = _read_error(path)
+    assert "cannot read mesh file" in text and "as .stl (stl): corrupt, truncated or not in that format" in text
 
 
-def test_truncated_msh(tmp_path, tagged):
-    path = write(tagged, tmp_path / "t.msh", binary=False)
-    text = path.read_bytes()
-    path.write_bytes(text[: len(text) // 2])
-    with pytest.raises(MeshError, match=r"t\.msh"):
-        read(path)
+def test_empty_vtu(tmp_path):
+    meshio.Mesh(np.zeros((0, 3)), []).write(tmp_path / "empty.vtu")
+    assert re.search(r"empty mesh file .*empty\.vtu: it has no points", _read_error(tmp_path / "empty.vtu"))
+    m = box((0.1, 0.1, 0.1), (1, 1, 1))
+    meshio.Mesh(m.points, []).write(tmp_path / "points.vtu")
+    assert "it has no cells" in _read_error(tmp_path / "points.vtu")
+
+
+@pytest.mark.parametrize(
+    "name, kwargs",
+    [
+        ("e22.msh", {"file_format": "gmsh22", "binary": False}),
+        ("e41.msh", {"file_format": "gmsh", "binary": False}),
+        ("e41b.msh", {"file_format": "gmsh", "binary": True}),
+        ("e.xdmf", {}),
+        ("e.vtu", {}),
+        ("e.vtk", {}),
+    ],
+)
+def test_mesh_without_points_or_cells(tmp_path, name, kwargs):
+    path = tmp_path / name
+    m = box((0.1, 0.1, 0.1), (1, 1, 1))
+    no_tets = [] if name.endswith(".vtk") else [("tetra", np.zeros((0, 4), dtype=int))]  # meshio's vtk writer needs []
+    meshio.write(path, meshio.Mesh(np.zeros((0, 3)), no_tets), **kwargs)
+    assert re.search(r"empty mesh file .*: it has no points", _read_error(path))
+    meshio.write(path, meshio.Mesh(m.points, no_tets), **kwargs)
+    assert re.search(r"empty mesh file .*: it has (8 points but )?no cells", _read_error(path))
+
+
+TRUNCATABLE = [
+    ("t41.msh", {}, "gmsh MSH 4.1 binary"),
+    ("t41a.msh", {"binary": False}, "gmsh MSH 4.1 ASCII"),
+    ("t22.msh", {"msh_version": "2.2"}, "gmsh MSH 2.2 binary"),
+    ("t22a.msh", {"msh_version": "2.2", "binary": False}, "gmsh MSH 2.2 ASCII"),
+    ("t.vtu", {}, "VTK XML .vtu"),
+    ("t.xdmf", {}, "XDMF"),
+]
+
+
+@pytest.mark.parametrize("name, kwargs, fmt", TRUNCATABLE)
+def test_truncated_file(tmp_path, tagged, name, kwargs, fmt):
+    """Cut a valid file at many places: always 'truncated <format>', with what was expected."""
+    full = write(tagged, tmp_path / name, **kwargs).read_bytes()
+    cut_file = tmp_path / f"cut_{name}"
+    for fraction in np.linspace(0.02, 0.98, 25):
+        cut_file.write_bytes(full[: int(len(full) * fraction)])
+        text = _read_error(cut_file)
+        assert text.startswith("truncated"), (fraction, text)
+        assert fmt in text, (fraction, text)
+        if name.endswith(".msh"):
+            assert re.search(r"the \$(\w+) section has no \$End\1|it has no \$(Nodes|Elements) section", text), text
+        else:
+            assert "closing </" in text
+
+
+def test_truncated_gmsh_written_file(tmp_path):
+    """A file written by gmsh itself (not modalfem), cut after its nodes."""
+    path = tmp_path / "g.msh"
+    _gmsh_box_file(path, 4.1)
+    full = path.read_bytes()
+    path.write_bytes(full[: full.index(b"$Elements")])
+    assert "has no $Elements section" in _read_error(path, unit_scale=1e-3)
+
+
+def test_corrupt_msh_content(tmp_path, tagged):
+    """Complete sections with a damaged number: 'corrupt', not truncated, never a raw exception."""
+    text = write(tagged, tmp_path / "c.msh", msh_version="2.2", binary=False).read_text()
+    head, nodes = text.split("$Nodes\n", 1)
+    count, first, rest = nodes.split("\n", 2)
+    (tmp_path / "c.msh").write_text(head + "$Nodes\n" + count + "\n" + "1 0.0 abc\n" + rest)
+    text = _read_error(tmp_path / "c.msh")
+    assert re.match(r"corrupt gmsh MSH 2\.2 ASCII file .*c\.msh: its sections are complete", text)
+
+
+def test_meshio_errors_inside_conversion_become_mesh_errors(tmp_path, monkeypatch):
+    m = box((0.1, 0.1, 0.1), (1, 1, 1))
+    write(m, tmp_path / "ok.vtu")
+
+    def broken(*args):
+        raise IndexError("list index out of range")
+
+    monkeypatch.setattr(mio, "_tags_from_meshio", broken)
+    assert "do not fit together" in _read_error(tmp_path / "ok.vtu")
 
 
 def test_file_without_tetrahedra(tmp_path):
@@ -214,3 +344,64 @@ def test_write_is_atomic(tmp_path, tagged, monkeypatch):
         write(tagged, path)
     assert path.read_bytes() == before  # the old file is untouched
     assert os.listdir(tmp_path) == ["m.vtu"]  # and the temporary is gone
+
+
+# ---------------------------------------------------------------------- size / unit warning
+def test_part_in_millimetres_warns_once_with_the_fix(tmp_path):
+    path = write(box((300.0, 20.0, 10.0), (3, 1, 1)), tmp_path / "bracket_mm.vtu")  # a 300 mm part, file in mm
+    with pytest.warns(mio.UnitWarning) as record:
+        m = read(path)
+    assert len(record) == 1
+    text = str(record[0].message)
+    assert "\n" not in text and "bracket_mm.vtu" in text
+    assert "301 m across" in text  # sqrt(300^2 + 20^2 + 10^2) = 300.8
+    assert "millimetres" in text and "unit_scale=0.001" in text and "--unit-scale 0.001" in text
+    assert issubclass(mio.UnitWarning, UserWarning)
+    assert record[0].filename == __file__  # points at the caller of read(), not at modalfem
+    np.testing.assert_array_equal(m.points, box((300.0, 20.0, 10.0), (3, 1, 1)).points)  # still read as given
+
+
+@pytest.mark.parametrize(
+    "size, unit_scale, suggestion",
+    [
+        ((3e5, 2e4, 1e4), 1.0, "micrometres, pass unit_scale=1e-06"),  # 0.3 m part in micrometres
+        ((300.0, 20.0, 10.0), 1e-3, None),  # the right scale: no warning
+        ((0.05, 0.02, 0.01), 1e-3, "if the file is in metres, drop unit_scale (CLI: --unit-scale 1)"),
+        ((5e4, 2e3, 1e3), 1e-3, "micrometres, pass unit_scale=1e-06"),  # 50 mm part in um, read as mm
+        ((1e13, 5e12, 5e12), 1.0, "check the file's unit"),  # nothing plausible fits
+    ],
+)
+def test_unit_suggestion(tmp_path, size, unit_scale, suggestion):
+    path = write(box(size, (2, 1, 1)), tmp_path / "part.vtu")
+    if suggestion is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            read(path, unit_scale=unit_scale)
+        return
+    with pytest.warns(mio.UnitWarning, match=re.escape(suggestion)):
+        read(path, unit_scale=unit_scale)
+
+
+@pytest.mark.parametrize("name", ["m.msh", "m.vtu", "m.xdmf"])
+@pytest.mark.parametrize(
+    "size", [(0.3, 0.2, 0.1), (1.0, 0.05, 0.05), (40.0, 25.0, 10.0), (1e-4, 5e-5, 5e-5), (2e-3, 1e-3, 1e-3)]
+)
+def test_plausible_bodies_read_without_any_warning(tmp_path, name, size):
+    """Bodies from a 0.1 mm part to a 48 m structure: no warning at all (errors on any warning)."""
+    path = write(box(size, (2, 1, 1)), tmp_path / name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read(path)
+
+
+@pytest.mark.parametrize(
+    "length, warns",
+    [(49.9, False), (50.1, True), (1.1e-4, False), (0.9e-4, True)],  # rods of thickness length/1000
+)
+def test_thresholds_are_50_m_and_1e_4_m(tmp_path, length, warns):
+    """The bounding-box diagonal (~ the length here, within 1e-6) is compared with 50 m and 1e-4 m."""
+    path = write(box((length, length * 1e-3, length * 1e-3), (2, 1, 1)), tmp_path / "rod.vtu")
+    with warnings.catch_warnings(record=True) as record:
+        warnings.simplefilter("always")
+        read(path)
+    assert [w.category for w in record] == ([mio.UnitWarning] if warns else [])
