@@ -4,23 +4,7 @@ Pipeline: constraints -> assembly (FEniCSx or scikit-fem) -> restriction to free
 negative shift -> eigen solve (block Krylov-Schur, SLEPc or ARPACK) -> rigid/deformation split ->
 certificate -> labels.
 
-The shift (no user input): shift-invert at ``shift = -alpha`` with ``alpha = SHIFT_FRACTION * theta``
-where ``theta`` is a Rayleigh-Ritz upper bound of the first deformation eigenvalue, from 30 smooth
-trial fields (each displacement component times 1, x, y, z, x^2, ..., zx, multiplied by the distance to
-the nodes where that component is held, so the fields are admissible). By min-max, Ritz value number
-r (r = surviving rigid modes) is >= lambda_1 of the discrete problem; measured it lies within ~1.1-3x
-of it for beams, plates and cubes, free or clamped. Why about lambda_1:
-
-* the transformed spectrum 1/(lambda - shift) must separate the wanted modes: alpha much larger than
-  lambda_k squeezes them together near 1/alpha (slow Lanczos); alpha much smaller than lambda_1 lets the
-  rigid modes (1/alpha) dominate the operator norm, and ARPACK's Ritz vectors of the deformation modes
-  then carry errors ~ eps * lambda / alpha (measured: residual 1e-7 at alpha = 1e2, 1e-11 at 1e7 on a
-  steel beam with lambda_1 = 1e7);
-* K + alpha M stays positive definite with condition ~ lambda_max / alpha, so rigid modes come out
-  with lambda ~ 0 to roundoff and a Cholesky-type factorisation applies (ENVIRONMENT.md's -1e4
-  rad^2/s^2 for a steel beam is alpha ~ lambda_1 / 25);
-* no floor: an earlier floor ``alpha >= 1e-9 max(K_ii / M_ii)`` grew with slivers (large K_ii) and
-  thin plates (~1/t^2) until it passed real modes.
+The shift (no user input) is ``modalfem.eigen.shift.estimate_shift``.
 
 Rigid modes come from the mesh's structure, not from eigenvalues (``modalfem.eigen.rigid``): the
 zero-energy fields (rigid per piece, and any hinge a piece has) are known exactly, every solver
@@ -46,11 +30,9 @@ from modalfem.errors import (
 )
 from modalfem.result import ModalResult
 
-__all__ = ["SHIFT_FRACTION", "SOLVERS", "estimate_shift", "modes"]
+__all__ = ["SOLVERS", "modes"]
 
 SOLVERS = ("block", "slepc", "scipy")
-#: alpha = SHIFT_FRACTION * (Ritz upper bound of lambda_1): between lambda_1/6 and lambda_1/2 in practice
-SHIFT_FRACTION = 0.5
 
 
 def restrict(A, keep: np.ndarray):
@@ -76,86 +58,6 @@ def restrict(A, keep: np.ndarray):
     if not A.has_sorted_indices:
         out.sort_indices()
     return out
-
-
-def _trial_fields(mesh, degree: int, fixed: np.ndarray) -> np.ndarray:
-    """30 admissible smooth fields (n_dof, 30): component x (quadratic polynomial) x distance-to-held."""
-    from scipy.spatial import cKDTree
-
-    p = mesh.dof_points(degree)
-    lo, hi = mesh.bounds
-    L = float(np.max(hi - lo))
-    xi = (p - 0.5 * (lo + hi)) / L
-    x, y, z = xi.T
-    poly = np.column_stack([np.ones(len(p)), x, y, z, x * x, y * y, z * z, x * y, y * z, z * x])
-    held = fixed.reshape(-1, 3)
-    B = np.zeros((len(p), 3, 3 * poly.shape[1]))
-    distance = {}  # held-node set -> distance field: a clamp holds all three components at the same nodes
-    for c in range(3):
-        w = np.ones(len(p))
-        if held[:, c].any():
-            key = held[:, c].tobytes()
-            if key not in distance:
-                distance[key] = cKDTree(p[held[:, c]]).query(p)[0] / L
-            w = distance[key]
-        B[:, c, c * poly.shape[1] : (c + 1) * poly.shape[1]] = w[:, None] * poly
-    return B.reshape(3 * len(p), -1)
-
-
-def _ritz_products(B: np.ndarray, K, M, rows, comm):
-    """(B^T K B, B^T M B, max K_ii / M_ii) for scipy matrices, or PETSc ones with ``rows``."""
-    if rows is None:
-        from modalfem.eigen.spmm import spmm
-
-        lam_max = float(np.max(K.diagonal() / M.diagonal()))
-        return B.T @ spmm(K, B), B.T @ spmm(M, B), lam_max
-    x, y = K.createVecs()
-    Bl = B[rows]
-    KB = np.empty_like(Bl)
-    MB = np.empty_like(Bl)
-    for j in range(B.shape[1]):
-        x.setArray(Bl[:, j])
-        K.mult(x, y)
-        KB[:, j] = y.getArray()
-        M.mult(x, y)
-        MB[:, j] = y.getArray()
-    dk, dm = K.getDiagonal().getArray(), M.getDiagonal().getArray()
-    from mpi4py import MPI
-
-    Kr = comm.allreduce(Bl.T @ KB, op=MPI.SUM)
-    Mr = comm.allreduce(Bl.T @ MB, op=MPI.SUM)
-    lam_max = comm.allreduce(float(np.max(dk / dm)) if len(dk) else 0.0, op=MPI.MAX)
-    return Kr, Mr, lam_max
-
-
-def estimate_shift(mesh, degree: int, fixed: np.ndarray, K_ff, M_ff, *, rigid_count: int, rows=None, comm=None):
-    """Automatic negative shift [rad^2/s^2] for the shift-invert solve (see the module docstring).
-
-    Args:
-        mesh: the ``Mesh``; degree: 1 or 2; fixed: bool mask (N_dof,) of held DOFs.
-        K_ff, M_ff: free-DOF stiffness [N/m] and mass [kg] (scipy sparse, or PETSc with ``rows``).
-        rigid_count: surviving rigid modes r (Ritz value r bounds lambda_1 from above).
-        rows, comm: PETSc row map and communicator for distributed matrices.
-
-    Returns:
-        (shift, theta): shift = -alpha < 0 and theta, the Ritz upper bound of lambda_1 [rad^2/s^2].
-    """
-    B = _trial_fields(mesh, degree, fixed)[~fixed]
-    Kr, Mr, lam_max = _ritz_products(B, K_ff, M_ff, rows, comm)
-    Kr, Mr = 0.5 * (Kr + Kr.T), 0.5 * (Mr + Mr.T)
-    s, V = np.linalg.eigh(Mr)
-    keep = s > 1e-10 * s.max()
-    T = V[:, keep] / np.sqrt(s[keep])
-    theta = np.linalg.eigvalsh(T.T @ Kr @ T)
-    theta_1 = float(theta[min(rigid_count, len(theta) - 1)])
-    alpha = SHIFT_FRACTION * theta_1
-    if not np.isfinite(alpha) or alpha <= np.finfo(float).eps * lam_max:
-        raise SolverError(
-            f"could not choose a shift: the Ritz bound of the first elastic eigenvalue is {theta_1:.3g} "
-            f"rad^2/s^2 against a largest diagonal ratio K_ii / M_ii of {lam_max:.3g} (outside what double "
-            "precision resolves: check the material and the mesh's size and units)"
-        )
-    return -alpha, theta_1
 
 
 def _residual_floor(K_ff, X: np.ndarray, rows, comm) -> np.ndarray:
@@ -292,10 +194,7 @@ def _labels(points, shapes, pieces=None) -> tuple[str, ...]:
     from modalfem.eigen.labels import label_modes
 
     try:
-        try:
-            return tuple(label_modes(points, shapes, pieces=pieces))
-        except TypeError:  # a labeller without piece support
-            return tuple(label_modes(points, shapes))
+        return tuple(label_modes(points, shapes, pieces=pieces))
     except Exception as exc:  # noqa: BLE001 - labels are cosmetic: never lose a certified solve over them
         warnings.warn(f"mode labelling failed ({type(exc).__name__}: {exc}); using 'mode i'", stacklevel=3)
         return tuple(f"mode {i + 1}" for i in range(shapes.shape[1]))
@@ -344,6 +243,7 @@ def modes(
     from modalfem.constraints import fixed_mask
     from modalfem.eigen.certify import build_certificate
     from modalfem.eigen.rigid import analyse_rigid, node_pieces
+    from modalfem.eigen.shift import estimate_shift
 
     say = progress if callable(progress) else (lambda msg: None)
     t_start = time.perf_counter()
@@ -387,8 +287,8 @@ def modes(
 
     say("shift")
     t = time.perf_counter()
-    shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=r, rows=rows, comm=comm)
     Z = structure.basis(free, M_ff) if comm is None else _distributed_basis(structure, free, M_ff, rows, comm)
+    shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=r, rows=rows, comm=comm, deflate=Z)
     timings["shift"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -473,24 +373,15 @@ def modes(
     )
 
 
-def _petsc_products(A, Y: np.ndarray, rows) -> np.ndarray:
-    """A @ Y on this rank's rows (n_local, c) for a distributed PETSc matrix A and a global (n, c) array Y."""
-    x, y = A.createVecs()
-    out = np.empty((len(rows), Y.shape[1]))
-    for j in range(Y.shape[1]):
-        x.setArray(Y[rows, j])
-        A.mult(x, y)
-        out[:, j] = y.getArray()
-    return out
-
-
 def _distributed_basis(structure, free, M_ff, rows, comm) -> np.ndarray:
     """``structure.basis`` when M_ff is a distributed PETSc matrix: Z (n_free, r) on every rank."""
     from mpi4py import MPI
 
+    from modalfem.eigen.shift import petsc_products
+
     B = structure.fields[free]
     for _ in range(2):
-        G = comm.allreduce(B[rows].T @ _petsc_products(M_ff, B, rows), op=MPI.SUM)
+        G = comm.allreduce(B[rows].T @ petsc_products(M_ff, B, rows), op=MPI.SUM)
         B = B @ np.linalg.inv(np.linalg.cholesky(0.5 * (G + G.T))).T
     return B
 
@@ -506,5 +397,7 @@ def _rigid_coupling(Z: np.ndarray, X: np.ndarray, M_ff, rows, comm) -> float:
     else:
         from mpi4py import MPI
 
-        C = comm.allreduce(_petsc_products(M_ff, Z, rows).T @ X[rows], op=MPI.SUM)
+        from modalfem.eigen.shift import petsc_products
+
+        C = comm.allreduce(petsc_products(M_ff, Z, rows).T @ X[rows], op=MPI.SUM)
     return float(np.max(np.linalg.norm(C, axis=0)))
