@@ -147,6 +147,18 @@ def read(path, *, unit_scale: float = 1.0) -> Mesh:
     """
     scale = _check_unit_scale(unit_scale)
     p = _as_path(path, "mesh")
+    try:
+        mesh = _read(p, scale)
+    except MeshError as exc:
+        text = str(exc)
+        if "\n" in text or "\r" in text:  # a file name or a parser message with a line break
+            raise MeshError(" ".join(text.split())) from exc.__cause__
+        raise
+    _warn_about_size(mesh, p, scale)
+    return mesh
+
+
+def _read(p: Path, scale: float) -> Mesh:
     kind = _check_file(p)
     import meshio
 
@@ -174,7 +186,6 @@ def read(path, *, unit_scale: float = 1.0) -> Mesh:
         raise MeshError(
             f"corrupt {kind.name} file {p}: its cells, tags or data arrays do not fit together ({_one_line(exc)})"
         ) from exc
-    _warn_about_size(mesh, p, scale)
     return mesh
 
 
@@ -245,6 +256,12 @@ def _looks_binary(head: bytes) -> bool:
     return False
 
 
+#: VTK XML dataset types other than UnstructuredGrid (the only one a .vtu holds)
+_VTK_OTHER_TYPES = {b"ImageData", b"RectilinearGrid", b"StructuredGrid", b"PolyData", b"PImageData",
+                    b"PRectilinearGrid", b"PStructuredGrid", b"PPolyData", b"PUnstructuredGrid", b"Collection",
+                    b"vtkMultiBlockDataSet", b"vtkHierarchicalBoxDataSet", b"HyperTreeGrid"}
+
+
 def _signature_problem(suffix: str, head: bytes) -> str | None:
     """Why the first bytes cannot start a file of this suffix, or None (only .msh/.vtu/.xdmf checked)."""
     text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
@@ -256,14 +273,14 @@ def _signature_problem(suffix: str, head: bytes) -> str | None:
             return f"it does not begin with $MeshFormat{data}"
         lines = text.split(b"\n", 2)
         fields = lines[1].split() if len(lines) > 1 else []
-        version = fields[0].decode("ascii", "replace") if fields else ""
+        version = fields[0].decode("ascii", "backslashreplace")[:20] if fields else ""
         if not version.startswith(("2.", "4.")):
             return f"its $MeshFormat line gives version {version or '(none)'!r}; readable are MSH 2.2, 4.0 and 4.1"
     elif suffix == ".vtu":
         if not text.startswith((b"<?xml", b"<VTKFile")):
             return f"it does not begin with '<?xml' or '<VTKFile'{data}"
-        match = re.search(rb'<VTKFile[^>]*\stype="([^"]*)"', head)
-        if match and match.group(1) != b"UnstructuredGrid":
+        match = re.search(rb'<VTKFile[^>]*\stype="(\w+)"', head)
+        if match and match.group(1) in _VTK_OTHER_TYPES:
             return f"it is a VTK {match.group(1).decode('ascii', 'replace')} file, not an UnstructuredGrid"
     elif suffix in (".xdmf", ".xmf"):
         if not text.startswith((b"<?xml", b"<Xdmf")):
@@ -311,8 +328,8 @@ def _msh_format(data: bytes) -> str:
     """``"gmsh MSH 4.1 binary"`` from the $MeshFormat line (``"gmsh .msh"`` if unreadable)."""
     lines = data.lstrip().split(b"\n", 2)
     fields = lines[1].split() if len(lines) > 1 else []
-    if len(fields) >= 2 and fields[1] in (b"0", b"1"):
-        return f"gmsh MSH {fields[0].decode('ascii', 'replace')} {'binary' if fields[1] == b'1' else 'ASCII'}"
+    if len(fields) >= 2 and fields[1] in (b"0", b"1") and re.fullmatch(rb"\d{1,2}(\.\d{1,2})?", fields[0]):
+        return f"gmsh MSH {fields[0].decode('ascii')} {'binary' if fields[1] == b'1' else 'ASCII'}"
     return "gmsh .msh"
 
 
@@ -323,6 +340,8 @@ def _msh_structure(p: Path, data: bytes) -> str | None:
     open_section = None
     for match in re.finditer(rb"^\$(\w+)[ \t]*\r?$", data, flags=re.MULTILINE):
         name = match.group(1).decode("ascii", "replace")
+        if open_section is None and name.startswith("End"):
+            return f"corrupt {fmt} file {p}: ${name} appears without its ${name[3:]} line"
         if open_section is None:
             open_section = name
             sections.append(name)
@@ -384,15 +403,19 @@ def _failure(p: Path, kind: _Kind, exc: Exception) -> str:
 
 
 def _meshio_read(meshio, p: Path):
-    """meshio's reader for ``p``, without meshio's stray prints or its ``sys.exit`` on failure."""
+    """meshio's reader for ``p``, silenced: no stray prints, warnings or ``sys.exit`` on failure.
+
+    meshio prints its own "Warning: ..." lines (to whatever ``sys.stderr`` is at the time) and lets
+    numpy's DeprecationWarnings through on damaged files; :func:`read` reports in one line what is
+    wrong with the file instead, so both are dropped here.
+    """
     readers = {".msh": meshio.gmsh.read, ".vtu": meshio.vtu.read, ".xdmf": meshio.xdmf.read}
     reader = readers.get(p.suffix.lower())
-    if reader is not None:
-        return reader(str(p))
     sink = io.StringIO()
     try:
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
-            return meshio.read(p)
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return reader(str(p)) if reader is not None else meshio.read(p)
     except SystemExit:  # meshio exits the process when no reader accepts the file
         known = ", ".join(meshio.extension_to_filetypes.get(p.suffix.lower(), [])) or "none"
         raise MeshError(f"cannot read mesh file {p}: no meshio reader accepted it (tried: {known})") from None

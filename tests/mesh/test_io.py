@@ -265,6 +265,35 @@ def test_truncated_file(tmp_path, tagged, name, kwargs, fmt):
             assert "closing </" in text
 
 
+@pytest.mark.parametrize("name, kwargs, fmt", TRUNCATABLE)
+def test_damaged_files_only_ever_raise_one_line_mesh_errors(tmp_path, tagged, name, kwargs, fmt, capfd):
+    """Bytes flipped, a chunk deleted, or random bytes after a cut: MeshError, one line, nothing else.
+
+    (A flip may also leave a readable mesh, e.g. in a coordinate; that is not an error.)
+    """
+    full = write(tagged, tmp_path / name, **kwargs).read_bytes()
+    rng = np.random.default_rng(7)
+    path = tmp_path / f"damaged_{name}"
+    for trial in range(30):
+        data = bytearray(full)
+        if trial % 3 == 0:
+            for i in rng.integers(0, len(data), size=3):
+                data[i] = int(rng.integers(0, 256))
+        elif trial % 3 == 1:
+            start = int(rng.integers(0, len(data)))
+            del data[start : start + int(rng.integers(1, 200))]
+        else:
+            data = data[: int(rng.integers(0, len(data)))] + rng.bytes(int(rng.integers(1, 500)))
+        path.write_bytes(bytes(data))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            try:
+                read(path)
+            except MeshError as exc:
+                assert "\n" not in str(exc) and path.name in str(exc), str(exc)
+    assert capfd.readouterr() == ("", "")  # meshio's own "Warning: ..." prints are not let through
+
+
 def test_truncated_gmsh_written_file(tmp_path):
     """A file written by gmsh itself (not modalfem), cut after its nodes."""
     path = tmp_path / "g.msh"
