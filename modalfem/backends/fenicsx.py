@@ -10,10 +10,24 @@ DOF mapping is exact (no coordinate matching): a dolfinx cell's geometry nodes l
 vertex ``j`` and P2 DOF ``4 + k`` at the midpoint of basix edge ``k`` (``BASIX_TET_EDGES``), which is
 looked up in ``Mesh.edges``.
 
+Logging: importing FFCx calls ``logging.basicConfig()`` and ``logging.captureWarnings(True)``, so
+every later ``warnings.warn`` (modalfem's own RuntimeWarnings included) became a
+``WARNING:py.warnings:`` log line that ``warnings.catch_warnings`` and ``pytest.warns`` never saw; and
+a cold JIT cache printed pages of ``INFO:root:running build_ext`` / gcc command lines (the cffi
+build raises the root logger to INFO). Every entry point here runs inside ``jit_logging()``, which
+hands warnings back to the ``warnings`` module afterwards and, unless ``VERBOSE`` (or the environment
+variable ``MODALFEM_VERBOSE=1``, or the CLI's ``--verbose``), holds back INFO records while dolfinx
+imports and compiles.
+
 This module is imported only when dolfinx/petsc4py are installed (``get_backend``).
 """
 
 from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import sys
 
 import numpy as np
 import scipy.sparse as sp
@@ -21,7 +35,72 @@ import scipy.sparse as sp
 from modalfem.backends._sparse import expand_components
 from modalfem.errors import InputError
 
-__all__ = ["assemble", "assemble_free", "assemble_petsc", "canonical_dofs", "create_function_space", "node_of_block"]
+__all__ = [
+    "VERBOSE",
+    "assemble",
+    "assemble_free",
+    "assemble_petsc",
+    "canonical_dofs",
+    "create_function_space",
+    "jit_logging",
+    "node_of_block",
+]
+
+#: let the JIT compiler's INFO log (FFCx, cffi/distutils build and gcc command lines) through
+VERBOSE = False
+
+# logging.captureWarnings(True) made before FFCx was imported is the program's own choice: keep it
+_USER_CAPTURES_WARNINGS = "ffcx" not in sys.modules and logging._warnings_showwarning is not None  # type: ignore[attr-defined]
+
+
+def _verbose() -> bool:
+    return bool(VERBOSE) or os.environ.get("MODALFEM_VERBOSE", "") not in ("", "0")
+
+
+@contextlib.contextmanager
+def jit_logging(verbose: bool | None = None):
+    """Run dolfinx/FFCx calls (import, JIT compilation) without their side effects on logging.
+
+    Inside: INFO and DEBUG log records are dropped (``logging.disable``) unless ``verbose``.
+    After: the root logger's level is restored (the cffi build sets it to INFO) and warnings go back
+    to the ``warnings`` module (FFCx's ``logging.captureWarnings(True)`` is undone, unless the program
+    had turned capturing on itself before FFCx was imported). Re-entrant.
+
+    Args:
+        verbose: let the compiler log through; default ``VERBOSE`` / ``MODALFEM_VERBOSE``.
+    """
+    verbose = _verbose() if verbose is None else bool(verbose)
+    root = logging.getLogger()
+    level = root.level
+    disabled = logging.root.manager.disable
+    if not verbose:
+        logging.disable(max(disabled, logging.INFO))
+    try:
+        with contextlib.suppress(ImportError):
+            import ffcx  # noqa: F401  (its import-time captureWarnings, undone at once below)
+        _release_warnings()
+        yield
+    finally:
+        logging.disable(disabled)
+        root.setLevel(level)
+        _release_warnings()
+
+
+def _release_warnings() -> None:
+    if not _USER_CAPTURES_WARNINGS and logging._warnings_showwarning is not None:  # type: ignore[attr-defined]
+        logging.captureWarnings(False)
+
+
+def _jit_quiet(fun):
+    """Run ``fun`` inside ``jit_logging()`` (every entry point imports dolfinx and may JIT-compile)."""
+    import functools
+
+    @functools.wraps(fun)
+    def wrapper(*args, **kwargs):
+        with jit_logging():
+            return fun(*args, **kwargs)
+
+    return wrapper
 
 
 def _check_degree(degree: int) -> int:
@@ -36,6 +115,7 @@ def _comm(comm):
     return MPI.COMM_WORLD if comm is None else comm
 
 
+@_jit_quiet
 def create_function_space(mesh, *, degree: int = 2, comm=None, shape: int | None = 3):
     """dolfinx mesh and Lagrange space for a ``modalfem`` Mesh.
 
@@ -152,6 +232,7 @@ def _diagonal_csr(d: np.ndarray) -> sp.csr_matrix:
     return sp.csr_matrix((d, np.arange(n), np.arange(n + 1)), shape=(n, n))
 
 
+@_jit_quiet
 def assemble(mesh, material, *, degree: int = 2, lumped: bool = False):
     """Assemble stiffness and mass over all DOFs in the canonical order (serial).
 
@@ -194,6 +275,7 @@ def assemble(mesh, material, *, degree: int = 2, lumped: bool = False):
     return Kc, Mc
 
 
+@_jit_quiet
 def assemble_free(mesh, material, *, degree: int = 2, free, lumped: bool = False):
     """Stiffness and mass restricted to the free DOFs, in the canonical free-DOF order (serial).
 
@@ -254,6 +336,7 @@ def assemble_free(mesh, material, *, degree: int = 2, free, lumped: bool = False
     return K_ff, M_ff
 
 
+@_jit_quiet
 def assemble_petsc(mesh, material, *, degree: int = 2, free=None, lumped: bool = False, comm=None):
     """Assemble distributed PETSc stiffness and mass restricted to the free DOFs.
 
@@ -319,3 +402,4 @@ def assemble_petsc(mesh, material, *, degree: int = 2, free=None, lumped: bool =
     for obj in (K, M, iset):
         obj.destroy()
     return K_ff, M_ff, rows
+
