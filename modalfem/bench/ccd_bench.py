@@ -9,7 +9,9 @@ Python call per query is a ratio measured in the same run. ``load_queries`` is s
 A second table runs the whole collision pipeline (all stages on) on synthetic cloth scenes: the
 pair tests of the BVH traversals with and without normal-cone culling, and the time per step.
 
-Command: ``python -m modalfem bench ccd [--out BENCHMARKS.md] [--quick] [--data DIR]``.
+Command: ``python -m modalfem bench ccd [--out BENCHMARKS.md] [--quick] [--data DIR]``. The dataset is
+not part of modalfem: without it the command says in one line what it needs, where it looked
+(``default_data_dir``) and where to get it (``DATA_SOURCE``), and exits 2.
 """
 
 from __future__ import annotations
@@ -18,13 +20,25 @@ import argparse
 import glob
 import os
 import platform
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SECTION", "QuerySet", "command", "default_data_dir", "load_queries", "render", "run"]
+__all__ = [
+    "DATA_ENV",
+    "DATA_SOURCE",
+    "SECTION",
+    "QuerySet",
+    "command",
+    "default_data_dir",
+    "load_queries",
+    "missing_data_message",
+    "render",
+    "run",
+]
 
 SECTION = "## CCD: exact-answer sample queries"
 KINDS = ("vertex-face", "edge-edge")
@@ -49,9 +63,36 @@ class QuerySet:
     truth: np.ndarray
 
 
+#: where the dataset comes from (a ``git clone`` of it is a valid ``--data`` folder)
+DATA_SOURCE = "https://github.com/Continuous-Collision-Detection/Sample-Queries"
+#: environment variable naming the dataset folder (between ``--data`` and the default)
+DATA_ENV = "MODALFEM_CCD_DATA"
+
+
 def default_data_dir() -> Path:
-    """``../shared/data/ccd-sample-queries`` relative to the project root (the repository checkout)."""
-    return Path(__file__).resolve().parents[2].parent / "shared" / "data" / "ccd-sample-queries"
+    """Where the bench looks for the dataset when ``--data`` is not given.
+
+    ``$MODALFEM_CCD_DATA`` if set; else ``../shared/data/ccd-sample-queries`` beside the source
+    checkout this module runs from (a folder with ``pyproject.toml``: the CI layout); else, for an
+    installed package, ``../shared/data/ccd-sample-queries`` relative to the current directory.
+    """
+    env = os.environ.get(DATA_ENV)
+    if env:
+        return Path(env).expanduser()
+    checkout = Path(__file__).resolve().parents[2]
+    if (checkout / "pyproject.toml").is_file():
+        return checkout.parent / "shared" / "data" / "ccd-sample-queries"
+    return Path.cwd().parent / "shared" / "data" / "ccd-sample-queries"
+
+
+def missing_data_message(root: str | os.PathLike) -> str:
+    """One line: the dataset the bench needs, where it looked, and how to get it."""
+    return (
+        f"the CCD bench needs the CCD sample queries (Wang et al. 2021, 'A Large-Scale Benchmark and an "
+        f"Efficient and Robust Algorithm for Continuous Collision Detection', exact-answer queries in "
+        f"<scene>/{{vertex-face,edge-edge}}/*.csv) and found none in {str(Path(root).absolute())!r}; "
+        f"get them with `git clone {DATA_SOURCE}` and pass --data DIR (or set {DATA_ENV}=DIR)"
+    )
 
 
 def load_queries(data_dir: str | os.PathLike | None = None, *, limit: int | None = None) -> list[QuerySet]:
@@ -65,11 +106,12 @@ def load_queries(data_dir: str | os.PathLike | None = None, *, limit: int | None
         One :class:`QuerySet` per scene and kind, sorted by scene.
 
     Raises:
-        FileNotFoundError: the folder does not exist.
+        FileNotFoundError: the folder does not exist or holds no query files
+            (message: ``missing_data_message``).
     """
     root = Path(data_dir) if data_dir is not None else default_data_dir()
     if not root.is_dir():
-        raise FileNotFoundError(f"CCD query folder not found: {root}")
+        raise FileNotFoundError(missing_data_message(root))
     out = []
     for scene in sorted(p.name for p in root.iterdir() if p.is_dir()):
         for kind in KINDS:
@@ -89,6 +131,8 @@ def load_queries(data_dir: str | os.PathLike | None = None, *, limit: int | None
             pts = rows[:, :3].reshape(-1, 8, 3)
             truth = rows[::8, 3] == 1
             out.append(QuerySet(scene, kind, pts[:, :4].copy(), pts[:, 4:].copy(), truth))
+    if not out:
+        raise FileNotFoundError(missing_data_message(root))
     return out
 
 
@@ -243,12 +287,14 @@ def command(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="modalfem bench ccd")
     ap.add_argument("--out", default="BENCHMARKS.md")
     ap.add_argument("--quick", action="store_true", help="first 20 queries of each file")
-    ap.add_argument("--data", default=None, help="dataset folder (default ../shared/data/ccd-sample-queries)")
+    ap.add_argument("--data", default=None,
+                    help=f"dataset folder (default ${DATA_ENV}, else ../shared/data/ccd-sample-queries; "
+                         f"get it from {DATA_SOURCE})")
     a = ap.parse_args(argv)
     try:
         sets = load_queries(a.data, limit=20 if a.quick else None)
     except FileNotFoundError as e:
-        print(f"error: {e}")
+        print(f"modalfem: error: {e}", file=sys.stderr)
         return 2
     rows = run(sets, single=20 if a.quick else 200)
     cmd = "python -m modalfem bench ccd" + (" --quick" if a.quick else "")

@@ -26,6 +26,36 @@ def test_quick_bench_writes_section(tmp_path):
     assert "Machine:" in sec and "Command:" in sec
 
 
-def test_missing_data_dir_is_a_clear_error(tmp_path, capsys):
-    assert ccd_bench.command(["--quick", "--out", str(tmp_path / "x.md"), "--data", str(tmp_path / "nope")]) == 2
-    assert "not found" in capsys.readouterr().out
+@pytest.mark.parametrize("how", ["--data", "env", "empty folder"])
+def test_missing_data_is_one_line_naming_the_dataset_the_path_and_the_source(tmp_path, capsys, monkeypatch, how):
+    where = tmp_path / "nope"
+    argv = ["--quick", "--out", str(tmp_path / "x.md")]
+    if how == "--data":
+        argv += ["--data", str(where)]
+    else:
+        if how == "empty folder":  # a folder without the <scene>/<kind>/*.csv layout
+            (where / "scene" / "vertex-face").mkdir(parents=True)
+        monkeypatch.setenv(ccd_bench.DATA_ENV, str(where))
+        assert ccd_bench.default_data_dir() == where
+    assert ccd_bench.command(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and err.startswith("modalfem: error:")
+    for needle in ("CCD sample queries", "Wang et al. 2021", repr(str(where)), ccd_bench.DATA_SOURCE, "--data DIR",
+                   ccd_bench.DATA_ENV):
+        assert needle in err, (needle, err)
+    assert not (tmp_path / "x.md").exists()
+
+
+def test_default_data_dir_outside_a_checkout_is_relative_to_the_current_folder(tmp_path, monkeypatch):
+    """An installed package (no pyproject.toml two levels up) looks beside the current folder, not
+    beside site-packages or a temporary build folder."""
+    import modalfem.bench.ccd_bench as mod
+
+    monkeypatch.delenv(ccd_bench.DATA_ENV, raising=False)
+    fake = tmp_path / "site-packages" / "modalfem" / "bench" / "ccd_bench.py"
+    monkeypatch.setattr(mod, "__file__", str(fake))
+    monkeypatch.chdir(tmp_path)
+    assert ccd_bench.default_data_dir() == tmp_path.parent / "shared" / "data" / "ccd-sample-queries"
+    (tmp_path / "site-packages" / "pyproject.toml").parent.mkdir(parents=True)
+    (tmp_path / "site-packages" / "pyproject.toml").write_text("")
+    assert ccd_bench.default_data_dir() == tmp_path / "shared" / "data" / "ccd-sample-queries"
