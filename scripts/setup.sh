@@ -8,7 +8,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="${1:-.venv}"
-APT_PKGS="python3-dolfinx python3-slepc4py python3-petsc4py python3-venv python3-pip libopenblas0-pthread \
+APT_PKGS="python3-dolfinx python3-slepc4py python3-petsc4py python3-venv python3-pip python3-h5py libopenblas0-pthread \
   openmpi-bin libglu1-mesa libxcursor1 libxft2 libxinerama1 libgl1 libxrender1 libxext6"
 
 stamp_input() { cat pyproject.toml scripts/setup.sh; echo "pip_only=${MODALFEM_PIP_ONLY:-0}"; }
@@ -58,6 +58,20 @@ else
   # petsc4py/dolfinx are built against Debian's numpy/scipy: pip must never replace them.
   /usr/bin/python3 -c "import numpy, scipy; print(f'numpy=={numpy.__version__}\nscipy=={scipy.__version__}')" \
     > "$VENV/constraints.txt"
+  # h5py: Debian's python3-h5py is built on Debian's HDF5 1.10 like dolfinx; the PyPI wheel bundles its
+  # own HDF5 and breaks once dolfinx has loaded Debian's ("ValueError: Not a datatype" at import,
+  # measured). Debian names its distributions h5py._debian_h5py_serial/_mpi, so pip would not see an
+  # "h5py" and would install the wheel: register Debian's under its own name and version, and pin it.
+  h5ver=$(/usr/bin/python3 -c "import h5py; print(h5py.__version__)" 2>/dev/null || true)
+  if [ -n "$h5ver" ]; then
+    site=$("$VENV/bin/python" -c "import sysconfig; print(sysconfig.get_paths()['purelib'])")
+    mkdir -p "$site/h5py-$h5ver.dist-info"
+    printf 'Metadata-Version: 2.1\nName: h5py\nVersion: %s\nSummary: Debian python3-h5py (system site-packages)\n' \
+      "$h5ver" > "$site/h5py-$h5ver.dist-info/METADATA"
+    echo "debian" > "$site/h5py-$h5ver.dist-info/INSTALLER"
+    : > "$site/h5py-$h5ver.dist-info/RECORD"
+    echo "h5py==$h5ver" >> "$VENV/constraints.txt"
+  fi
   "$VENV/bin/python" -m pip install -q -c "$VENV/constraints.txt" -e ".[test]"
 fi
 if [ "$PIP_ONLY" != "1" ]; then
@@ -81,5 +95,5 @@ if [ "$PIP_ONLY" != "1" ]; then
     echo "setup: Debian OpenBLAS detected this CPU as $core; pinned OPENBLAS_CORETYPE=$want in $VENV"
   fi
 fi
-"$VENV/bin/python" -c "import modalfem, numpy, scipy; print('setup: modalfem ready in $VENV (numpy', numpy.__version__, ', scipy', scipy.__version__, ', fenicsx:', modalfem.have_fenicsx(), ')')"
+"$VENV/bin/python" -c "import modalfem, numpy, scipy, h5py; print('setup: modalfem ready in $VENV (numpy', numpy.__version__, ', scipy', scipy.__version__, ', h5py', h5py.__version__, ', fenicsx:', modalfem.have_fenicsx(), ')')"
 touch "$STAMP"
