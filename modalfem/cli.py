@@ -8,8 +8,15 @@ Subcommands:
   * ``modalfem bench modes ...``: the cantilever-ladder benchmark (``modalfem.bench.cli``).
 
 Every ``ModalfemError`` (bad material, unknown tag, malformed mesh, k too large, ...) becomes one
-line ``modalfem: error: ...`` on stderr and exit code 2; no output file is written unless the whole
-run succeeded (outputs are staged in a temporary directory and moved into place at the end).
+line ``modalfem: error: ...`` on stderr and exit code 2. The outputs of one run (the ``--out`` folder,
+``--json``, ``--save``) are one set (``modalfem.output.OutputSet``): all are written to temporaries
+and moved into place together at the end, or, on any failure, Ctrl-C or SIGTERM, none is and the
+previous ones stay as they were.
+
+Progress goes to stderr (nothing with ``--quiet``): one line per stage with the elapsed time; on a
+terminal the current stage's line counts its seconds live, elsewhere a long stage repeats its line
+every ``_Progress.heartbeat`` seconds. ``--verbose`` also lets through the FEniCSx JIT compiler's
+log (``modalfem.backends.fenicsx``).
 """
 
 from __future__ import annotations
@@ -17,7 +24,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -77,6 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "deformation modes, mass properties, material, damping defaults, provenance")
     o.add_argument("--sheet-modes", type=int, default=8, help="modes drawn in modes.png (default 8)")
     o.add_argument("--quiet", action="store_true", help="no progress lines")
+    o.add_argument("--verbose", action="store_true",
+                   help="also show the FEniCSx JIT compiler's log (FFCx, cffi/gcc lines)")
     o.add_argument("--debug", action="store_true", help="show tracebacks of unexpected errors")
 
     b = sub.add_parser("bench", help="benchmarks that write BENCHMARKS.md (see `modalfem bench modes -h`)",
@@ -150,46 +161,139 @@ def _constraints(args):
     return (fixed or None), {"fixed": list(args.fixed), "roller": list(args.roller)}
 
 
-def _stage_model(model, target: Path) -> Path:
-    """Save ``model`` under a hidden temporary name next to ``target`` (moved into place at the end)."""
-    import tempfile
+class _Progress:
+    """Stage lines on stderr for ``modes()``'s ``progress(msg)`` callback and the writing stage.
 
-    from modalfem.errors import InputError
+    Each stage prints ``[elapsed s] msg``. When the stream is a terminal, a background thread redraws
+    the current stage's line every ``interval`` seconds with its running time (``\\r``, one line);
+    elsewhere (logs, pipes) a stage that runs longer than ``heartbeat`` seconds repeats its line
+    with ``still running`` so a log shows the run is alive. ``bar`` shows countable work as a bar.
+    With ``quiet`` nothing is printed.
+    """
 
-    target = Path(target)
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    except OSError as exc:
-        raise InputError(f"cannot write {str(target)!r}: {exc.strerror or exc}") from None
-    os.close(fd)
-    try:
-        model.save(tmp)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    return Path(tmp)
+    interval = 0.25
+    heartbeat = 15.0
+
+    def __init__(self, *, quiet: bool = False, stream=None, live: bool | None = None):
+        self.stream = sys.stderr if stream is None else stream
+        self.quiet = quiet
+        if live is None:
+            try:
+                live = bool(self.stream.isatty())
+            except (AttributeError, ValueError):
+                live = False
+        self.live = live and not quiet
+        self.t0 = time.perf_counter()
+        self._msg: str | None = None
+        self._t_stage = self.t0
+        self._detail = ""
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._beats = 0
+
+    def _write(self, text: str) -> None:
+        try:
+            self.stream.write(text)
+            self.stream.flush()
+        except (OSError, ValueError):  # a closed stderr must not fail the run
+            pass
+
+    def _head(self, t: float) -> str:
+        return f"[{t - self.t0:7.2f} s] {self._msg}"
+
+    def _line(self, tail: str) -> str:
+        """The live line, cut to the terminal width (a wrapped line could not be redrawn with \\r)."""
+        import shutil
+
+        head = self._head(self._t_stage)
+        room = shutil.get_terminal_size((100, 24)).columns - 1 - len(tail)
+        if len(head) > room:
+            head = head[: max(room - 3, 12)] + "..."
+        return "\r" + head + tail + "\x1b[K"
+
+    def _draw(self, now: float) -> None:
+        tail = f"  {self._detail}" if self._detail else ""
+        self._write(self._line(f"{tail}  {now - self._t_stage:.0f} s"))
+
+    def _end_stage(self, now: float) -> None:
+        if self._msg is not None and self.live:
+            self._write(self._line(f"  {now - self._t_stage:.2f} s") + "\n")
+        self._msg, self._detail, self._beats = None, "", 0
+
+    def __call__(self, msg: str) -> None:
+        """Start stage ``msg`` (ends the previous one)."""
+        if self.quiet:
+            return
+        now = time.perf_counter()
+        with self._lock:
+            self._end_stage(now)
+            self._msg, self._t_stage = str(msg), now
+            if self.live:
+                self._draw(now)
+            else:
+                self._write(self._head(now) + "\n")
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="modalfem-progress", daemon=True)
+            self._thread.start()
+
+    def bar(self, done: int, total: int, what: str = "") -> None:
+        """Countable progress of the current stage: ``done`` of ``total`` (``what``: the item at hand)."""
+        if self.quiet or self._msg is None:
+            return
+        width = 20
+        fill = int(round(width * done / max(total, 1)))
+        with self._lock:
+            self._detail = f"[{'#' * fill}{'.' * (width - fill)}] {done}/{total} {what}".rstrip()
+            if self.live:
+                self._draw(time.perf_counter())
+            else:
+                self._write(f"[{time.perf_counter() - self.t0:7.2f} s]   {done}/{total} {what}".rstrip() + "\n")
+
+    def done(self, msg: str) -> None:
+        """End the current stage and print ``msg`` as a plain line."""
+        if self.quiet:
+            return
+        now = time.perf_counter()
+        with self._lock:
+            self._end_stage(now)
+            self._write(f"[{now - self.t0:7.2f} s] {msg}\n")
+
+    def close(self) -> None:
+        """Stop the background thread and end the current line."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+        if not self.quiet:
+            with self._lock:
+                self._end_stage(time.perf_counter())
+
+    def _run(self) -> None:
+        wait = self.interval if self.live else 1.0
+        while not self._stop.wait(wait):
+            now = time.perf_counter()
+            with self._lock:
+                if self._msg is None:
+                    continue
+                if self.live:
+                    self._draw(now)
+                elif now - self._t_stage >= self.heartbeat * (self._beats + 1):
+                    self._beats += 1
+                    self._write(f"{self._head(self._t_stage)} (still running, {now - self._t_stage:.0f} s)\n")
 
 
 def _run_modes(args, argv) -> int:
+    progress = _Progress(quiet=args.quiet)
+    try:
+        return _modes_command(args, argv, progress)
+    finally:
+        progress.close()
+
+
+def _modes_command(args, argv, say: _Progress) -> int:
     import modalfem
     from modalfem.errors import InputError
-    from modalfem.output import (
-        check_targets,
-        plot_mode_sheet,
-        staged_dir,
-        summary,
-        summary_json,
-        write_modes,
-        write_text_atomic,
-    )
-
-    t0 = time.perf_counter()
-
-    def say(msg: str) -> None:
-        if not args.quiet:
-            print(f"[{time.perf_counter() - t0:7.2f} s] {msg}", file=sys.stderr, flush=True)
+    from modalfem.output import OutputSet, check_targets, plot_mode_sheet, summary, summary_json, write_modes
 
     if not isinstance(args.k, int) or args.k < 1:
         raise InputError(f"-k must be an integer >= 1, got {args.k}")
@@ -217,36 +321,55 @@ def _run_modes(args, argv) -> int:
         model = ModalModel.from_modes(res, mesh, material, provenance={
             "fixed": None if held == "free" else held, "source": source, "command": ["modalfem", *argv]})
         outputs["model"] = str(args.save)
-    t = time.perf_counter()
     data = summary(res, mesh=mesh, material=material, source=source, constraints=constraints,
                    timings={"mesh": t_mesh}, outputs=outputs, command=["modalfem", *argv])
-    staged_model = _stage_model(model, args.save) if model is not None else None
-    try:
+    targets = [str(p) + ("/" if p == args.out else "") for p in (args.out, args.json, args.save) if p is not None]
+    t_out = time.perf_counter()
+    write_times: dict[str, float] = {}
+    with OutputSet() as outs:
+        steps = []
         if args.out is not None:
-            say(f"writing {args.out}/")
-            with staged_dir(args.out) as tmp:
-                write_modes(tmp / "modes.vtu", mesh, res)
-                write_modes(tmp / "modes.xdmf", mesh, res)
-                body = source.get("generator") or Path(str(source.get("file"))).name
-                title = f"{body}, {material.name or 'custom'}, {held}, P{args.degree}"
-                plot_mode_sheet(tmp / "modes.png", mesh, res, count=min(args.sheet_modes, len(res.omega)),
-                                title=title)
-                data["timings"]["output"] = time.perf_counter() - t
-                (tmp / "modes.json").write_text(summary_json(data), encoding="utf-8")
-        if args.json is not None:
-            data["timings"]["output"] = time.perf_counter() - t
-            write_text_atomic(args.json, summary_json(data))
-        if staged_model is not None:
-            say(f"writing {args.save}")
-            try:
-                os.replace(staged_model, args.save)
-            except OSError as exc:
-                raise InputError(f"cannot write {str(args.save)!r}: {exc.strerror or exc}") from None
-            staged_model = None
-    finally:
-        if staged_model is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(staged_model)
+            tmp = outs.folder(args.out)
+            body = source.get("generator") or Path(str(source.get("file"))).name
+            title = f"{body}, {material.name or 'custom'}, {held}, P{args.degree}"
+            count = min(args.sheet_modes, len(res.omega))
+            steps += [
+                ("modes.vtu", lambda: write_modes(tmp / "modes.vtu", mesh, res)),
+                ("modes.xdmf", lambda: write_modes(tmp / "modes.xdmf", mesh, res)),
+                ("modes.png", lambda: plot_mode_sheet(tmp / "modes.png", mesh, res, count=count, title=title)),
+            ]
+        if model is not None:
+            model_tmp = outs.file(args.save)
+            steps.append((Path(args.save).name, lambda: model.save(model_tmp)))
+        json_tmp = outs.file(args.json) if args.json is not None else None
+        if steps or json_tmp is not None:
+            say(f"writing {', '.join(targets)}")
+        for i, (name, step) in enumerate(steps):
+            say.bar(i, len(steps) + 1, name)
+            t = time.perf_counter()
+            step()
+            write_times[name] = time.perf_counter() - t
+        if steps or json_tmp is not None:
+            say.bar(len(steps), len(steps) + 1, "JSON")
+        if args.out is not None and (tmp / "modes.h5").exists():
+            outputs["paraview_xdmf_data"] = "modes.h5"
+        data["timings"]["output"] = time.perf_counter() - t_out
+        data["timings"].update({f"output.{k}": v for k, v in write_times.items()})
+        data["outputs"] = outputs
+        text = summary_json(data)
+        for path, target in ((args.out and tmp / "modes.json", Path(str(args.out)) / "modes.json"),
+                             (json_tmp, args.json)):
+            if path:
+                try:
+                    path.write_text(text, encoding="utf-8")
+                except OSError as exc:
+                    raise InputError(f"cannot write {str(target)!r}: {exc.strerror or exc}") from None
+        outs.commit()
+    if targets:
+        parts = ", ".join(f"{k} {v:.2f} s" for k, v in write_times.items())
+        say.done(f"wrote {', '.join(targets)} in {time.perf_counter() - t_out:.2f} s" + (f" ({parts})" if parts else "")
+                 + f"; the solve took {res.timings['total']:.2f} s")
+    say.close()
     cert = res.certificate
     print(f"{'mode':>4}  {'frequency [Hz]':>15}  {'residual':>9}  label")
     for i, (f, lab) in enumerate(zip(res.frequencies_hz, res.labels)):
@@ -260,6 +383,40 @@ def _run_modes(args, argv) -> int:
         if path is not None:
             print(f"{what}: {path}")
     return 0 if cert.passed else 1
+
+
+@contextlib.contextmanager
+def _terminate_as_exit():
+    """SIGTERM raises ``SystemExit(143)`` in the main thread, so staged outputs are cleaned up."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise SystemExit(128 + signum)
+
+    try:
+        old = signal.signal(signal.SIGTERM, handler)
+    except (ValueError, OSError):  # not allowed here (embedded interpreter)
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@contextlib.contextmanager
+def _jit_verbosity(verbose: bool):
+    """``--verbose``: let the FEniCSx JIT compiler's log through (``modalfem.backends.fenicsx.VERBOSE``)."""
+    from modalfem.backends import fenicsx
+
+    old = fenicsx.VERBOSE
+    fenicsx.VERBOSE = bool(verbose) or old
+    try:
+        yield
+    finally:
+        fenicsx.VERBOSE = old
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -282,7 +439,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command != "modes":
             build_parser().print_help(sys.stderr)
             return 2
-        return _run_modes(args, argv)
+        with _terminate_as_exit(), _jit_verbosity(args.verbose):
+            return _run_modes(args, argv)
     except _ArgumentError as exc:
         print(f"modalfem: error: {exc}", file=sys.stderr)
         return 2

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,3 +186,238 @@ def test_failure_while_saving_the_model_writes_nothing(tmp_path, capsys, monkeyp
                          "--quiet", *PIP_PATH], capsys)
     assert code == 2 and err.count("\n") == 1 and "No space left" in err
     assert list(tmp_path.iterdir()) == []
+
+
+# ---------------------------------------------------------------- outputs of one run are one set
+
+SMALL = ["modes", "box", "--size", "0.4", "0.05", "0.05", "--cells", "4", "1", "1", "-k", "2", "--fixed", "x0",
+         "--quiet", *PIP_PATH]
+
+
+def _tree(path):
+    """Every entry under ``path`` (hidden ones too) with its bytes: equal trees mean nothing changed."""
+    return {str(p.relative_to(path)): (p.read_bytes() if p.is_file() else None) for p in sorted(path.rglob("*"))}
+
+
+def _old_outputs(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("modes.json", "modes.png", "modes.vtu", "modes.xdmf"):
+        (out / name).write_text(f"old {name}")
+    (tmp_path / "s.json").write_text("old summary")
+    (tmp_path / "m.npz").write_bytes(b"old model")
+    return out
+
+
+def _json_targets(tmp_path):
+    (tmp_path / "afile").write_text("a file, not a folder")
+    (tmp_path / "adir").mkdir()
+    yield "parent is a file", tmp_path / "afile" / "s.json", "not a directory"
+    yield "is a directory", tmp_path / "adir", "existing directory"
+    if os.path.isdir("/proc/self"):  # unwritable even for root: fails only when the JSON is written
+        yield "unwritable folder", Path(f"/proc/modalfem-test-{os.getpid()}.json"), "cannot write"
+
+
+@pytest.mark.parametrize("old", [False, True], ids=["no previous out", "previous out"])
+def test_failing_json_target_writes_nothing_and_keeps_the_old_out(tmp_path, capsys, old):
+    for what, js, needle in list(_json_targets(tmp_path)):
+        out = _old_outputs(tmp_path) if old and not (tmp_path / "out").exists() else tmp_path / "out"
+        before = _tree(tmp_path)
+        code, _, err = _run([*SMALL, "--out", str(out), "--json", str(js)], capsys)
+        assert code == 2, what
+        assert err.count("\n") == 1 and err.startswith("modalfem: error:") and needle in err, (what, err)
+        assert _tree(tmp_path) == before, what  # no --out created, old one unchanged, no temporaries
+        assert out.exists() == old
+
+
+@pytest.mark.parametrize("signal_", [KeyboardInterrupt, SystemExit, "SIGTERM"])
+@pytest.mark.parametrize("victim", ["modes.xdmf", "modes.png", "model"])
+def test_kill_between_files_leaves_the_old_outputs_and_no_temporaries(tmp_path, capsys, monkeypatch, signal_,
+                                                                       victim):
+    import signal
+
+    import modalfem.output
+    from modalfem.model import ModalModel
+
+    out = _old_outputs(tmp_path)
+    before = _tree(tmp_path)
+
+    def kill(*a, **k):
+        if signal_ == "SIGTERM":
+            os.kill(os.getpid(), signal.SIGTERM)  # the CLI turns it into SystemExit(143)
+            time.sleep(5)
+        raise signal_()
+
+    real_write_modes = modalfem.output.write_modes
+    if victim == "modes.xdmf":  # the .vtu is written, the .xdmf is not
+        monkeypatch.setattr(modalfem.output, "write_modes",
+                            lambda p, *a, **k: kill() if str(p).endswith(".xdmf") else real_write_modes(p, *a, **k))
+    elif victim == "modes.png":
+        monkeypatch.setattr(modalfem.output, "plot_mode_sheet", kill)
+    else:  # the --out folder is complete, the model is not
+        monkeypatch.setattr(ModalModel, "save", kill)
+    argv = [*SMALL, "--out", str(out), "--json", str(tmp_path / "s.json"), "--save", str(tmp_path / "m.npz")]
+    if signal_ is KeyboardInterrupt:
+        assert _run(argv, capsys)[0] == 130
+    else:
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code in (None, 143)
+    assert _tree(tmp_path) == before
+
+
+def test_existing_out_is_replaced_as_a_whole(tmp_path, capsys):
+    out = _old_outputs(tmp_path)
+    (out / "modes.h5").write_text("old heavy data")
+    code, _, _ = _run([*SMALL, "--out", str(out)], capsys)
+    assert code == 0
+    assert sorted(p.name for p in out.iterdir()) == ["modes.h5", "modes.json", "modes.png", "modes.vtu", "modes.xdmf"]
+    assert all(not (out / n).read_bytes().startswith(b"old") for n in os.listdir(out))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz", "out", "s.json"]
+
+
+def test_out_holding_other_files_is_refused_before_solving(tmp_path, capsys):
+    out = _old_outputs(tmp_path)
+    (out / "notes.txt").write_text("mine")
+    before = _tree(tmp_path)
+    code, _, err = _run([*SMALL, "--out", str(out)], capsys)
+    assert code == 2 and err.count("\n") == 1 and "notes.txt" in err
+    assert _tree(tmp_path) == before
+
+
+def test_stale_temporaries_of_a_killed_run_are_removed_by_the_next_run(tmp_path, capsys):
+    from modalfem.atomic import _host
+
+    p = subprocess.Popen([sys.executable, "-c", "pass"])
+    p.wait()  # a PID that no longer runs: the "killed" run
+    tag = f"modalfem-tmp-{_host()}-{p.pid}-x1y2z3"
+    (tmp_path / f".out.{tag}").mkdir()
+    (tmp_path / f".out.{tag}" / "modes.vtu").write_text("half written")
+    (tmp_path / f".s.json.{tag}").write_text("{")
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / f".m.npz.{tag}").write_bytes(b"half a model")
+    live = tmp_path / f".s.json.modalfem-tmp-{_host()}-{os.getpid()}-running"  # a run still going: kept
+    live.write_text("{")
+    code, _, _ = _run([*SMALL, "--out", str(tmp_path / "out"), "--json", str(tmp_path / "s.json"),
+                       "--save", str(tmp_path / "models" / "m.npz")], capsys)
+    assert code == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["models", "out", "s.json", live.name])
+    assert [p.name for p in (tmp_path / "models").iterdir()] == ["m.npz"]
+
+
+# ---------------------------------------------------------------- ParaView files read back
+
+
+def test_xdmf_from_out_reads_back_with_meshio(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("h5py", reason="meshio's XDMF reader needs h5py (a modalfem dependency)")
+    import meshio
+
+    import modalfem
+
+    results = []
+    real = modalfem.modes
+    monkeypatch.setattr(modalfem, "modes", lambda *a, **k: results.append(real(*a, **k)) or results[-1])
+    out = tmp_path / "o"
+    code, _, _ = _run([*SMALL, "--degree", "2", "--out", str(out)], capsys)
+    assert code == 0
+    res, = results
+    m = meshio.read(out / "modes.xdmf")
+    np.testing.assert_array_equal(m.points, res.dof_points)
+    assert m.cells[0].type == "tetra10"
+    for i in range(2):
+        np.testing.assert_array_equal(m.point_data[f"mode_{i + 1:02d}"], res.shape(i))
+    v = meshio.read(out / "modes.vtu")
+    np.testing.assert_array_equal(v.point_data["mode_02"], res.shape(1))
+
+
+# ---------------------------------------------------------------- progress and the cost of writing
+
+
+STAGES = ("mesh:", "constraints", "assembly", "shift", "eigen", "certificate", "labels", "writing", "wrote")
+
+
+def test_progress_line_for_every_stage_and_silence_with_quiet(tmp_path):
+    argv = [sys.executable, "-m", "modalfem", "modes", "box", "--cells", "6", "1", "1", "-k", "2", "--fixed", "x0",
+            "--out", str(tmp_path / "o"), *PIP_PATH]
+    r = subprocess.run(argv, capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.splitlines()
+    for stage in STAGES:
+        assert any(stage in ln and ln.startswith("[") and " s] " in ln for ln in lines), (stage, r.stderr)
+    wrote, = [ln for ln in lines if "] wrote" in ln]
+    assert "modes.png" in wrote and "the solve took" in wrote
+    assert "\r" not in r.stderr  # not a terminal: plain lines
+    r = subprocess.run([*argv, "--quiet"], capture_output=True, text=True, timeout=300, check=False)
+    assert r.returncode == 0 and r.stderr == ""
+
+
+class _FakeTerminal:
+    def __init__(self):
+        self.text = ""
+
+    def isatty(self):
+        return True
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+
+def test_live_progress_line_on_a_terminal(monkeypatch):
+    from modalfem.cli import _Progress
+
+    monkeypatch.setenv("COLUMNS", "60")
+    term = _FakeTerminal()
+    p = _Progress(stream=term)
+    p.interval = 0.05
+    p("eigen (block)")
+    time.sleep(1.3)  # the background thread redraws the line with the running seconds
+    p("writing")
+    p.bar(1, 4, "modes.xdmf")
+    p.done("wrote")
+    p.close()
+    first = term.text.split("\n")[0]
+    assert first.count("\r") >= 5 and "eigen (block)  1 s" in first and first.endswith(" s\x1b[K")
+    assert "[#####...............] 1/4 modes.xdmf" in term.text
+    assert term.text.endswith("] wrote\n")
+    long = _FakeTerminal()
+    p = _Progress(stream=long)
+    p("mesh: " + "x" * 200)  # wider than the terminal: cut, or \r could not redraw a wrapped line
+    p.close()
+    assert all(len(seg.replace("\x1b[K", "").rstrip("\n")) <= 59 for seg in long.text.split("\r")), long.text
+    assert "..." in long.text
+    quiet = _FakeTerminal()
+    q = _Progress(stream=quiet, quiet=True)
+    q("eigen")
+    q.bar(1, 2)
+    q.done("wrote")
+    q.close()
+    assert quiet.text == ""
+
+
+def test_plain_progress_repeats_a_long_stage():
+    from modalfem.cli import _Progress
+
+    log = _FakeTerminal()
+    log.isatty = lambda: False
+    p = _Progress(stream=log)
+    p.heartbeat = 0.5
+    p("eigen (block)")
+    time.sleep(2.3)
+    p.close()
+    assert "\r" not in log.text and "eigen (block) (still running, " in log.text
+
+
+def test_writing_the_outputs_costs_less_than_the_solve(tmp_path, capsys):
+    """A 17.7k-DOF P2 result: the JSON records the output stage, and it is cheaper than the solve."""
+    js = tmp_path / "s.json"
+    code, _, _ = _run(["modes", "box", "--size", "1", "0.2", "0.1", "--cells", "32", "6", "3", "-k", "6",
+                       "--out", str(tmp_path / "o"), "--json", str(js), "--quiet", *PIP_PATH], capsys)
+    assert code == 0
+    t = json.loads(js.read_text())["timings"]
+    parts = {k: v for k, v in t.items() if k.startswith("output.")}
+    assert set(parts) == {"output.modes.vtu", "output.modes.xdmf", "output.modes.png"}
+    assert sum(parts.values()) <= t["output"]
+    assert t["output"] < t["total"], t

@@ -39,15 +39,33 @@ def test_vtu_holds_tetra10_and_the_exact_nodal_field(p2_result, tmp_path):
     np.testing.assert_allclose(p[c[:, 9]], 0.5 * (p[c[:, 2]] + p[c[:, 3]]), atol=1e-14)
 
 
-def test_xdmf_is_one_self_contained_xml_file(p2_result, tmp_path):
+@pytest.mark.parametrize("heavy", ["hdf", "xml"])
+def test_xdmf_reads_back_with_meshio_exactly(p2_result, tmp_path, heavy):
+    """Both XDMF layouts: meshio (which needs h5py for any XDMF) returns the exact nodal fields."""
+    pytest.importorskip("h5py", reason="meshio's XDMF reader needs h5py (a modalfem dependency)")
+    import meshio
+
+    from modalfem.output import modes_meshio, write_xdmf
+
     mesh, res = p2_result
-    path = write_modes(tmp_path / "m.xdmf", mesh, res)
-    root = ET.parse(path).getroot()
-    topo = root.find(".//Topology")
-    assert topo.get("TopologyType") == "Tetrahedron_10"
-    names = {a.get("Name") for a in root.iter("Attribute")}
-    assert {"mode_01", "|mode_03|"} <= names
-    assert not list(tmp_path.glob("*.h5"))
+    written = write_xdmf(tmp_path / "m.xdmf", modes_meshio(mesh, res), heavy=heavy)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in written)
+    assert (heavy == "hdf") == ((tmp_path / "m.h5") in written)
+    root = ET.parse(tmp_path / "m.xdmf").getroot()
+    assert root.find(".//Topology").get("TopologyType") == "Tetrahedron_10"
+    m = meshio.read(tmp_path / "m.xdmf")
+    assert m.cells[0].type == "tetra10" and len(m.cells[0].data) == mesh.cell_count
+    np.testing.assert_array_equal(m.points, res.dof_points)
+    for i in range(3):
+        np.testing.assert_array_equal(m.point_data[f"mode_{i + 1:02d}"], res.shape(i))
+        np.testing.assert_array_equal(m.point_data[f"|mode_{i + 1:02d}|"], np.linalg.norm(res.shape(i), axis=1))
+
+
+def test_write_modes_xdmf_uses_hdf5_when_h5py_imports(p2_result, tmp_path):
+    pytest.importorskip("h5py")
+    mesh, res = p2_result
+    write_modes(tmp_path / "m.xdmf", mesh, res)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.h5", "m.xdmf"]
 
 
 def test_json_is_strict_and_matches_the_result(p2_result):
@@ -72,3 +90,98 @@ def test_staged_dir_is_all_or_nothing(tmp_path):
     assert (out / "a.txt").read_text() == "complete" and [p.name for p in tmp_path.iterdir()] == ["out"]
     write_text_atomic(out / "b.json", "{}\n")
     assert sorted(p.name for p in out.iterdir()) == ["a.txt", "b.json"]
+    with staged_dir(out) as tmp:  # an existing folder is replaced as a whole, not file by file
+        (tmp / "c.txt").write_text("new")
+    assert sorted(p.name for p in out.iterdir()) == ["c.txt"] and [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def _tree(path):
+    return {str(p.relative_to(path)): (p.read_bytes() if p.is_file() else None) for p in sorted(path.rglob("*"))}
+
+
+@pytest.mark.parametrize("interrupt", [KeyboardInterrupt, SystemExit, OSError])
+def test_output_set_commit_interrupted_between_moves_restores_everything(tmp_path, monkeypatch, interrupt):
+    """A kill between the renames of a commit undoes the ones done: the old folder and files are back."""
+    import os
+
+    from modalfem.errors import InputError
+    from modalfem.output import OutputSet
+
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "modes.json").write_text("old json")
+    (tmp_path / "s.json").write_text("old summary")
+    before = _tree(tmp_path)
+    real, calls = os.replace, []
+
+    def replace(src, dst):
+        calls.append(dst)
+        if len(calls) == 2:  # the folder is in place, the file is next
+            raise interrupt("killed between two moves") if interrupt is not OSError else OSError(5, "I/O error")
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(InputError if interrupt is OSError else interrupt):
+        with OutputSet() as outs:
+            (outs.folder(tmp_path / "out") / "modes.json").write_text("new json")
+            outs.file(tmp_path / "s.json").write_text("new summary")
+            outs.commit()
+    assert _tree(tmp_path) == before
+
+
+def test_output_set_creates_missing_parents_and_removes_them_on_failure(tmp_path):
+    from modalfem.output import OutputSet
+
+    with pytest.raises(RuntimeError):
+        with OutputSet() as outs:
+            outs.file(tmp_path / "a" / "b" / "s.json").write_text("x")
+            raise RuntimeError("failed")
+    assert list(tmp_path.iterdir()) == []
+    with OutputSet() as outs:
+        outs.file(tmp_path / "a" / "b" / "s.json").write_text("x")
+        outs.folder(tmp_path / "c" / "out")
+        outs.commit()
+    assert (tmp_path / "a" / "b" / "s.json").read_text() == "x" and (tmp_path / "c" / "out").is_dir()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "c"]
+
+
+@pytest.mark.parametrize("make, needle", [
+    (lambda d: (d / "out").mkdir() or (d / "out" / "notes.txt").write_text("mine"), "holds files modalfem does not write"),
+    (lambda d: (d / "out").write_text("a file"), "is not a directory"),
+])
+def test_check_targets_refuses_an_out_folder_it_would_destroy(tmp_path, make, needle):
+    from modalfem.errors import InputError
+    from modalfem.output import check_targets
+
+    make(tmp_path)
+    with pytest.raises(InputError, match=needle):
+        check_targets(out_dir=tmp_path / "out")
+
+
+def test_check_targets_refuses_a_file_inside_out_or_given_twice(tmp_path):
+    from modalfem.errors import InputError
+    from modalfem.output import check_targets
+
+    with pytest.raises(InputError, match="inside --out"):
+        check_targets(out_dir=tmp_path / "o", files=(tmp_path / "o" / "s.json",))
+    with pytest.raises(InputError, match="given twice"):
+        check_targets(files=(tmp_path / "s.json", tmp_path / "s.json"))
+
+
+def test_sheet_camera_is_orthonormal_and_every_panel_shows_the_body(p2_result, tmp_path):
+    from PIL import Image
+
+    from modalfem.output.sheet import _view_basis, _view_vector, plot_mode_sheet
+
+    for elev, azim in ((22.0, -58.0), (-40.0, 130.0), (89.0, 0.0)):
+        B = _view_basis(elev, azim)
+        np.testing.assert_allclose(B @ B.T, np.eye(3), atol=1e-12)
+        assert np.linalg.det(B) == pytest.approx(1.0)  # right-handed: x right, y up, z towards the viewer
+        np.testing.assert_allclose(B[2], _view_vector(elev, azim))
+    mesh, res = p2_result
+    path = plot_mode_sheet(tmp_path / "s.png", mesh, res, count=3, title="t")
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    h, w, _ = img.shape
+    coloured = (np.abs(img - img.mean(axis=2, keepdims=True)).max(axis=2) > 40)  # not white/grey/black
+    for i in range(3):  # one panel per mode, side by side
+        panel = coloured[int(0.15 * h):, int(i * 0.92 * w / 3):int((i + 1) * 0.92 * w / 3)]
+        assert panel.mean() > 0.02, i

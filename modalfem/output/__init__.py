@@ -1,13 +1,13 @@
 """Outputs people look at: the JSON summary, mode shapes for ParaView, a PNG sheet of mode shapes.
 
-Every writer is atomic at the level the CLI needs: ``staged_dir`` builds a whole output directory
-next to its target and moves it in only on success; ``write_text_atomic`` writes one file through a
-temporary file and ``os.replace``.
+All outputs of one command form an ``OutputSet``: each is written to a temporary next to its target
+and all are moved into place together, or none is (``staged_dir`` and ``write_text_atomic`` are the
+one-target cases).
 """
 
-from modalfem.output.paraview import mode_field_names, modes_meshio, write_modes
+from modalfem.output.paraview import mode_field_names, modes_meshio, write_modes, write_xdmf
 from modalfem.output.sheet import plot_mode_sheet, surface_triangles
-from modalfem.output.staging import check_targets, staged_dir, write_text_atomic
+from modalfem.output.staging import OUT_FILES, OutputSet, check_targets, staged_dir, write_text_atomic
 from modalfem.output.summary import SUMMARY_FORMAT, summary, summary_json, versions
 
 __all__ = [
@@ -18,8 +18,11 @@ __all__ = [
     "mode_field_names",
     "modes_meshio",
     "write_modes",
+    "write_xdmf",
     "plot_mode_sheet",
     "surface_triangles",
+    "OUT_FILES",
+    "OutputSet",
     "check_targets",
     "staged_dir",
     "write_text_atomic",
