@@ -276,6 +276,24 @@ def test_existing_out_is_replaced_as_a_whole(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz", "out", "s.json"]
 
 
+def test_json_and_model_inside_out_move_in_with_the_folder(tmp_path, capsys, monkeypatch):
+    """The README's `--json out/modes.json --out out/`, with the model in the folder too."""
+    import modalfem.output
+
+    out = tmp_path / "out"
+    argv = [*SMALL, "--out", str(out), "--json", str(out / "modes.json"), "--save", str(out / "models" / "m.npz")]
+    for _ in range(2):  # the second run replaces the first run's folder, model included
+        code, _, _ = _run(argv, capsys)
+        assert code == 0
+        assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == [
+            "models", "models/m.npz", "modes.h5", "modes.json", "modes.png", "modes.vtu", "modes.xdmf"]
+        assert [p.name for p in tmp_path.iterdir()] == ["out"]
+    before = _tree(tmp_path)
+    monkeypatch.setattr(modalfem.output, "plot_mode_sheet", lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))
+    assert _run(argv, capsys)[0] == 130
+    assert _tree(tmp_path) == before
+
+
 def test_out_holding_other_files_is_refused_before_solving(tmp_path, capsys):
     out = _old_outputs(tmp_path)
     (out / "notes.txt").write_text("mine")

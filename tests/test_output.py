@@ -157,14 +157,19 @@ def test_check_targets_refuses_an_out_folder_it_would_destroy(tmp_path, make, ne
         check_targets(out_dir=tmp_path / "out")
 
 
-def test_check_targets_refuses_a_file_inside_out_or_given_twice(tmp_path):
+def test_check_targets_refuses_a_file_that_is_out_or_given_twice(tmp_path):
     from modalfem.errors import InputError
     from modalfem.output import check_targets
 
-    with pytest.raises(InputError, match="inside --out"):
-        check_targets(out_dir=tmp_path / "o", files=(tmp_path / "o" / "s.json",))
+    with pytest.raises(InputError, match="is the --out folder"):
+        check_targets(out_dir=tmp_path / "o", files=(tmp_path / "o",))
     with pytest.raises(InputError, match="given twice"):
         check_targets(files=(tmp_path / "s.json", tmp_path / "s.json"))
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "m.npz").write_text("a model of the previous run")
+    check_targets(out_dir=tmp_path / "o", files=(tmp_path / "o" / "m.npz",))  # its own target: not foreign
+    with pytest.raises(InputError, match="m.npz"):
+        check_targets(out_dir=tmp_path / "o")
 
 
 def test_sheet_camera_is_orthonormal_and_every_panel_shows_the_body(p2_result, tmp_path):

@@ -48,9 +48,10 @@ def check_targets(*, out_dir: str | os.PathLike | None = None, files: tuple = ()
             would be lost); None accepts any content.
 
     Raises:
-        InputError: ``out_dir`` is an existing file or holds other files, a file target is an
-            existing folder, lies inside ``out_dir`` or is given twice, or the nearest existing
-            ancestor of a target is not a writable folder.
+        InputError: ``out_dir`` is an existing file or holds files that are neither modalfem's
+            (``out_files``) nor file targets inside it, a file target is an existing folder, is
+            ``out_dir`` or is given twice, or the nearest existing ancestor of a target is not a
+            writable folder.
     """
     targets = []
     out = None
@@ -60,7 +61,10 @@ def check_targets(*, out_dir: str | os.PathLike | None = None, files: tuple = ()
         if d.exists() and not d.is_dir():
             raise InputError(f"--out {str(d)!r} exists and is not a directory")
         if d.is_dir() and out_files is not None:
-            foreign = sorted(e.name for e in os.scandir(d) if e.name not in out_files and not e.name.startswith("."))
+            inside = {Path(f).absolute().relative_to(out).parts[0] for f in files
+                      if f is not None and Path(f).absolute().is_relative_to(out) and Path(f).absolute() != out}
+            known = set(out_files) | inside
+            foreign = sorted(e.name for e in os.scandir(d) if e.name not in known and not e.name.startswith("."))
             if foreign:
                 more = f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
                 raise InputError(
@@ -81,8 +85,10 @@ def check_targets(*, out_dir: str | os.PathLike | None = None, files: tuple = ()
         if a in seen:
             raise InputError(f"output file {str(f)!r} is given twice")
         seen.add(a)
+        if out is not None and a == out:
+            raise InputError(f"output file {str(f)!r} is the --out folder")
         if out is not None and a.is_relative_to(out):
-            raise InputError(f"output file {str(f)!r} lies inside --out {str(out_dir)!r}; write it elsewhere")
+            continue  # written into the --out folder's temporary, moved in with it
         targets.append(f.parent)
     for t in targets:
         anc = _existing_ancestor(t)
@@ -150,8 +156,21 @@ class OutputSet:
         return tmp
 
     def file(self, target: str | os.PathLike) -> Path:
-        """A temporary file path (an empty file) that becomes ``target`` on ``commit``."""
+        """A temporary file path (an empty file) that becomes ``target`` on ``commit``.
+
+        A target inside a folder of this set is written into that folder's temporary (it moves in
+        with the folder); register the folder first.
+        """
         target = Path(target).absolute()
+        for folder, tmp, is_dir in self._entries:
+            if is_dir and target != folder and target.is_relative_to(folder):
+                path = tmp / target.relative_to(folder)
+                try:
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    path.touch()
+                except OSError as exc:
+                    raise _os_error("write", target, exc) from None
+                return path
         host = self._host_dir(target)
         try:
             fd, tmp = tempfile.mkstemp(prefix=temp_prefix(target.name), dir=host)
