@@ -284,11 +284,21 @@ def modes(
         K_ff, M_ff = restrict(K, free), restrict(M, free)
         del K, M
     timings["assembly"] = time.perf_counter() - t
+    # the pencil is solved in units where M's largest diagonal entry is 1 and the Ritz bound of lambda_1
+    # is 1 (eigenvectors unchanged up to 1/sqrt(b), eigenvalues in units of theta). PARDISO compares pivots
+    # with a fixed 1e-8: a 0.1 mm box with E = 1e-12 Pa (entries ~1e-17) gave frequencies 10x off; in
+    # these units the pivots of K - shift M are >= ~1 whatever the body's size and material.
+    b = _diagonal_max(M_ff, comm)
+    _scale(K_ff, 1.0 / b)
+    _scale(M_ff, 1.0 / b)
 
     say("shift")
     t = time.perf_counter()
     Z = structure.basis(free, M_ff) if comm is None else _distributed_basis(structure, free, M_ff, rows, comm)
     shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=r, rows=rows, comm=comm, deflate=Z)
+    unit = theta  # [rad^2/s^2] per eigenvalue unit of the solved pencil
+    _scale(K_ff, 1.0 / unit)
+    shift = shift / unit
     timings["shift"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -318,6 +328,8 @@ def modes(
         floor = _residual_floor(K_ff, X, rows, comm)
     coupling = _rigid_coupling(Z, X[:, r : r + k], M_ff, rows, comm)
     cert = build_certificate(raw, r, r + k, tol=tol, keep=k, residual_floor=floor, rigid_coupling=coupling)
+    cert = replace(cert, inertia_shift=cert.inertia_shift * unit)
+    lam, X, shift = lam * unit, X / np.sqrt(b), shift * unit
     if structure.mechanisms:
         cert = replace(cert, passed=False)
         warnings.warn(
@@ -384,6 +396,28 @@ def _distributed_basis(structure, free, M_ff, rows, comm) -> np.ndarray:
         G = comm.allreduce(B[rows].T @ petsc_products(M_ff, B, rows), op=MPI.SUM)
         B = B @ np.linalg.inv(np.linalg.cholesky(0.5 * (G + G.T))).T
     return B
+
+
+def _diagonal_max(A, comm) -> float:
+    """max |A_ii| of a scipy or (distributed) PETSc matrix."""
+    if comm is None:
+        d = float(np.max(np.abs(A.diagonal()))) if A.shape[0] else 0.0
+    else:
+        from mpi4py import MPI
+
+        v = A.getDiagonal().getArray()
+        d = comm.allreduce(float(np.max(np.abs(v))) if len(v) else 0.0, op=MPI.MAX)
+    if not (np.isfinite(d) and d > 0):
+        raise SolverError(f"the assembled matrix has largest diagonal entry {d!r}: check the material and the mesh")
+    return d
+
+
+def _scale(A, c: float) -> None:
+    """A *= c in place (scipy sparse or PETSc)."""
+    if hasattr(A, "data"):
+        A.data *= c
+    else:
+        A.scale(c)
 
 
 def _rigid_coupling(Z: np.ndarray, X: np.ndarray, M_ff, rows, comm) -> float:

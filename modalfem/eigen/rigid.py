@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RANK_RTOL", "RigidStructure", "analyse_rigid", "cell_parts", "expected_rigid_count", "node_pieces",
+__all__ = ["RANK_RTOL", "Deflation", "RigidStructure", "analyse_rigid", "cell_parts", "expected_rigid_count", "node_pieces",
            "rigid_basis", "rigid_fields"]
 
 #: singular values of the fixed rows below RANK_RTOL * sqrt(nodes in the piece) count as zero. The
@@ -307,3 +307,43 @@ def _frame_fields(points: np.ndarray, c: np.ndarray, scale: float) -> np.ndarray
     R[:, 0, 4], R[:, 2, 4] = d[:, 2], -d[:, 0]
     R[:, 0, 5], R[:, 1, 5] = -d[:, 1], d[:, 0]
     return R.reshape(3 * n, 6)
+
+
+class Deflation:
+    """The rigid (zero-energy) subspace, handled exactly: an M-orthonormal basis Z (n, r) of fields with
+    K Z = 0 up to roundoff, known from the mesh's structure (``modalfem.eigen.rigid``).
+
+    Solvers keep their Krylov spaces M-orthogonal to Z (``project``), so they compute the elastic pairs
+    only; the rigid pairs are Z itself. Z is invariant under (K - shift M)^-1 M (eigenvalue -1/shift),
+    so the projection only removes what roundoff lets in."""
+
+    def __init__(self, Z: np.ndarray | None, M) -> None:
+        n = M.shape[0]
+        self.Z = np.zeros((n, 0)) if Z is None else np.ascontiguousarray(Z, dtype=np.float64)
+        self.MZ = _spmm(M, self.Z) if self.Z.shape[1] else np.zeros((n, 0))
+
+    @property
+    def count(self) -> int:
+        return int(self.Z.shape[1])
+
+    def project(self, Y: np.ndarray) -> np.ndarray:
+        """Y minus its M-projection on span(Z), twice ("twice is enough")."""
+        if not self.count:
+            return Y
+        for _ in range(2):
+            Y = Y - self.Z @ (self.MZ.T @ Y)
+        return Y
+
+    def complement(self) -> np.ndarray:
+        """Euclidean-orthonormal basis (n, n - r) of the M-orthogonal complement of Z (dense problems)."""
+        n = self.Z.shape[0]
+        if not self.count:
+            return np.eye(n)
+        q, _ = np.linalg.qr(self.MZ, mode="complete")
+        return q[:, self.count :]
+
+
+def _spmm(A, X):
+    from modalfem.eigen.spmm import spmm
+
+    return spmm(A, X)

@@ -29,10 +29,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from modalfem.eigen.base import RawModes
+from modalfem.eigen.rigid import Deflation
 from modalfem.eigen.spmm import spmm
 from modalfem.errors import SolverError
 
-__all__ = ["ZERO_RTOL", "Deflation", "extra_count", "inertia_count", "residual_floor", "residuals", "solve_scipy"]
+__all__ = ["ZERO_RTOL", "extra_count", "inertia_count", "residual_floor", "residuals", "solve_scipy"]
 
 #: eigenvalues with |lambda| <= ZERO_RTOL * |shift| are "zero" (rigid): residuals divide by ||K|| ||x||.
 ZERO_RTOL = 1e-3
@@ -255,40 +256,6 @@ def _use_pardiso(factor: str) -> bool:
     if factor == "pardiso" and not have_pardiso():
         raise SolverError("factor='pardiso' needs MKL PARDISO (pip install mkl)")
     return factor == "pardiso" or (factor == "auto" and have_pardiso())
-
-
-class Deflation:
-    """The rigid (zero-energy) subspace, handled exactly: an M-orthonormal basis Z (n, r) of fields with
-    K Z = 0 up to roundoff, known from the mesh's structure (``modalfem.eigen.rigid``).
-
-    Solvers keep their Krylov spaces M-orthogonal to Z (``project``), so they compute the elastic pairs
-    only; the rigid pairs are Z itself. Z is invariant under (K - shift M)^-1 M (eigenvalue -1/shift),
-    so the projection only removes what roundoff lets in."""
-
-    def __init__(self, Z: np.ndarray | None, M) -> None:
-        n = M.shape[0]
-        self.Z = np.zeros((n, 0)) if Z is None else np.ascontiguousarray(Z, dtype=np.float64)
-        self.MZ = spmm(M, self.Z) if self.Z.shape[1] else np.zeros((n, 0))
-
-    @property
-    def count(self) -> int:
-        return int(self.Z.shape[1])
-
-    def project(self, Y: np.ndarray) -> np.ndarray:
-        """Y minus its M-projection on span(Z), twice ("twice is enough")."""
-        if not self.count:
-            return Y
-        for _ in range(2):
-            Y = Y - self.Z @ (self.MZ.T @ Y)
-        return Y
-
-    def complement(self) -> np.ndarray:
-        """Euclidean-orthonormal basis (n, n - r) of the M-orthogonal complement of Z (dense problems)."""
-        n = self.Z.shape[0]
-        if not self.count:
-            return np.eye(n)
-        q, _ = np.linalg.qr(self.MZ, mode="complete")
-        return q[:, self.count :]
 
 
 def solve_scipy(K_ff, M_ff, *, nev: int, shift: float, tol: float = 1e-10, ncv: int | None = None,

@@ -19,12 +19,21 @@ import scipy.linalg
 
 from modalfem.backends.skfem import assemble as skfem_assemble
 from modalfem.material import STEEL, Material
+from modalfem.mesh import box
 from modalfem.mesh.core import TET_FACES, Mesh
 from modalfem.modes import modes
 
-from conftest import box_mesh, merge_meshes
-
 EPS = np.finfo(float).eps
+
+
+def box_mesh(size, cells, *, origin=(0.0, 0.0, 0.0)) -> Mesh:
+    return box(size=size, cells=cells, origin=origin)
+
+
+def merge_meshes(*meshes: Mesh) -> Mesh:
+    """Disjoint union: one Mesh with several pieces."""
+    offsets = np.cumsum([0] + [m.point_count for m in meshes[:-1]])
+    return Mesh(np.vstack([m.points for m in meshes]), np.vstack([m.cells + o for m, o in zip(meshes, offsets)]))
 
 
 def _dense_tol(ref: np.ndarray, lam_max: float) -> np.ndarray:
@@ -206,3 +215,17 @@ def test_nearly_incompressible_cube_has_six_rigid_modes_and_a_limit():
         f[nu] = res.frequencies_hz
     np.testing.assert_allclose(f[0.4999999999], f[0.4999999], rtol=1e-5)
     assert np.all(np.abs(f[0.4999] / f[0.4999999] - 1) < 1e-2)
+
+
+# ---------------------------------------------------------------- tiny or huge matrix entries
+@pytest.mark.parametrize("solver", ["block", "scipy"])
+def test_pencil_scale_does_not_matter(solver):
+    """A 0.1 mm cantilever with E from 1e-14 to 1e-7 Pa (stiffness entries ~1e-19..1e-12): the pencil is
+    solved in units where its largest diagonal entries are 1, so omega scales exactly as sqrt(E / rho)
+    (before, PARDISO's absolute pivot thresholds made E = 1e-12..1e-10 Pa 4-10x off)."""
+    mesh = box_mesh((1e-4, 2e-5, 2e-5), (6, 2, 2))
+    ref = modes(mesh, Material(E=1.0, nu=0.3, rho=1.0), k=3, fixed="x0", backend="skfem", solver=solver)
+    for E in (1e-14, 1e-12, 1e-10, 1e-7, 1e7):
+        res = modes(mesh, Material(E=E, nu=0.3, rho=1.0), k=3, fixed="x0", backend="skfem", solver=solver)
+        assert res.certificate.passed, E
+        np.testing.assert_allclose(res.omega, ref.omega * np.sqrt(E), rtol=1e-9)
