@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import os
 import signal
 import sys
+import warnings
 import threading
 import time
 from pathlib import Path
@@ -419,6 +419,25 @@ def _jit_verbosity(verbose: bool):
         fenicsx.VERBOSE = old
 
 
+@contextlib.contextmanager
+def _one_line_warnings(debug: bool):
+    """Python warnings (a mechanism, a body size that suggests the wrong unit, ...) as one stderr line
+    ``modalfem: warning: ...`` instead of Python's file:line plus source-line format (kept with --debug)."""
+    if debug:
+        yield
+        return
+    previous = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"modalfem: warning: {str(message).splitlines()[0]}", file=sys.stderr)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = previous
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 1 certificate failed, 2 bad input)."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -439,7 +458,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command != "modes":
             build_parser().print_help(sys.stderr)
             return 2
-        with _terminate_as_exit(), _jit_verbosity(args.verbose):
+        with _terminate_as_exit(), _jit_verbosity(args.verbose), _one_line_warnings(debug):
             return _run_modes(args, argv)
     except _ArgumentError as exc:
         print(f"modalfem: error: {exc}", file=sys.stderr)

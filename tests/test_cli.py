@@ -439,3 +439,16 @@ def test_writing_the_outputs_costs_less_than_the_solve(tmp_path, capsys):
     assert set(parts) == {"output.modes.vtu", "output.modes.xdmf", "output.modes.png"}
     assert sum(parts.values()) <= t["output"]
     assert t["output"] < t["total"], t
+
+
+def test_warnings_are_one_line_each(tmp_path, capsys):
+    """A part exported in millimetres (a 0.3 x 0.05 x 0.05 m bar as 300 x 50 x 50): one line
+    'modalfem: warning: ...' naming --unit-scale, not Python's file:line + source format."""
+    from modalfem.mesh import box, write
+
+    path = write(box(size=(300.0, 50.0, 50.0), cells=(6, 1, 1)), tmp_path / "bar_mm.msh")
+    assert main(["modes", str(path), "-k", "2", "--degree", "1", "--backend", "skfem", "--quiet"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    warn = [ln for ln in err if "warning" in ln.lower()]
+    assert len(warn) == 1 and warn[0].startswith("modalfem: warning: ") and "unit" in warn[0], err
+    assert not any(".py:" in ln for ln in err)
