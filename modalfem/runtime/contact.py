@@ -53,8 +53,11 @@ __all__ = [
     "Plane",
     "Sphere",
     "find_contacts",
+    "MAX_EVENTS",
+    "normal_velocities",
     "push_out",
     "resolve_contacts",
+    "step_with_contacts",
 ]
 
 
@@ -156,6 +159,14 @@ class Obstacles:
             raise InputError(f"restitution must be in [0, 1], got {restitution!r}")
         if not friction >= 0.0:
             raise InputError(f"friction must be >= 0, got {friction!r}")
+        if int(iterations) < 1:
+            raise InputError(f"iterations must be >= 1, got {iterations!r}")
+        if not (np.isfinite(margin) and margin > 0.0):
+            raise InputError(f"margin must be finite and > 0 [m], got {margin!r}")
+        if not (np.isfinite(bounce_threshold) and bounce_threshold >= 0.0):
+            raise InputError(f"bounce_threshold must be finite and >= 0 [m/s], got {bounce_threshold!r}")
+        if not np.isfinite(friction):
+            raise InputError(f"friction must be finite, got {friction!r}")
         self.restitution, self.friction = float(restitution), float(friction)
         self.iterations, self.margin = int(iterations), float(margin)
         self.bounce_threshold, self.modal = float(bounce_threshold), bool(modal)
@@ -171,7 +182,10 @@ class Contacts:
         gap: (k,) signed distances [m] at the start of the step (negative = inside).
         effect: (k,) index into ``effects``.
         effects: the ``Obstacles`` effects the contacts came from.
-        impulses: (k,) normal impulses [N s] applied by the last resolve (for sound and logging).
+        impulses: (k,) normal impulses [N s] applied by the last resolve (for sound and logging); after
+            ``ModalSolver.step``, the total normal impulse of each listed vertex over the step.
+        obstacle: (k,) index of the obstacle within its effect's ``obstacles`` (None: unknown).
+        tangential: (k, 3) friction impulses [N s] (world) of the last resolve.
     """
 
     vertex: np.ndarray
@@ -180,6 +194,13 @@ class Contacts:
     effect: np.ndarray
     effects: list
     impulses: np.ndarray | None = None
+    obstacle: np.ndarray | None = None
+    tangential: np.ndarray | None = None
+
+    def subset(self, keep) -> Contacts:
+        """The contacts selected by the boolean mask or index array ``keep``."""
+        return Contacts(self.vertex[keep], self.normal[keep], self.gap[keep], self.effect[keep], self.effects,
+                        obstacle=None if self.obstacle is None else self.obstacle[keep])
 
     @property
     def count(self) -> int:
@@ -190,23 +211,38 @@ def _positions64(body, state) -> np.ndarray:
     return body.positions(state, precise=True)
 
 
-def find_contacts(solver, state, effects, dt=None) -> Contacts:
-    """Surface vertices within the margin of an obstacle (see ``ModalSolver.collide``)."""
+def find_contacts(solver, state, effects, dt=None, *, accel=None) -> Contacts:
+    """Surface vertices within the margin of an obstacle (see ``ModalSolver.collide``).
+
+    Args:
+        solver: the ``ModalSolver``.
+        state: current state.
+        effects: the ``Obstacles`` effects.
+        dt: the coming step [s] or None; widens the margin by what the body can travel in it.
+        accel: acceleration of the centre of mass from the loads (3,) [m/s^2] or None; widens the
+            margin by |a| dt^2 (twice the distance it adds over dt).
+    """
     body = solver.body
     x = _positions64(body, state)
     speed = float(np.linalg.norm(state.velocity) + np.linalg.norm(body.angular_velocity(state)) * body.radius)
-    vs, ns, gs, es = [], [], [], []
+    reach = 0.0
+    if dt is not None:
+        reach = 2.0 * speed * float(dt)
+        if accel is not None:
+            reach += float(np.linalg.norm(accel)) * float(dt) ** 2
+    vs, ns, gs, es, os_ = [], [], [], [], []
     for ei, eff in enumerate(effects):
-        margin = eff.margin + (2.0 * speed * float(dt) if dt is not None else 0.0)
-        for ob in eff.obstacles:
+        margin = eff.margin + reach
+        for oi, ob in enumerate(eff.obstacles):
             gap, n = ob.signed_distance(x)
             sel = np.flatnonzero(gap < margin)
             vs.append(sel)
             ns.append(np.asarray(n)[sel])
             gs.append(gap[sel])
             es.append(np.full(len(sel), ei))
+            os_.append(np.full(len(sel), oi))
     return Contacts(np.concatenate(vs), np.concatenate(ns).reshape(-1, 3), np.concatenate(gs),
-                    np.concatenate(es), list(effects))
+                    np.concatenate(es), list(effects), obstacle=np.concatenate(os_))
 
 
 def _skew(r: np.ndarray) -> np.ndarray:
@@ -218,31 +254,17 @@ def _skew(r: np.ndarray) -> np.ndarray:
     return S
 
 
-def resolve_contacts(solver, state, contacts: Contacts, dt: float) -> None:
-    """Sequential impulses over all contacts (in place on ``state``); see the module docstring.
-
-    Works in contact space. The generalised velocities are V = (v, w, qdot) [m/s, rad/s,
-    sqrt(kg) m/s] with the kinetic energy 0.5 V^T W^-1 V, W = diag(I/m, Iw^-1, I_r) (mass-normalised
-    modes). The world velocity of contact vertex j is ``u_j = v + w x r_j + R Phi_j qdot`` = J_j V
-    (the modal column only for ``modal`` obstacles) and the response to contact impulses lambda
-    (3k,) [N s] is u = u0 + A lambda with the Delassus matrix A = J W J^T (3k, 3k): the rigid
-    compliance ``I/m - [r_i]x Iw^-1 [r_j]x`` plus the modal one ``R Phi_i Phi_j^T R^T`` per contact
-    pair. The impulses change V by W J^T lambda, i.e. v, L and qdot consistently with the
-    velocities the solve saw. The kinetic energy changes by ``lambda . u0 + 0.5 lambda . A lambda``;
-    should an unconverged or frictional solve make that positive, lambda is scaled down to the
-    largest multiple that does not add energy, so no contact solve adds energy.
-    """
-    k = contacts.count
-    contacts.impulses = np.zeros(k)
-    if k == 0:
-        return
+def _jacobian(solver, state, contacts: Contacts):
+    """Contact-space operators of the flexible body: (Jac (3k, 6 + nm), JW (3k, 6 + nm), A (3k, 3k),
+    V (6 + nm,), R, nm); see ``resolve_contacts``."""
     body = solver.body
+    k = contacts.count
     R = state.rotation()
     Iw_inv = R @ body.inertia_inv @ R.T
     j = contacts.vertex
     phi = body.vertex_shapes(j)  # (k, 3, r) body axes
     r = (body.rest[j] + np.einsum("kcr,r->kc", phi, state.q)) @ R.T  # (k, 3) world, from the centre of mass
-    modal = np.array([contacts.effects[e].modal for e in contacts.effect])
+    modal = np.array([contacts.effects[e].modal for e in contacts.effect], dtype=bool)
     nm = body.mode_count if modal.any() else 0
     Jac = np.zeros((k, 3, 6 + nm))
     Jac[:, :, 0:3] = np.eye(3)
@@ -255,24 +277,85 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float) -> None:
     JW[:, 3:6] = Jac[:, 3:6] @ Iw_inv
     A = JW @ Jac.T  # (3k, 3k)
     V = np.concatenate([state.velocity, Iw_inv @ state.angular_momentum, state.qdot[:nm]])
+    return Jac, JW, A, V, R, nm
+
+
+def normal_velocities(solver, state, contacts: Contacts) -> np.ndarray:
+    """Normal velocities (k,) [m/s] of the contact vertices (flexible: with the modal part where the
+    contact's effect is ``modal``); negative = approaching the obstacle."""
+    if contacts.count == 0:
+        return np.zeros(0)
+    Jac, _, _, V, _, _ = _jacobian(solver, state, contacts)
+    return np.einsum("ka,ka->k", contacts.normal, (Jac @ V).reshape(-1, 3))
+
+
+def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None, sustained: bool = False) -> None:
+    """Sequential impulses over all contacts (in place on ``state``); see the module docstring.
+
+    Works in contact space. The generalised velocities are V = (v, w, qdot) [m/s, rad/s,
+    sqrt(kg) m/s] with the kinetic energy 0.5 V^T W^-1 V, W = diag(I/m, Iw^-1, I_r) (mass-normalised
+    modes). The world velocity of contact vertex j is ``u_j = v + w x r_j + R Phi_j qdot`` = J_j V
+    (the modal column only for ``modal`` obstacles) and the response to contact impulses lambda
+    (3k,) [N s] is u = u0 + A lambda with the Delassus matrix A = J W J^T (3k, 3k): the rigid
+    compliance ``I/m - [r_i]x Iw^-1 [r_j]x`` plus the modal one ``R Phi_i Phi_j^T R^T`` per contact
+    pair. The impulses change V by W J^T lambda, i.e. v, L and qdot consistently with the
+    velocities the solve saw. The kinetic energy changes by ``lambda . u0 + 0.5 lambda . A lambda``;
+    should an unconverged or frictional solve make that positive, lambda is scaled down to the
+    largest multiple that does not add energy, so no contact solve adds energy.
+
+    Two kinds of solve:
+
+    * impact (default): instantaneous, on the velocities now. Target normal velocity ``-e vn0`` for
+      a contact approaching faster than ``bounce_threshold`` (restitution of the approach velocity
+      at this instant, which holds no gravity of a later time), 0 for a slower one touching, and for
+      a vertex still ``gap > 0`` away an approach of up to ``gap / dt``;
+    * ``sustained``: the contact impulse of a (sub)step of length dt whose loads give the centre of
+      mass the acceleration ``accel`` [m/s^2], applied at the middle of the step (``state`` is the
+      mid-step state, ``contacts.gap`` the mid-step gaps). It acts like a contact force held over the
+      step: the solve sees the end-of-step velocities ``u + accel dt / 2`` and requires the end gap
+      ``gap + dt/2 u_end_n - a_n dt^2 / 8 >= 0``; the normal impulse includes the whole step's load
+      (m g dt for a body at rest), so the Coulomb disc of this step's friction is the right one. For a
+      single contact the energy changes by ``-lambda_n gap_0 / dt <= 0`` (gap_0 at the step start).
+
+    Args:
+        solver: the ``ModalSolver``.
+        state: state at the instant of the impulses (changed in place).
+        contacts: the contacts (``impulses`` and ``tangential`` are written).
+        dt: the (sub)step [s].
+        accel: (3,) [m/s^2] load acceleration of the centre of mass (sustained solves).
+        sustained: the solve kind (see above).
+    """
+    k = contacts.count
+    contacts.impulses = np.zeros(k)
+    contacts.tangential = np.zeros((k, 3))
+    if k == 0:
+        return
+    body = solver.body
+    Jac, JW, A, V, R, nm = _jacobian(solver, state, contacts)
     u = Jac @ V
-    u0 = u.copy()
+    u_now = u.copy()  # the actual velocities: the energy check uses them
     n = np.ascontiguousarray(contacts.normal)
+    u3 = u.reshape(k, 3)
+    gap = contacts.gap
     effs = [contacts.effects[i] for i in contacts.effect]
     e = np.array([f.restitution for f in effs])
     mu = np.array([f.friction for f in effs])
     thr = np.array([f.bounce_threshold for f in effs])
-    slop = np.array([0.1 * f.margin for f in effs])
     iters = max(f.iterations for f in effs)
+    if sustained:
+        a = np.zeros(3) if accel is None else np.asarray(accel, dtype=np.float64)
+        u3 += 0.5 * dt * a  # predicted end-of-step velocities without contact (u3 is a view of u)
+        an = n @ a
+        target = 0.25 * dt * an - 2.0 * gap / dt
+    else:
+        vn0 = np.einsum("ka,ka->k", n, u3)
+        target = np.where(gap > 0, -gap / dt, 0.0)
+        bounce = (vn0 < -thr) & (e > 0)
+        target = np.where(bounce, np.maximum(target, -e * vn0), target)
+    u0 = u.copy()
     blocks = A.reshape(3 * k, k, 3)
     Akk = A.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :]  # (k, 3, 3) diagonal blocks
     Wn = np.einsum("ka,kab,kb->k", n, Akk, n)
-    u3 = u.reshape(k, 3)
-    vn0 = np.einsum("ka,ka->k", n, u3)
-    gap = contacts.gap
-    target = np.where(gap > 0, -gap / dt, 0.0)
-    bounce = (vn0 < -thr) & (gap + vn0 * dt <= slop) & (e > 0)  # an impact within this step
-    target = np.where(bounce, np.maximum(target, -e * vn0), target)
     lam_n = np.zeros(k)
     lam = np.zeros((k, 3))  # total contact impulse per contact (world)
     jt = np.zeros((k, 3))
@@ -307,13 +390,14 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float) -> None:
         if change <= 1e-12 * float(np.abs(lam).max()):  # converged: a sweep changed nothing that matters
             break
     flat = lam.reshape(-1)
-    work = float(flat @ u0)  # lambda . u0 [J]
+    work = float(flat @ u_now)  # lambda . u [J], u the actual velocities at this instant
     quad = float(flat @ (u - u0))  # lambda . A lambda [J] (u - u0 = A lambda)
     if work + 0.5 * quad > 1e-12 * quad:  # would add energy: keep the largest share that does not
         # lambda -> s lambda changes the energy by s work + 0.5 s^2 quad: zero at s = -2 work / quad
         scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
         lam *= scale
         lam_n *= scale
+        jt *= scale
         flat = lam.reshape(-1)
     dV = JW.T @ flat
     state.velocity += dV[0:3]
@@ -321,11 +405,240 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float) -> None:
     if nm:  # the same impulses move the modes: qdot += sum_i phi_i^T R^T lambda_i
         state.qdot += dV[6:]
     contacts.impulses = lam_n
+    contacts.tangential = jt
 
 
-def push_out(solver, state, contacts: Contacts, passes: int = 4) -> None:
-    """Translate the body so that no surface vertex is inside an obstacle (in place)."""
+#: most sub-steps (impact events, friction stops) in one step; beyond, the rest of the step is one
+#: sustained-contact sub-step (which never adds energy either)
+MAX_EVENTS = 32
+
+
+def _crossings(gap, vn, an, thr, horizon):
+    """First downward zero crossings of the contacts' gaps ``gap + vn t + an t^2 / 2`` [m] in
+    (0, horizon] [s]: ``(t_fast, j, t_slow)``, the earliest crossing faster than the contact's bounce
+    threshold and its contact index ((None, -1) if none), and the earliest slower one (None if none).
+
+    The roots are taken in the cancellation-free form q = -(b + sign(b) sqrt(D)) / 2, t = q / a and
+    c / q (a = an / 2, b = vn, c = gap).
+    """
+    a, b, c = 0.5 * an, vn, gap
+    disc = b * b - 4.0 * a * c
+    ok = disc >= 0.0
+    sq = np.sqrt(np.where(ok, disc, 0.0))
+    q = -0.5 * (b + np.where(b >= 0.0, sq, -sq))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r1 = np.where(a != 0.0, q / a, np.where(b != 0.0, -c / b, np.inf))
+        r2 = np.where(q != 0.0, c / q, np.inf)
+    first = np.full(len(gap), np.inf)
+    speed = np.zeros(len(gap))
+    for r in (r1, r2):
+        v = vn + an * r  # normal velocity at the crossing
+        down = ok & np.isfinite(r) & (r > 0.0) & (r <= horizon) & (v < 0.0) & (r < first)
+        first = np.where(down, r, first)
+        speed = np.where(down, v, speed)
+    # touching or inside and not leaving faster than the threshold: a (slow) crossing now, for the
+    # sustained solve (with a rounding-size gap < 0 the quadratic may have no root at all)
+    below = (gap <= 0.0) & (vn <= thr)
+    first = np.where(below, 0.0, first)
+    speed = np.where(below, np.minimum(vn, 0.0), speed)
+    fast = np.isfinite(first) & (speed < -thr)
+    slow = np.isfinite(first) & ~fast
+    t_fast, j = None, -1
+    fast &= first > 0.0  # (a fast one at t = 0 is the impact solve's: not an event)
+    if fast.any():
+        j = int(np.flatnonzero(fast)[np.argmin(first[fast])])
+        t_fast = float(first[j])
+    t_slow = float(first[slow].min()) if slow.any() else None
+    return t_fast, j, t_slow
+
+
+def _gaps(effects, contacts: Contacts, x: np.ndarray):
+    """Gaps (k,) [m] and normals (k, 3) of the contact vertices at positions x (nv, 3) [m] against the
+    obstacle each contact belongs to."""
+    gap = np.empty(contacts.count)
+    nrm = np.empty((contacts.count, 3))
+    for ei, eff in enumerate(effects):
+        for oi, ob in enumerate(eff.obstacles):
+            sel = np.flatnonzero((contacts.effect == ei) & (contacts.obstacle == oi))
+            if sel.size:
+                g, nn = ob.signed_distance(x[contacts.vertex[sel]])
+                gap[sel] = g
+                nrm[sel] = nn
+    return gap, nrm
+
+
+def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> None:
+    """Advance ``state`` in place by dt [s] with contact (what ``ModalSolver.step`` calls).
+
+    The step is split at events:
+
+    1. impacts: contacts touching now (gap <= 0.1 margin) and approaching are resolved at once by an
+       impact solve (restitution applied to the approach velocity at this instant);
+    2. the next impact within the rest of the step is predicted from each contact's gap, normal
+       velocity and the load acceleration (``gap + vn t + a_n t^2 / 2`` crossing 0 faster than the
+       bounce threshold); the body flies freely to it and 1. repeats there. A body dropped from
+       height H thus hits with the exact speed sqrt(2 g H) and leaves with e times it, whatever dt.
+       If a slower crossing (a landing below the bounce threshold, resting contact) comes first, the
+       time up to the impact is a sustained-contact sub-step (3.) instead of free flight;
+    3. otherwise the rest of the step is one sustained-contact sub-step: free half, the sustained
+       solve at the middle (the step's contact force as an impulse: normal impulse with the step's
+       load, friction on it), free half. If the friction stops the sliding within it, the sub-step
+       is shortened to the stopping time (from the tangential momentum of the centre of mass and the
+       friction the solve found) and the rest is stepped again, so a block stops where Coulomb
+       friction stops it, also when one step holds the whole slide.
+
+    Every sub-step conserves energy in free flight and every solve only removes it. At most
+    ``MAX_EVENTS`` sub-steps. The vertices touched and their total normal impulses [N s] over the step
+    are written into ``contacts`` (``vertex``, ``normal``, ``gap``, ``effect``, ``obstacle``,
+    ``impulses``).
+    """
+    body = solver.body
+    effects = contacts.effects
+    accel = np.zeros(3) if loads is None else loads.force / body.mass
+    record: dict = {}
+
+    def keep(c: Contacts, gap) -> None:
+        for i in np.flatnonzero(c.impulses > 0.0):
+            key = (int(c.vertex[i]), int(c.effect[i]), int(c.obstacle[i]))
+            prev = record.get(key)
+            record[key] = (c.normal[i], gap[i], (0.0 if prev is None else prev[2]) + float(c.impulses[i]))
+
+    t_left, events, forced, event_vertex = float(dt), 0, None, -1
+    while t_left > 1e-12 * dt:
+        c = find_contacts(solver, state, effects, t_left, accel=accel)
+        if c.count == 0:
+            solver.advance_free(state, loads, t_left)
+            break
+        slop = np.array([0.1 * effects[i].margin for i in c.effect])
+        thr = np.array([effects[i].bounce_threshold for i in c.effect])
+        vn = normal_velocities(solver, state, c)
+        touching = ((c.gap <= slop) | (c.vertex == event_vertex)) & (vn < 0.0)
+        if touching.any():  # 1. impacts now
+            sub = c.subset(touching)
+            resolve_contacts(solver, state, sub, t_left)
+            keep(sub, sub.gap)
+            vn = normal_velocities(solver, state, c)
+        span = t_left if forced is None else forced
+        forced = None
+        t_hit, j, t_slow = _crossings(c.gap, vn, c.normal @ accel, thr, span)
+        event_vertex = -1
+        if t_hit is not None and events < MAX_EVENTS:
+            event_vertex = int(c.vertex[j])
+            events += 1
+            if t_slow is None or t_slow >= t_hit:  # 2. fly to the next impact
+                flown, deepest = _fly(solver, state, loads, c, t_hit, slop)
+                t_left -= flown
+                if deepest >= 0:
+                    event_vertex = deepest
+                continue
+            span = t_hit  # a slow landing first: sustained contact up to the impact
+        # 3. sustained contact over the sub-step [0, span]: impulse at its middle
+        saved = _save(state)
+        v_start = state.velocity.copy()
+        solver.advance_free(state, loads, 0.5 * span)
+        gap_mid, n_mid = _gaps(effects, c, _positions64(body, state))
+        mid = Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, obstacle=c.obstacle)
+        resolve_contacts(solver, state, mid, span, accel=accel, sustained=True)
+        stop = _stop_fraction(body, mid, v_start, state.velocity, accel, span)
+        if stop is not None and events < MAX_EVENTS:  # the sliding ends inside: step to that instant
+            _restore(state, saved)
+            forced = stop * span
+            events += 1
+            continue
+        keep(mid, gap_mid)
+        solver.advance_free(state, loads, 0.5 * span)
+        t_left -= span
+    keys = list(record)
+    contacts.vertex = np.array([k[0] for k in keys], dtype=np.int64)
+    contacts.effect = np.array([k[1] for k in keys], dtype=np.int64)
+    contacts.obstacle = np.array([k[2] for k in keys], dtype=np.int64)
+    contacts.normal = np.array([record[k][0] for k in keys], dtype=np.float64).reshape(-1, 3)
+    contacts.gap = np.array([record[k][1] for k in keys], dtype=np.float64)
+    contacts.impulses = np.array([record[k][2] for k in keys], dtype=np.float64)
+    contacts.tangential = None
+
+
+def _fly(solver, state, loads, c: Contacts, h: float, slop: np.ndarray, tries: int = 8):
+    """Free flight of at most h [s] that ends with no contact vertex deeper than its slop inside.
+
+    The impact time was predicted without the rotation and the modes; if the flight ends with a vertex
+    inside, it is shortened to where that vertex's gap crosses zero (secant from the start of the flight
+    on the exact free trajectory). Returns (time flown [s], index of the vertex that stopped the flight
+    or -1).
+    """
+    saved = _save(state)
+    t, stopper = h, -1
+    for _ in range(tries):
+        solver.advance_free(state, loads, t)
+        gap, _ = _gaps(c.effects, c, _positions64(solver.body, state))
+        excess = gap + slop
+        if excess.min() >= 0.0:
+            return t, stopper
+        i = int(np.argmin(excess))
+        stopper = int(c.vertex[i])
+        _restore(state, saved)
+        g0 = c.gap[i]
+        t = 0.999 * t * g0 / (g0 - gap[i]) if g0 > 0.0 else 0.0
+        if t <= 1e-12 * h:
+            break
+    return 0.0, stopper
+
+
+def _save(state) -> tuple:
+    return (state.q.copy(), state.qdot.copy(), state.position.copy(), state.orientation.copy(),
+            state.velocity.copy(), state.angular_momentum.copy())
+
+
+def _restore(state, saved: tuple) -> None:
+    for name, value in zip(("q", "qdot", "position", "orientation", "velocity", "angular_momentum"), saved):
+        getattr(state, name)[...] = value
+
+
+def _stop_fraction(body, mid: Contacts, v_start, v_after, accel, span):
+    """Share (0, 1) of a sustained sub-step after which the friction of ``mid``'s solve stops the sliding
+    of the centre of mass, or None when it does not stop inside (still sliding at the end, not sliding,
+    or stopping in the first 1e-3 of the sub-step, where the difference is below 5e-4 mu g span^2).
+
+    Sliding is the velocity of the centre of mass tangent to the most loaded contact's normal; with
+    saturated friction (total ``sum mu_i lambda_n,i`` over the sub-step) and the tangential load
+    acceleration a_t, it stops at ``t_s = m |v_t0| / (F_max - m a_t . d)``, d the sliding direction.
+    """
+    if mid.count == 0 or not np.any(mid.impulses > 0.0):
+        return None
+    mu = np.array([mid.effects[i].friction for i in mid.effect])
+    cone = float(mu @ mid.impulses)
+    if cone <= 0.0:
+        return None
+    n = mid.normal[int(np.argmax(mid.impulses))]
+    vt0 = v_start - n * (n @ v_start)
+    s0 = float(np.sqrt(vt0 @ vt0))
+    if s0 == 0.0:
+        return None
+    d = vt0 / s0
+    a_end = v_after + 0.5 * span * accel  # end-of-sub-step velocity of the centre of mass
+    vt_end = a_end - n * (n @ a_end)
+    if float(np.sqrt(vt_end @ vt_end)) > 1e-3 * s0:  # still sliding at the end: friction was saturated
+        return None
+    rate = cone / span - body.mass * float(accel @ d)  # [N]: deceleration force of saturated friction
+    if rate <= 0.0:
+        return None
+    share = body.mass * s0 / (rate * span)
+    if 1e-3 < share < 1.0 - 1e-6:
+        return share
+    return None
+
+
+def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) -> None:
+    """Translate the body so that no surface vertex is inside an obstacle (in place).
+
+    The contact solve works on velocities and the impact times are predicted without the rotation and
+    the modes, so a vertex may end a step slightly inside. Lifting the body out by a shift d changes
+    its potential energy in the load field by ``-m accel . d`` [J]; with ``accel`` (3,) [m/s^2] given,
+    that gain is taken from the kinetic energy (all velocities scaled by one factor), so the
+    correction creates no energy (if the kinetic energy is smaller than the gain, the body stops).
+    """
     x = None
+    total = np.zeros(3)
     for _ in range(passes):
         moved = False
         for eff in contacts.effects:
@@ -337,7 +650,19 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4) -> None:
                 if gap[i] < 0.0:
                     shift = -gap[i] * np.asarray(nrm[i]) * (1.0 + 1e-9)
                     state.position += shift
+                    total += shift
                     x += shift
                     moved = True
         if not moved:
-            return
+            break
+    if accel is None or not total.any():
+        return
+    body = solver.body
+    gain = -body.mass * float(np.asarray(accel, dtype=np.float64) @ total)  # [J]
+    if gain <= 0.0:
+        return
+    kinetic = body.kinetic_energy_rigid(state) + 0.5 * float(state.qdot @ state.qdot)
+    scale = float(np.sqrt(max(0.0, 1.0 - gain / kinetic))) if kinetic > 0.0 else 0.0
+    state.velocity *= scale
+    state.angular_momentum *= scale
+    state.qdot *= scale

@@ -39,6 +39,30 @@ __all__ = ["TINY", "Loads", "ModalSolver"]
 TINY = 1e-150
 
 
+def _finite3(name: str, value, unit: str) -> np.ndarray:
+    """``value`` as a finite float64 3-vector, or ``SimulationError`` saying what is wrong with it."""
+    try:
+        a = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise SimulationError(f"{name} must be 3 numbers [{unit}], got {value!r}") from None
+    if a.shape != (3,):
+        raise SimulationError(f"{name} must have 3 components [{unit}], got {a.size}")
+    if not np.all(np.isfinite(a)):
+        raise SimulationError(f"{name} is not finite: {a.tolist()} [{unit}]")
+    return a
+
+
+def _snapshot(s: State) -> tuple:
+    return (s.q.copy(), s.qdot.copy(), s.position.copy(), s.orientation.copy(), s.velocity.copy(),
+            s.angular_momentum.copy(), s.time)
+
+
+def _restore(s: State, saved: tuple) -> None:
+    for name, value in zip(("q", "qdot", "position", "orientation", "velocity", "angular_momentum"), saved):
+        getattr(s, name)[...] = value
+    s.time = saved[-1]
+
+
 class Loads:
     """Loads held constant over one step, accumulated by effects.
 
@@ -133,60 +157,151 @@ class ModalSolver:
             return None
         from modalfem.runtime.contact import find_contacts
 
-        return find_contacts(self, state, self._contact_effects, dt)
+        accel = None
+        gravities = [np.asarray(e.g, dtype=np.float64) for e in self._load_effects if hasattr(e, "g")]
+        if gravities:
+            accel = np.sum(gravities, axis=0)
+        return find_contacts(self, state, self._contact_effects, dt, accel=accel)
 
     # ------------------------------------------------------------------ step
+    def check_control(self, control: Control | None) -> tuple[list, list, np.ndarray | None]:
+        """Validate a whole ``Control`` without changing anything.
+
+        Every impulse and force entry (its point on this body's surface, its vector finite with 3
+        components) and the body force are checked before a step touches the state, so a bad entry
+        anywhere in the control leaves the state as it was.
+
+        Args:
+            control: a ``Control`` or None.
+
+        Returns:
+            ``(impulses, forces, body_force)``: lists of (point, (3,) float64 vector) and the body
+            force (3,) [N] or None.
+
+        Raises:
+            SimulationError: not a ``Control``; an entry that is not a (point, vector) pair; a point off
+                the surface; a vector that is not 3 finite numbers. The message names the entry.
+        """
+        if control is None:
+            return [], [], None
+        if not isinstance(control, Control):
+            raise SimulationError(f"control must be a modalfem.runtime.Control or None, got {type(control).__name__}")
+        out = []
+        for kind, unit, entries in (("impulse", "N s", control.impulses), ("force", "N", control.forces)):
+            try:
+                entries = list(entries)
+            except TypeError:
+                raise SimulationError(f"control {kind}s must be a list of (point, vector) pairs, "
+                                      f"got {type(entries).__name__}") from None
+            checked = []
+            for i, entry in enumerate(entries):
+                where = f"control {kind} {i} (of {len(entries)})"
+                try:
+                    point, vec = entry
+                except (TypeError, ValueError):
+                    raise SimulationError(f"{where} must be a (point, vector) pair, got {entry!r}") from None
+                if isinstance(point, (bool, np.bool_)):
+                    raise SimulationError(f"{where}: a surface point must be a SurfacePoint or a vertex index, "
+                                          f"got {point!r}")
+                try:
+                    self.body._check_point(point)
+                except SimulationError as exc:
+                    raise SimulationError(f"{where}: {exc}") from None
+                checked.append((point, _finite3(f"{where}: {kind}", vec, unit)))
+            out.append(checked)
+        body_force = None
+        if control.body_force is not None:
+            body_force = _finite3("control body force", control.body_force, "N")
+        return out[0], out[1], body_force
+
     def step(self, state_in: State, state_out: State, control: Control | None, contacts, dt: float) -> State:
         """Advance ``state_in`` by dt into ``state_out`` (may be the same object).
+
+        All-or-nothing: the inputs (dt, the whole control, the contacts) are validated before anything
+        changes, and should the step still fail (an effect raising, a state that became non-finite)
+        ``state_out`` is restored to its values before the call.
 
         Args:
             state_in: state at time t.
             state_out: receives the state at t + dt.
             control: impulses and forces of this step, or None.
-            contacts: ``Contacts`` from ``collide(state_in, dt)``, or None.
+            contacts: ``Contacts`` from ``collide(state_in, dt)``, or None (no contact handling). The
+                step re-detects the contacts as it advances (the body may move far in a large step)
+                and writes the vertices it touched and their normal impulses [N s] back into it.
             dt: step [s], finite and > 0 (any size: the modal update is exact).
 
         Returns:
             ``state_out``.
 
         Raises:
-            SimulationError: dt <= 0 or not finite, a non-finite impulse or force, a point off the
-                surface, or a state that became non-finite.
+            SimulationError: dt <= 0 or not finite, a bad control entry (non-finite impulse or force,
+                a point off the surface), contacts that are not ``Contacts``, or a state that became
+                non-finite.
         """
         h = check_dt(dt)
+        impulses, forces, body_force = self.check_control(control)
+        if contacts is not None:
+            from modalfem.runtime.contact import Contacts
+
+            if not isinstance(contacts, Contacts):
+                raise SimulationError(f"contacts must be the Contacts of solver.collide or None, "
+                                      f"got {type(contacts).__name__}")
         s = state_out
+        saved = _snapshot(s)
+        try:
+            self._step(state_in, s, impulses, forces, body_force, contacts, h)
+        except BaseException:
+            _restore(s, saved)
+            raise
+        return s
+
+    def _step(self, state_in: State, s: State, impulses, forces, body_force, contacts, h: float) -> None:
         if s is not state_in:
             s.assign(state_in)
         body = self.body
-        if control is not None:
-            for point, J in control.impulses:
-                self.apply_impulse(s, point, J)
-        if contacts is not None:
-            from modalfem.runtime.contact import resolve_contacts
-
-            resolve_contacts(self, s, contacts, h)
-
+        for point, J in impulses:
+            self.apply_impulse(s, point, J)
         loads = None
-        if self._load_effects or (control is not None and (control.forces or control.body_force is not None)):
+        if self._load_effects or forces or body_force is not None:
             loads = Loads(body.mode_count)
-            if control is not None:
-                for point, F in control.forces:
-                    self.add_point_force(s, point, F, loads)
-                if control.body_force is not None:
-                    bf = np.asarray(control.body_force, dtype=np.float64)
-                    if bf.shape != (3,) or not np.all(np.isfinite(bf)):
-                        raise SimulationError(f"body force must be a finite 3-vector [N], got {bf.tolist()}")
-                    loads.force += bf
+            for point, F in forces:
+                self.add_point_force(s, point, F, loads)
+            if body_force is not None:
+                loads.force += body_force
             for e in self._load_effects:
                 if not getattr(e, "state_dependent", False):
                     e.loads(self, s, h, loads)
+        if contacts is None:
+            self.advance_free(s, loads, h)
+        else:
+            from modalfem.runtime.contact import push_out, step_with_contacts
+
+            step_with_contacts(self, s, contacts, loads, h)
+            push_out(self, s, contacts, accel=None if loads is None else loads.force / body.mass)
+        # modes that decayed below any physical amplitude are set to 0: subnormal numbers would make
+        # every later step and reconstruction ~100x slower (a body at rest rings down to them)
+        for a in (s.q, s.qdot):
+            a[np.abs(a) < TINY] = 0.0
+        s.time = state_in.time + h
+        if not math.isfinite(float(s.q.sum() + s.qdot.sum()) + float(s.position.sum())
+                             + float(s.velocity.sum() + s.angular_momentum.sum())):
+            raise SimulationError("state became non-finite during the step")
+
+    def advance_free(self, s: State, loads: Loads | None, h: float) -> None:
+        """Advance ``s`` in place by h [s] under loads held constant (no contacts, no control).
+
+        The centre of mass moves exactly for the constant force, the angular momentum gets half kicks
+        of the torque around the free rotation, the modes their exact solution; state-dependent
+        effects are evaluated at the start and at the end (Heun correction of the modal load).
+        """
+        body = self.body
         dep = None
+        modal = None if loads is None else loads.modal
         if self._dependent:
             dep = Loads(body.mode_count)
             for e in self._dependent:
                 e.loads(self, s, h, dep)
-            loads.modal += dep.modal
-
+            modal = dep.modal if modal is None else modal + dep.modal
         # rigid body: exact centre of mass for a constant force; torque half kicks around the free rotation
         if loads is not None:
             a = loads.force / body.mass
@@ -199,9 +314,8 @@ class ModalSolver:
             s.orientation[...] = free_rotation_step(s.orientation, s.angular_momentum, self._axes, self._moments, h)
         if loads is not None:
             s.angular_momentum += 0.5 * h * loads.torque
-
         # modes: exact update; Heun correction for state-dependent loads (re-evaluated at the end)
-        self.integrator.step(s.q, s.qdot, None if loads is None else loads.modal, h, s.q, s.qdot)
+        self.integrator.step(s.q, s.qdot, modal, h, s.q, s.qdot)
         if dep is not None:
             end = Loads(body.mode_count)
             for e in self._dependent:
@@ -210,18 +324,6 @@ class ModalSolver:
             df = 0.5 * (end.modal - dep.modal)
             s.q += b1 * df
             s.qdot += b2 * df
-        if contacts is not None:
-            from modalfem.runtime.contact import push_out
-
-            push_out(self, s, contacts)
-        # modes that decayed below any physical amplitude are set to 0: subnormal numbers would make
-        # every later step and reconstruction ~100x slower (a body at rest rings down to them)
-        for a in (s.q, s.qdot):
-            a[np.abs(a) < TINY] = 0.0
-        s.time = state_in.time + h
-        if not math.isfinite(float(s.q.sum() + s.qdot.sum()) + float(s.position.sum())):
-            raise SimulationError("state became non-finite during the step")
-        return s
 
     def advance(self, state: State, dt: float, control: Control | None = None) -> State:
         """Convenience: ``collide`` then ``step`` in place (single buffer). Returns ``state``."""
