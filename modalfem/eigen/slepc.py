@@ -16,6 +16,14 @@ PETSc, distributed when the matrices are:
   factorised is turned into K - sigma M in place (same nonzero pattern), so the count costs one
   numeric LDL^T factorisation, not a new ordering and symbolic analysis.
 
+Each step has one home, a method of ``_SlepcRun`` (which holds the PETSc objects and counters), and
+``solve_slepc`` drives them: argument checks (``__init__``), ``convert`` (to PETSc), ``choose_factor``
+(and the PETSc options), ``set_up`` (the EPS, its deflation space, the shift-and-invert ST),
+``factorise``, ``iterate`` (Krylov-Schur and its continuation rounds), ``extract`` (M-normalised
+vectors), ``residuals``, ``refine``, ``pair_numbers`` (order, rigid fields first, orthonormality),
+``count_inertia``, ``retry`` (when the count shows missed eigenvalues), ``gather`` and ``info``. A
+PETSc error in any of them becomes a ``SolverError`` naming the stage.
+
 Configuration (measured at 139,587 DOFs, P2 cantilever, nev = 10, on a 2-core machine; see
 ``SlepcOptions``): MUMPS symmetric-indefinite LDL^T (PCCHOLESKY without the SPD flag, so sym = 2:
 needed for the inertia anyway) with the PORD ordering. Debian's MUMPS 5.5 is built with neither
@@ -416,6 +424,425 @@ def _gather(local: np.ndarray, rows: np.ndarray, n: int, mpi_comm) -> np.ndarray
     return out
 
 
+class _SlepcRun:
+    """One ``solve_slepc`` call: the PETSc objects, the pairs found so far and the counters, with one
+    method per stage of the pipeline. ``stage`` names the step under way (for the SolverError of a
+    failed PETSc call); ``cleanup`` releases what the run created, whatever stage it reached."""
+
+    def __init__(self, PETSc, SLEPc, opt: SlepcOptions, nev, shift, tol) -> None:
+        """Argument checks (nev, shift, tol) and the empty state."""
+        self.PETSc, self.SLEPc, self.opt = PETSc, SLEPc, opt
+        self.timings: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}  # process CPU seconds (all threads of this rank): robust on a busy machine
+        if not (isinstance(nev, (int, np.integer)) and nev >= 1):
+            raise InputError(f"nev must be a positive integer, got {nev!r}")
+        if not (np.isfinite(shift) and shift < 0):
+            raise InputError(f"shift must be negative and finite (K - shift M positive definite), got {shift!r}")
+        if not (np.isfinite(tol) and 0 < tol < 1):
+            raise InputError(f"tol must be in (0, 1), got {tol!r}")
+        self.nev, self.shift, self.tol = nev, shift, tol
+        self.stage = "setting up the eigensolver"
+        self.is_mat = True  # until convert() made K and M (then: destroy them at the end unless given)
+        self.K = self.M = self.eps = self.pardiso = self.Kabs = self.stats = None
+        self.settings: dict = {}
+        self.Zv, self.MZv = [], []  # the rigid fields as PETSc vectors (this rank's rows), and M times them
+        self.rounds, self.its, self.attempts, self.refinements = 0, 0, 0, 0
+        self.factorisations = 0  # numeric factorisations of a shifted K (solve and inertia), for provenance
+        self.factor_is_solve_operator = True  # False once the factor holds K - sigma M (until refactorised)
+        self.prev_lam = np.empty(0)  # eigenvalues found by earlier attempts
+        self.X, self.MX = [], []  # eigenvectors found so far (M-normalised) and M times them
+
+    def convert(self, K_ff, M_ff, rows, comm, deflate) -> None:
+        """The matrices as PETSc Mats on one communicator, the sizes, rows and deflation basis checked,
+        and the first request (nreq pairs, ncv, SLEPc's tolerance)."""
+        PETSc, opt, nev = self.PETSc, self.opt, self.nev
+        t0 = time.perf_counter()
+        self.is_mat = is_mat = isinstance(K_ff, PETSc.Mat)
+        if is_mat != isinstance(M_ff, PETSc.Mat):
+            raise InputError("K_ff and M_ff must both be scipy.sparse or both petsc4py Mats")
+        try:
+            if is_mat:
+                K, M = K_ff, M_ff
+                pcomm = K.getComm()
+                lo, hi = K.getOwnershipRange()
+                rows = np.arange(lo, hi, dtype=np.int64) if rows is None else np.asarray(rows, dtype=np.int64)
+                if len(rows) != hi - lo:
+                    raise InputError(f"rows has {len(rows)} entries but this rank owns {hi - lo} rows")
+            else:
+                if comm is None:
+                    pcomm = PETSc.COMM_SELF
+                elif isinstance(comm, PETSc.Comm):
+                    pcomm = comm
+                else:
+                    pcomm = PETSc.Comm(comm)
+                K, rows = _to_petsc(K_ff, PETSc, pcomm, "K_ff")
+                M, _ = _to_petsc(M_ff, PETSc, pcomm, "M_ff")
+        except PETSc.Error as exc:
+            raise SolverError(f"SLEPc solver: converting the matrices to PETSc failed: {_petsc_reason(exc)}") from exc
+        n = K.getSize()[0]
+        if K.getSize() != (n, n) or M.getSize() != (n, n):
+            raise InputError(f"K_ff {K.getSize()} and M_ff {M.getSize()} must be square and of one size")
+        if K.getOwnershipRange() != M.getOwnershipRange():
+            raise InputError("K_ff and M_ff must have the same row distribution")
+        if nev >= n:
+            raise InputError(f"nev = {nev} must be below the number of free DOFs ({n})")
+        self.K, self.M, self.pcomm, self.rows, self.n = K, M, pcomm, rows, n
+        self.mpi_comm = pcomm.tompi4py()
+        self.nproc = pcomm.getSize()
+        self.Zg = np.zeros((n, 0)) if deflate is None else np.asarray(deflate, dtype=np.float64).reshape(n, -1)
+        self.r = r = int(self.Zg.shape[1])
+        if r >= nev:
+            raise InputError(f"nev = {nev} must exceed the {r} deflated rigid fields")
+        self.nreq = nreq = int(min(nev - r + max(int(opt.extra), 1), n - 1 - r))
+        self.slepc_tol = float(self.tol * opt.tol_factor)
+        self.ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
+        self.timings["convert"] = time.perf_counter() - t0
+
+    def choose_factor(self, groups) -> None:
+        """The factorisation of K - shift M (``SlepcOptions.factor``, "auto" resolved) and the PETSc
+        options, set under this solve's private prefix (``cleanup`` removes them)."""
+        PETSc, opt = self.PETSc, self.opt
+        if opt.factor not in ("auto", "pardiso", "cholmod", "mumps"):
+            raise InputError(f"factor must be 'auto', 'pardiso', 'cholmod' or 'mumps', got {opt.factor!r}")
+        factor = opt.factor
+        if factor == "auto":
+            factor = "pardiso" if self.nproc == 1 and have_pardiso() else "mumps"
+        elif factor == "cholmod" and (self.nproc > 1 or not _have_cholmod(PETSc)):
+            raise InputError("factor='cholmod' needs one process and a PETSc built with SuiteSparse")
+        elif factor == "pardiso" and (self.nproc > 1 or not have_pardiso()):
+            raise InputError("factor='pardiso' needs one process and MKL PARDISO (pip install mkl)")
+        self.factor = factor
+        self.prefix = f"modalfem_slepc{next(_counter)}_"
+        self.db = PETSc.Options()
+        settings = {
+            "st_mat_mumps_icntl_7": int(opt.ordering),
+            "st_mat_mumps_icntl_14": int(opt.mem_relax),
+        }
+        if factor == "cholmod":
+            settings["st_mat_cholmod_nmethods"] = 2  # AMD and METIS, keep the smaller fill
+        if self.nproc > 1:
+            settings["st_mat_mumps_icntl_13"] = 1  # inertia is wrong with a ScaLAPACK root (MUMPS doc)
+        settings.update({str(k): v for k, v in opt.petsc_options.items()})
+        for k, v in settings.items():
+            self.db[self.prefix + k] = v
+        self.settings = settings
+        self.eps = self.SLEPc.EPS()
+        self.pardiso = _PardisoPC(opt.pardiso_ordering, groups) if factor == "pardiso" else None
+
+    def set_up(self, start) -> None:
+        """The Krylov-Schur EPS (GHEP, target = shift), its deflation space (the rigid fields Z) and
+        optional start vector, and the shift-and-invert ST with its direct solver (PREONLY)."""
+        PETSc, SLEPc, opt, eps, K, M = self.PETSc, self.SLEPc, self.opt, self.eps, self.K, self.M
+        self.stage = "setting up the eigensolver"
+        eps.create(self.pcomm)
+        eps.setOptionsPrefix(self.prefix)
+        eps.setOperators(K, M)
+        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
+        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
+        eps.setDimensions(self.nreq, self.ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
+        eps.setTolerances(self.slepc_tol, int(opt.max_it))
+        target = self.shift
+        eps.setTarget(target)
+        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
+        eps.setPurify(bool(opt.purify))
+        for j in range(self.r):
+            z = K.createVecRight()
+            z.setArray(self.Zg[self.rows, j])
+            mz = z.duplicate()
+            M.mult(z, mz)
+            self.Zv.append(z)
+            self.MZv.append(mz)
+        if self.Zv:
+            eps.setDeflationSpace(self.Zv)
+        self.v0 = None
+        if start is not None and self.nproc == 1:
+            self.v0 = K.createVecRight()
+            self.v0.setArray(np.asarray(start, dtype=np.float64)[self.rows])
+            eps.setInitialSpace([self.v0])
+        self.st = st = eps.getST()
+        st.setType(SLEPc.ST.Type.SINVERT)
+        st.setShift(target)
+        self.ksp = ksp = st.getKSP()
+        ksp.setType(PETSc.KSP.Type.PREONLY)
+        self.pc = pc = ksp.getPC()
+        if self.pardiso is not None:
+            pc.setType(PETSc.PC.Type.PYTHON)
+            pc.setPythonContext(self.pardiso)
+        else:
+            pc.setType(PETSc.PC.Type.CHOLESKY)
+            pc.setFactorSolverType(self.factor)
+        eps.setFromOptions()
+
+    def factorise(self) -> None:
+        """``EPSSetUp``: the numeric factorisation of the solve operator A = K - shift M, which the
+        inertia count later turns into K - sigma M in place (``struct``: M's pattern within A's)."""
+        PETSc, timings, cpu = self.PETSc, self.timings, self.cpu
+        self.stage = f"factorising K - shift M ({_FACTOR_NAMES[self.factor]})"
+        t1, c1 = time.perf_counter(), time.process_time()
+        self.eps.setUp()
+        timings["factor"] = time.perf_counter() - t1
+        cpu["factor"] = time.process_time() - c1
+        self.factorisations = 1
+        self.F = self.pc.getFactorMatrix() if self.pardiso is None else None
+        self.A = self.ksp.getOperators()[1]
+        timings["inertia_factor"] = 0.0
+        same = _same_pattern(self.A, self.M, self.mpi_comm)
+        self.struct = PETSc.Mat.Structure.SAME if same else PETSc.Mat.Structure.SUBSET
+        timings["solve"] = timings["extract"] = timings["residuals"] = 0.0
+        cpu["solve"] = cpu["inertia_factor"] = 0.0
+
+    def iterate(self) -> None:
+        """Krylov-Schur, continued from the current Ritz vectors with ``extra_step`` more pairs (same
+        factorisation) while the eigenvalues above the nev-th form one cluster (``max_rounds``)."""
+        PETSc, opt, eps, nev, r, n = self.PETSc, self.opt, self.eps, self.nev, self.r, self.n
+        nX = len(self.X)
+        self.stage = "the Krylov-Schur iteration"
+        t1, c1 = time.perf_counter(), time.process_time()
+        while True:
+            eps.solve()
+            nconv = eps.getConverged()
+            self.its += eps.getIterationNumber()
+            # one more than nev, for the certificate's gap
+            if nconv + nX + r < nev + 1:
+                raise SolverError(
+                    f"SLEPc Krylov-Schur converged only {nconv + nX} of the {self.nreq + nX} eigenpairs "
+                    f"requested (nev = {nev}) after {self.its} restarts (tol {self.slepc_tol:g}, ncv {self.ncv}); "
+                    "try a larger ncv or max_it"
+                )
+            lam_new = [eps.getEigenvalue(i).real for i in range(nconv)]
+            lam_all = np.sort(np.concatenate([np.zeros(r), self.prev_lam, lam_new]))
+            done = _clear_gap_above(lam_all, nev)
+            if done or self.rounds >= opt.max_rounds or self.nreq + nX + r >= n - 1:
+                break
+            # the eigenvalues above the nev-th form a cluster: continue with more, from the current
+            # Ritz vectors (the factorisation is kept: same operators)
+            start = [self.K.createVecRight() for _ in range(nconv)]
+            for i, v in enumerate(start):
+                eps.getEigenvector(i, v)
+            self.nreq = int(min(self.nreq + max(int(opt.extra_step), 1), n - 1 - nX - r))
+            self.ncv = int(min(max(2 * self.nreq, self.nreq + 8, self.ncv), n - nX - r))
+            eps.setDimensions(self.nreq, self.ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
+            eps.setInitialSpace(start)
+            self.rounds += 1
+        self.nconv = nconv
+        self.timings["solve"] += time.perf_counter() - t1
+        self.cpu["solve"] += time.process_time() - c1
+
+    def extract(self) -> None:
+        """The converged eigenvectors, M-normalised, appended to ``X`` (and M x to ``MX``)."""
+        self.stage = "extracting the eigenvectors"
+        t1 = time.perf_counter()
+        for i in range(self.nconv):
+            x = self.K.createVecRight()
+            self.eps.getEigenvector(i, x)
+            mx = x.duplicate()
+            self.M.mult(x, mx)
+            s = x.dot(mx)  # M-normalise (SLEPc's normalisation depends on the version)
+            if not s > 0:
+                raise SolverError(f"SLEPc returned an eigenvector with x^T M x = {s:g} (M not positive definite?)")
+            x.scale(1.0 / np.sqrt(s))
+            mx.scale(1.0 / np.sqrt(s))
+            self.X.append(x)
+            self.MX.append(mx)
+        self.timings["extract"] += time.perf_counter() - t1
+
+    def residuals(self) -> None:
+        """Rayleigh quotients, residuals and roundoff floors of the pairs in ``X`` (scipy on one
+        process, PETSc products with K and |K| in parallel)."""
+        self.stage = "computing residuals and M-orthonormality"
+        t1 = time.perf_counter()
+        if self.stats is None:
+            if self.nproc == 1:
+                self.stats = _SerialStats(self.K)
+            else:
+                self.Kabs = _abs_matrix(self.K, self.PETSc)
+                self.stats = functools.partial(_pair_stats, self.K, self.Kabs, PETSc=self.PETSc)
+        self.lam, self.res, self.floor = self.stats(self.X, self.MX, rigid=0 if self.r else None)
+        self.timings["residuals"] += time.perf_counter() - t1
+
+    def refine(self) -> None:
+        """At most two refinement steps in all while a low pair is short of its roundoff floor."""
+        r = self.r
+        while (_short_of_floor(self.lam, self.res, self.floor, self.nev - r, self.tol)
+               and self.factor_is_solve_operator and self.refinements < 2):
+            # one of the lowest nev pairs stopped short of what double precision allows (SLEPc's
+            # criterion is on the shift-inverted problem): one block inverse-iteration step with
+            # the factorisation in hand, then Rayleigh-Ritz over all pairs (keeps M-orthonormality)
+            self.stage = "refining the eigenpairs (one inverse-iteration + Rayleigh-Ritz step)"
+            t1 = time.perf_counter()
+            self.X, self.MX = _refine(self.st.getKSP(), self.K, self.M, self.X, self.MX, deflate=(self.Zv, self.MZv))
+            self.lam, self.res, self.floor = self.stats(self.X, self.MX, rigid=0 if r else None)
+            self.refinements += 1
+            self.timings["refine"] = self.timings.get("refine", 0.0) + time.perf_counter() - t1
+
+    def pair_numbers(self) -> None:
+        """The pairs in ascending order with the deflated rigid fields first (their numbers prepended),
+        and the M-orthonormality error max |X^T M X - I| over all of them."""
+        t1 = time.perf_counter()
+        lam, res, floor = self.lam, self.res, self.floor
+        perm = np.argsort(lam, kind="stable")
+        lam, res, floor = lam[perm], res[perm], floor[perm]
+        self.X, self.MX = [self.X[i] for i in perm], [self.MX[i] for i in perm]
+        if self.r:  # the rigid pairs are the deflated fields themselves, first
+            lam_z, res_z, floor_z = self.stats(self.Zv, self.MZv, rigid=self.r)
+            lam, res, floor = (np.concatenate([lam_z, lam]), np.concatenate([res_z, res]),
+                               np.concatenate([floor_z, floor]))
+        self.lam, self.res, self.floor = lam, res, floor
+        XA, MXA = self.Zv + self.X, self.MZv + self.MX
+        m = len(XA)
+        G = np.empty((m, m))
+        for j, mx in enumerate(MXA):
+            for i in range(j + 1):
+                G[i, j] = G[j, i] = XA[i].dot(mx)
+        self.ortho = float(np.max(np.abs(G - np.eye(m))))
+        self.timings["residuals"] += time.perf_counter() - t1
+
+    def count_inertia(self) -> None:
+        """The Sylvester count at sigma (``certify.choose_inertia_shift``): negative and zero pivots
+        of an LDL^T of K - sigma M, by the solve's own factor where it can (PARDISO or MUMPS: one
+        numeric refactorisation on the same analysis), by a fresh MUMPS for CHOLMOD."""
+        from modalfem.eigen.certify import choose_inertia_shift
+
+        self.stage = "choosing the inertia shift"
+        self.sigma = choose_inertia_shift(self.lam, self.nev)
+        t1, c1 = time.perf_counter(), time.process_time()
+        self.factorisations += 1
+        if self.factor == "cholmod":
+            self.stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T)"
+            (neg, zero, _pos), self.cert_info = self._fresh_mumps_inertia()
+        elif self.pardiso is not None:
+            neg, zero = self._pardiso_inertia()
+        else:
+            neg, zero = self._mumps_reused_inertia()
+        self.neg, self.zero = neg, zero
+        self.timings["inertia_factor"] += time.perf_counter() - t1
+        self.cpu["inertia_factor"] += time.process_time() - c1
+
+    def _fresh_mumps_inertia(self):
+        return _mumps_inertia(self.K, self.M, self.sigma, self.settings, self.prefix, self.PETSc, self.mpi_comm)
+
+    def _pardiso_inertia(self):
+        """Inertia from PARDISO refactorised at K - sigma M; MUMPS recounts if a pivot was perturbed."""
+        self.stage = "factorising K - sigma M for the inertia count (PARDISO LDL^T, reused analysis)"
+        self.A.axpy(self.shift - self.sigma, self.M, self.struct)
+        self.A.stateIncrease()
+        self.pc.setUp()
+        self.factor_is_solve_operator = False
+        pf = self.pardiso.factor
+        neg, zero, _pos = pf.inertia
+        self.cert_info = {**pf.info(), "inertia_factor": "pardiso-ldlt"}
+        if pf.perturbed_pivots:
+            # a perturbed pivot makes the count unproven: redo it with MUMPS (threshold pivoting)
+            self.stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, PARDISO perturbed pivots)"
+            (neg, zero, _pos), mumps_info = self._fresh_mumps_inertia()
+            self.cert_info.update(mumps_info, inertia_factor="mumps-ldlt")
+            self.factorisations += 1
+        return neg, zero
+
+    def _mumps_reused_inertia(self):
+        """Inertia from the solve's MUMPS factor, refactorised at K - sigma M on the same analysis."""
+        self.stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, reused analysis)"
+        self.A.axpy(self.shift - self.sigma, self.M, self.struct)
+        self.F.setMumpsIcntl(24, 1)  # null-pivot detection: PETSc needs it to report zero pivots
+        # MatAXPY(SAME) on MPIAIJ does not bump the matrix state in PETSc 3.18, so PCSetUp would
+        # skip the refactorisation (seen: inertia 0 on 2 ranks): bump it by hand. The nonzero
+        # state is unchanged, so PCSetUp does a numeric factorisation only, on the same analysis.
+        self.A.stateIncrease()
+        self.pc.setUp()
+        self.factor_is_solve_operator = False
+        self.F = self.pc.getFactorMatrix()
+        neg, zero, _pos = self.F.getInertia()
+        self.cert_info = _mumps_info(self.F)
+        return neg, zero
+
+    def retry(self) -> bool:
+        """True, with the next search set up, when the count shows eigenvalues below sigma that
+        Krylov-Schur missed (and ``max_retries`` allows another search)."""
+        opt, n, r, nX = self.opt, self.n, self.r, len(self.X)
+        missing = int(self.neg) - int(np.sum(self.lam < self.sigma))
+        if missing <= 0 or self.attempts >= opt.max_retries:
+            return False
+        # Krylov-Schur missed `missing` eigenvalues below sigma (a many-fold cluster, e.g. the rigid
+        # modes of several pieces): restore K - shift M (numeric refactorisation) and solve again
+        # with the pairs found so far as a deflation space.
+        if self.factor in ("mumps", "pardiso"):
+            self.stage = "refactorising K - shift M to search for missed eigenvalues"
+            t1 = time.perf_counter()
+            self.A.axpy(self.sigma - self.shift, self.M, self.struct)
+            self.A.stateIncrease()
+            self.pc.setUp()
+            self.factorisations += 1
+            self.factor_is_solve_operator = True
+            self.F = self.pc.getFactorMatrix() if self.pardiso is None else None
+            self.timings["factor"] += time.perf_counter() - t1
+        self.attempts += 1
+        self.prev_lam = self.lam[r:]
+        self.nreq = int(min(missing + max(int(opt.extra), 1), n - 1 - nX - r))
+        self.ncv = int(min(max(2 * self.nreq, self.nreq + 8), n - nX - r))
+        self.eps.setDeflationSpace(self.Zv + self.X)
+        self.eps.setDimensions(self.nreq, self.ncv, opt.mpd if opt.mpd else self.PETSc.DECIDE)
+        return True
+
+    def gather(self) -> None:
+        """The vectors (rigid fields first) on every rank in canonical free order."""
+        self.timings["certificate"] = self.timings["residuals"] + self.timings["inertia_factor"]
+        self.stage = "gathering the eigenvectors"
+        t1 = time.perf_counter()
+        local = np.column_stack([x.getArray(readonly=True) for x in self.Zv + self.X])
+        self.vectors = _gather(local, self.rows, self.n, self.mpi_comm)
+        self.timings["gather"] = time.perf_counter() - t1
+
+    def info(self) -> dict:
+        """Provenance: solver settings, counters, factor statistics, versions."""
+        PETSc, SLEPc, eps = self.PETSc, self.SLEPc, self.eps
+        return {
+            "solver": "slepc",
+            "eps_type": "krylovschur",
+            "st": "sinvert",
+            "which": "target_magnitude",
+            "deflated": self.r,
+            "shift": float(self.shift),
+            "nev": int(self.nev),
+            "nev_requested": self.nreq,
+            "nconv": len(self.X) + self.r,
+            "retries": int(self.attempts),
+            "factorisations": int(self.factorisations),
+            "refinements": int(self.refinements),
+            "residual_floor": [float(f) for f in self.floor],
+            "iterations": int(self.its),
+            "rounds": int(self.rounds) + 1,
+            "ncv": int(eps.getDimensions()[1]),
+            "mpd": int(eps.getDimensions()[2]),
+            "tol": float(self.tol),
+            "slepc_tol": self.slepc_tol,
+            "factor": {"cholmod": "cholmod-llt", "pardiso": "pardiso-ldlt"}.get(self.factor, "mumps-ldlt"),
+            "inertia_factor": "mumps-ldlt",
+            **self.cert_info,
+            "mumps_options": {k: v for k, v in self.settings.items()},
+            "inertia_zero_pivots": int(self.zero),
+            "nprocs": int(self.nproc),
+            "cpu_seconds": self.cpu,
+            "petsc_version": ".".join(map(str, PETSc.Sys.getVersion())),
+            "slepc_version": ".".join(map(str, SLEPc.Sys.getVersion())),
+        }
+
+    def cleanup(self) -> None:
+        """Remove the prefixed options; destroy |K|, the EPS, PARDISO's factor and converted matrices."""
+        for k in self.settings:
+            self.db.delValue(self.prefix + k)
+        try:  # after a failed stage SLEPc's internal state may refuse a clean destroy
+            if self.Kabs is not None:
+                self.Kabs.destroy()
+            self.eps.destroy()
+            if self.pardiso is not None:
+                self.pardiso.close()
+            if not self.is_mat:
+                self.K.destroy()
+                self.M.destroy()
+        except self.PETSc.Error:
+            pass
+
+
 def solve_slepc(
     K_ff,
     M_ff,
@@ -463,346 +890,35 @@ def solve_slepc(
         SolverError: a PETSc/SLEPc/MUMPS stage failed (named), or too few pairs converged.
     """
     PETSc, SLEPc = _import_petsc()
-    opt = options or SlepcOptions()
-    timings: dict[str, float] = {}
-    cpu: dict[str, float] = {}  # process CPU seconds (all threads of this rank): robust on a busy machine
-    if not (isinstance(nev, (int, np.integer)) and nev >= 1):
-        raise InputError(f"nev must be a positive integer, got {nev!r}")
-    if not (np.isfinite(shift) and shift < 0):
-        raise InputError(f"shift must be negative and finite (K - shift M positive definite), got {shift!r}")
-    if not (np.isfinite(tol) and 0 < tol < 1):
-        raise InputError(f"tol must be in (0, 1), got {tol!r}")
-
-    t0 = time.perf_counter()
-    is_mat = isinstance(K_ff, PETSc.Mat)
-    if is_mat != isinstance(M_ff, PETSc.Mat):
-        raise InputError("K_ff and M_ff must both be scipy.sparse or both petsc4py Mats")
+    run = _SlepcRun(PETSc, SLEPc, options or SlepcOptions(), nev, shift, tol)
+    run.convert(K_ff, M_ff, rows, comm, deflate)
+    run.choose_factor(groups)
     try:
-        if is_mat:
-            K, M = K_ff, M_ff
-            pcomm = K.getComm()
-            lo, hi = K.getOwnershipRange()
-            rows = np.arange(lo, hi, dtype=np.int64) if rows is None else np.asarray(rows, dtype=np.int64)
-            if len(rows) != hi - lo:
-                raise InputError(f"rows has {len(rows)} entries but this rank owns {hi - lo} rows")
-        else:
-            if comm is None:
-                pcomm = PETSc.COMM_SELF
-            elif isinstance(comm, PETSc.Comm):
-                pcomm = comm
-            else:
-                pcomm = PETSc.Comm(comm)
-            K, rows = _to_petsc(K_ff, PETSc, pcomm, "K_ff")
-            M, _ = _to_petsc(M_ff, PETSc, pcomm, "M_ff")
-    except PETSc.Error as exc:
-        raise SolverError(f"SLEPc solver: converting the matrices to PETSc failed: {_petsc_reason(exc)}") from exc
-    n = K.getSize()[0]
-    if K.getSize() != (n, n) or M.getSize() != (n, n):
-        raise InputError(f"K_ff {K.getSize()} and M_ff {M.getSize()} must be square and of one size")
-    if K.getOwnershipRange() != M.getOwnershipRange():
-        raise InputError("K_ff and M_ff must have the same row distribution")
-    if nev >= n:
-        raise InputError(f"nev = {nev} must be below the number of free DOFs ({n})")
-    mpi_comm = pcomm.tompi4py()
-    nproc = pcomm.getSize()
-    Zg = np.zeros((n, 0)) if deflate is None else np.asarray(deflate, dtype=np.float64).reshape(n, -1)
-    r = int(Zg.shape[1])
-    if r >= nev:
-        raise InputError(f"nev = {nev} must exceed the {r} deflated rigid fields")
-    nreq = int(min(nev - r + max(int(opt.extra), 1), n - 1 - r))
-    slepc_tol = float(tol * opt.tol_factor)
-    ncv = int(min(opt.ncv if opt.ncv else max(2 * nreq, nreq + 8), n))
-    timings["convert"] = time.perf_counter() - t0
-
-    if opt.factor not in ("auto", "pardiso", "cholmod", "mumps"):
-        raise InputError(f"factor must be 'auto', 'pardiso', 'cholmod' or 'mumps', got {opt.factor!r}")
-    factor = opt.factor
-    if factor == "auto":
-        factor = "pardiso" if nproc == 1 and have_pardiso() else "mumps"
-    elif factor == "cholmod" and (nproc > 1 or not _have_cholmod(PETSc)):
-        raise InputError("factor='cholmod' needs one process and a PETSc built with SuiteSparse")
-    elif factor == "pardiso" and (nproc > 1 or not have_pardiso()):
-        raise InputError("factor='pardiso' needs one process and MKL PARDISO (pip install mkl)")
-    prefix = f"modalfem_slepc{next(_counter)}_"
-    db = PETSc.Options()
-    settings = {
-        "st_mat_mumps_icntl_7": int(opt.ordering),
-        "st_mat_mumps_icntl_14": int(opt.mem_relax),
-    }
-    if factor == "cholmod":
-        settings["st_mat_cholmod_nmethods"] = 2  # AMD and METIS, keep the smaller fill
-    if nproc > 1:
-        settings["st_mat_mumps_icntl_13"] = 1  # inertia is wrong with a ScaLAPACK root (MUMPS doc)
-    settings.update({str(k): v for k, v in opt.petsc_options.items()})
-    for k, v in settings.items():
-        db[prefix + k] = v
-    eps = SLEPc.EPS()
-    Kabs = stats = None
-    pardiso = _PardisoPC(opt.pardiso_ordering, groups) if factor == "pardiso" else None
-    stage = "setting up the eigensolver"
-    try:
-        eps.create(pcomm)
-        eps.setOptionsPrefix(prefix)
-        eps.setOperators(K, M)
-        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
-        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
-        eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
-        eps.setTolerances(slepc_tol, int(opt.max_it))
-        target = shift
-        eps.setTarget(target)
-        eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
-        eps.setPurify(bool(opt.purify))
-        Zv, MZv = [], []  # the rigid fields as PETSc vectors (this rank's rows), and M times them
-        for j in range(r):
-            z = K.createVecRight()
-            z.setArray(Zg[rows, j])
-            mz = z.duplicate()
-            M.mult(z, mz)
-            Zv.append(z)
-            MZv.append(mz)
-        if Zv:
-            eps.setDeflationSpace(Zv)
-        v0 = None
-        if start is not None and nproc == 1:
-            v0 = K.createVecRight()
-            v0.setArray(np.asarray(start, dtype=np.float64)[rows])
-            eps.setInitialSpace([v0])
-        st = eps.getST()
-        st.setType(SLEPc.ST.Type.SINVERT)
-        st.setShift(target)
-        ksp = st.getKSP()
-        ksp.setType(PETSc.KSP.Type.PREONLY)
-        pc = ksp.getPC()
-        if pardiso is not None:
-            pc.setType(PETSc.PC.Type.PYTHON)
-            pc.setPythonContext(pardiso)
-        else:
-            pc.setType(PETSc.PC.Type.CHOLESKY)
-            pc.setFactorSolverType(factor)
-        eps.setFromOptions()
-        stage = f"factorising K - shift M ({_FACTOR_NAMES[factor]})"
-        t1, c1 = time.perf_counter(), time.process_time()
-        eps.setUp()
-        timings["factor"] = time.perf_counter() - t1
-        cpu["factor"] = time.process_time() - c1
-        factorisations = 1  # numeric factorisations of a shifted K (solve and inertia), for provenance
-        F = pc.getFactorMatrix() if pardiso is None else None
-        A = ksp.getOperators()[1]
-        timings["inertia_factor"] = 0.0
-        struct = PETSc.Mat.Structure.SAME if _same_pattern(A, M, mpi_comm) else PETSc.Mat.Structure.SUBSET
-        from modalfem.eigen.certify import choose_inertia_shift
-
-        timings["solve"] = timings["extract"] = timings["residuals"] = 0.0
-        cpu["solve"] = cpu["inertia_factor"] = 0.0
-        rounds, its, attempts, refinements = 0, 0, 0, 0
-        factor_is_solve_operator = True  # False once MUMPS's A holds K - sigma M (until refactorised)
-        prev_lam = np.empty(0)  # eigenvalues found by earlier attempts
-        X, MX = [], []  # eigenvectors found so far (M-normalised) and M times them
+        run.set_up(start)
+        run.factorise()
         while True:
-            stage = "the Krylov-Schur iteration"
-            t1, c1 = time.perf_counter(), time.process_time()
-            while True:
-                eps.solve()
-                nconv = eps.getConverged()
-                its += eps.getIterationNumber()
-                # one more than nev, for the certificate's gap
-                if nconv + len(X) + r < nev + 1:
-                    raise SolverError(
-                        f"SLEPc Krylov-Schur converged only {nconv + len(X)} of the {nreq + len(X)} eigenpairs "
-                        f"requested (nev = {nev}) after {its} restarts (tol {slepc_tol:g}, ncv {ncv}); "
-                        "try a larger ncv or max_it"
-                    )
-                lam_new = [eps.getEigenvalue(i).real for i in range(nconv)]
-                lam_all = np.sort(np.concatenate([np.zeros(r), prev_lam, lam_new]))
-                done = _clear_gap_above(lam_all, nev)
-                if done or rounds >= opt.max_rounds or nreq + len(X) + r >= n - 1:
-                    break
-                # the eigenvalues above the nev-th form a cluster: continue with more, from the current
-                # Ritz vectors (the factorisation is kept: same operators)
-                start = [K.createVecRight() for _ in range(nconv)]
-                for i, v in enumerate(start):
-                    eps.getEigenvector(i, v)
-                nreq = int(min(nreq + max(int(opt.extra_step), 1), n - 1 - len(X) - r))
-                ncv = int(min(max(2 * nreq, nreq + 8, ncv), n - len(X) - r))
-                eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
-                eps.setInitialSpace(start)
-                rounds += 1
-            timings["solve"] += time.perf_counter() - t1
-            cpu["solve"] += time.process_time() - c1
-
-            stage = "extracting the eigenvectors"
-            t1 = time.perf_counter()
-            for i in range(nconv):
-                x = K.createVecRight()
-                eps.getEigenvector(i, x)
-                mx = x.duplicate()
-                M.mult(x, mx)
-                s = x.dot(mx)  # M-normalise (SLEPc's normalisation depends on the version)
-                if not s > 0:
-                    raise SolverError(f"SLEPc returned an eigenvector with x^T M x = {s:g} (M not positive definite?)")
-                x.scale(1.0 / np.sqrt(s))
-                mx.scale(1.0 / np.sqrt(s))
-                X.append(x)
-                MX.append(mx)
-            timings["extract"] += time.perf_counter() - t1
-
-            stage = "computing residuals and M-orthonormality"
-            t1 = time.perf_counter()
-            if stats is None:
-                if nproc == 1:
-                    stats = _SerialStats(K)
-                else:
-                    Kabs = _abs_matrix(K, PETSc)
-                    stats = functools.partial(_pair_stats, K, Kabs, PETSc=PETSc)
-            lam, res, floor = stats(X, MX, rigid=0 if r else None)
-            timings["residuals"] += time.perf_counter() - t1
-            while _short_of_floor(lam, res, floor, nev - r, tol) and factor_is_solve_operator and refinements < 2:
-                # one of the lowest nev pairs stopped short of what double precision allows (SLEPc's
-                # criterion is on the shift-inverted problem): one block inverse-iteration step with
-                # the factorisation in hand, then Rayleigh-Ritz over all pairs (keeps M-orthonormality)
-                stage = "refining the eigenpairs (one inverse-iteration + Rayleigh-Ritz step)"
-                t1 = time.perf_counter()
-                X, MX = _refine(st.getKSP(), K, M, X, MX, deflate=(Zv, MZv))
-                lam, res, floor = stats(X, MX, rigid=0 if r else None)
-                refinements += 1
-                timings["refine"] = timings.get("refine", 0.0) + time.perf_counter() - t1
-            t1 = time.perf_counter()
-            perm = np.argsort(lam, kind="stable")
-            lam, res, floor = lam[perm], res[perm], floor[perm]
-            X, MX = [X[i] for i in perm], [MX[i] for i in perm]
-            if r:  # the rigid pairs are the deflated fields themselves, first
-                lam_z, res_z, floor_z = stats(Zv, MZv, rigid=r)
-                lam, res, floor = (np.concatenate([lam_z, lam]), np.concatenate([res_z, res]),
-                                   np.concatenate([floor_z, floor]))
-            XA, MXA = Zv + X, MZv + MX
-            m = len(XA)
-            G = np.empty((m, m))
-            for j, mx in enumerate(MXA):
-                for i in range(j + 1):
-                    G[i, j] = G[j, i] = XA[i].dot(mx)
-            ortho = float(np.max(np.abs(G - np.eye(m))))
-            timings["residuals"] += time.perf_counter() - t1
-
-            stage = "choosing the inertia shift"
-            sigma = choose_inertia_shift(lam, nev)
-            t1, c1 = time.perf_counter(), time.process_time()
-            factorisations += 1
-            if factor == "cholmod":
-                stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T)"
-                (neg, zero, _pos), cert_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
-            elif pardiso is not None:
-                stage = "factorising K - sigma M for the inertia count (PARDISO LDL^T, reused analysis)"
-                A.axpy(shift - sigma, M, struct)
-                A.stateIncrease()
-                pc.setUp()
-                factor_is_solve_operator = False
-                neg, zero, _pos = pardiso.factor.inertia
-                cert_info = {**pardiso.factor.info(), "inertia_factor": "pardiso-ldlt"}
-                if pardiso.factor.perturbed_pivots:
-                    # a perturbed pivot makes the count unproven: redo it with MUMPS (threshold pivoting)
-                    stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, PARDISO perturbed pivots)"
-                    (neg, zero, _pos), mumps_info = _mumps_inertia(K, M, sigma, settings, prefix, PETSc, mpi_comm)
-                    cert_info.update(mumps_info, inertia_factor="mumps-ldlt")
-                    factorisations += 1
-            else:
-                stage = "factorising K - sigma M for the inertia count (MUMPS LDL^T, reused analysis)"
-                A.axpy(shift - sigma, M, struct)
-                F.setMumpsIcntl(24, 1)  # null-pivot detection: PETSc needs it to report zero pivots
-                # MatAXPY(SAME) on MPIAIJ does not bump the matrix state in PETSc 3.18, so PCSetUp would
-                # skip the refactorisation (seen: inertia 0 on 2 ranks): bump it by hand. The nonzero
-                # state is unchanged, so PCSetUp does a numeric factorisation only, on the same analysis.
-                A.stateIncrease()
-                pc.setUp()
-                factor_is_solve_operator = False
-                F = pc.getFactorMatrix()
-                neg, zero, _pos = F.getInertia()
-                cert_info = _mumps_info(F)
-            timings["inertia_factor"] += time.perf_counter() - t1
-            cpu["inertia_factor"] += time.process_time() - c1
-            missing = int(neg) - int(np.sum(lam < sigma))
-            if missing <= 0 or attempts >= opt.max_retries:
+            run.iterate()
+            run.extract()
+            run.residuals()
+            run.refine()
+            run.pair_numbers()
+            run.count_inertia()
+            if not run.retry():
                 break
-            # Krylov-Schur missed `missing` eigenvalues below sigma (a many-fold cluster, e.g. the rigid
-            # modes of several pieces): restore K - shift M (numeric refactorisation) and solve again
-            # with the pairs found so far as a deflation space.
-            if factor in ("mumps", "pardiso"):
-                stage = "refactorising K - shift M to search for missed eigenvalues"
-                t1 = time.perf_counter()
-                A.axpy(sigma - shift, M, struct)
-                A.stateIncrease()
-                pc.setUp()
-                factorisations += 1
-                factor_is_solve_operator = True
-                F = pc.getFactorMatrix() if pardiso is None else None
-                timings["factor"] += time.perf_counter() - t1
-            attempts += 1
-            prev_lam = lam[r:]
-            nreq = int(min(missing + max(int(opt.extra), 1), n - 1 - len(X) - r))
-            ncv = int(min(max(2 * nreq, nreq + 8), n - len(X) - r))
-            eps.setDeflationSpace(Zv + X)
-            eps.setDimensions(nreq, ncv, opt.mpd if opt.mpd else PETSc.DECIDE)
-        timings["certificate"] = timings["residuals"] + timings["inertia_factor"]
-
-        stage = "gathering the eigenvectors"
-        t1 = time.perf_counter()
-        local = np.column_stack([x.getArray(readonly=True) for x in Zv + X])
-        vectors = _gather(local, rows, n, mpi_comm)
-        timings["gather"] = time.perf_counter() - t1
-
-        info = {
-            "solver": "slepc",
-            "eps_type": "krylovschur",
-            "st": "sinvert",
-            "which": "target_magnitude",
-            "deflated": r,
-            "shift": float(shift),
-            "nev": int(nev),
-            "nev_requested": nreq,
-            "nconv": len(X) + r,
-            "retries": int(attempts),
-            "factorisations": int(factorisations),
-            "refinements": int(refinements),
-            "residual_floor": [float(f) for f in floor],
-            "iterations": int(its),
-            "rounds": int(rounds) + 1,
-            "ncv": int(eps.getDimensions()[1]),
-            "mpd": int(eps.getDimensions()[2]),
-            "tol": float(tol),
-            "slepc_tol": slepc_tol,
-            "factor": {"cholmod": "cholmod-llt", "pardiso": "pardiso-ldlt"}.get(factor, "mumps-ldlt"),
-            "inertia_factor": "mumps-ldlt",
-            **cert_info,
-            "mumps_options": {k: v for k, v in settings.items()},
-            "inertia_zero_pivots": int(zero),
-            "nprocs": int(nproc),
-            "cpu_seconds": cpu,
-            "petsc_version": ".".join(map(str, PETSc.Sys.getVersion())),
-            "slepc_version": ".".join(map(str, SLEPc.Sys.getVersion())),
-        }
+        run.gather()
+        info = run.info()
     except PETSc.Error as exc:
-        raise SolverError(f"SLEPc solver failed while {stage}: {_petsc_reason(exc)}") from exc
+        raise SolverError(f"SLEPc solver failed while {run.stage}: {_petsc_reason(exc)}") from exc
     finally:
-        for k in settings:
-            db.delValue(prefix + k)
-        try:  # after a failed stage SLEPc's internal state may refuse a clean destroy
-            if Kabs is not None:
-                Kabs.destroy()
-            eps.destroy()
-            if pardiso is not None:
-                pardiso.close()
-            if not is_mat:
-                K.destroy()
-                M.destroy()
-        except PETSc.Error:
-            pass
+        run.cleanup()
     return RawModes(
-        eigenvalues=lam,
-        vectors=vectors,
-        residuals=res,
-        orthonormality_error=ortho,
-        inertia_shift=float(sigma),
-        inertia_count=int(neg),
-        timings=timings,
+        eigenvalues=run.lam,
+        vectors=run.vectors,
+        residuals=run.res,
+        orthonormality_error=run.ortho,
+        inertia_shift=float(run.sigma),
+        inertia_count=int(run.neg),
+        timings=run.timings,
         info=info,
     )
 
