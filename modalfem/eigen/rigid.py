@@ -52,12 +52,13 @@ def rigid_fields(mesh, degree: int) -> list[tuple[np.ndarray, np.ndarray]]:
     divided by the piece's RMS radius [m] so all 6 columns have comparable norms.
     """
     pts = mesh.dof_points(degree)
-    labels = node_pieces(mesh, degree)
-    out = []
-    for p in range(int(labels.max()) + 1):
-        nodes = np.flatnonzero(labels == p)
-        out.append((nodes, _piece_fields(pts[nodes])))
-    return out
+    return [(nodes, _piece_fields(pts[nodes])) for nodes in _groups(node_pieces(mesh, degree))]
+
+
+def _groups(labels: np.ndarray) -> list[np.ndarray]:
+    """Indices of each label 0..max, in one sort (not one scan per label: scans have thousands of pieces)."""
+    order = np.argsort(labels, kind="stable")
+    return np.split(order, np.cumsum(np.bincount(labels, minlength=int(labels.max()) + 1))[:-1])
 
 
 def _piece_null(R: np.ndarray, fixed_rows: np.ndarray, n_nodes: int) -> np.ndarray:
@@ -218,14 +219,13 @@ def analyse_rigid(mesh, degree: int, fixed_mask: np.ndarray) -> RigidStructure:
     fixed = np.asarray(fixed_mask, dtype=bool)
     rigid = expected_rigid_count(mesh, degree, fixed)
     parts = cell_parts(mesh)
-    piece_of_cell = mesh.point_piece[mesh.cells[:, 0]]
+    cells_of_piece = _groups(mesh.point_piece[mesh.cells[:, 0]])
     pts = mesh.dof_points(degree)
     cell_nodes = mesh.cell_nodes(degree)
     zero, notes, cols = 0, [], []
     n_dof = fixed.size
-    for nodes_p, R_p in rigid_fields(mesh, degree):
-        piece = int(node_pieces(mesh, degree)[nodes_p[0]])
-        cells = np.flatnonzero(piece_of_cell == piece)
+    for piece, (nodes_p, R_p) in enumerate(rigid_fields(mesh, degree)):
+        cells = cells_of_piece[piece]
         plabels = np.unique(parts[cells])
         null = _piece_null(R_p, fixed[_piece_dofs(nodes_p)], len(nodes_p))
         held = null.shape[1]
