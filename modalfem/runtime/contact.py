@@ -432,7 +432,8 @@ def _crossings(gap, vn, an, thr, horizon):
     first = np.full(len(gap), np.inf)
     speed = np.zeros(len(gap))
     for r in (r1, r2):
-        v = vn + an * r  # normal velocity at the crossing
+        with np.errstate(invalid="ignore"):
+            v = vn + an * r  # normal velocity at the crossing (r may be inf: masked below)
         down = ok & np.isfinite(r) & (r > 0.0) & (r <= horizon) & (v < 0.0) & (r < first)
         first = np.where(down, r, first)
         speed = np.where(down, v, speed)
@@ -472,7 +473,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
 
     The step is split at events:
 
-    1. impacts: contacts touching now (gap <= 0.1 margin) and approaching are resolved at once by an
+    1. impacts: contacts touching now (gap <= 1e-9 margin) and approaching are resolved at once by an
        impact solve (restitution applied to the approach velocity at this instant);
     2. the next impact within the rest of the step is predicted from each contact's gap, normal
        velocity and the load acceleration (``gap + vn t + a_n t^2 / 2`` crossing 0 faster than the
@@ -512,7 +513,8 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         slop = np.array([0.1 * effects[i].margin for i in c.effect])
         thr = np.array([effects[i].bounce_threshold for i in c.effect])
         vn = normal_velocities(solver, state, c)
-        touching = ((c.gap <= slop) | (c.vertex == event_vertex)) & (vn < 0.0)
+        # touching: at the ground to rounding (1e-9 of the margin), or the vertex a flight stopped at
+        touching = ((c.gap <= 1e-8 * slop) | (c.vertex == event_vertex)) & (vn < 0.0)
         if touching.any():  # 1. impacts now
             sub = c.subset(touching)
             resolve_contacts(solver, state, sub, t_left)

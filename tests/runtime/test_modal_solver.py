@@ -182,3 +182,68 @@ def test_point_off_the_surface_in_a_control_is_refused(small_body):
 def test_non_finite_state_is_refused(small_body):
     with pytest.raises(SimulationError, match="not finite"):
         rt.State(np.full(small_body.mode_count, np.nan), np.zeros(small_body.mode_count))
+
+
+def _arrays(st):
+    return [a.copy() for a in (st.q, st.qdot, st.position, st.orientation, st.velocity, st.angular_momentum)]
+
+
+@pytest.mark.parametrize("bad", [
+    ("impulse", 10**6, (0, 0, 1)),  # vertex out of range
+    ("impulse", 0, (0, np.nan, 1)),  # non-finite
+    ("impulse", 0, (0, 1)),  # wrong shape
+    ("impulse", "corner", (0, 0, 1)),  # not a point
+    ("force", 10**6, (0, 0, 1)),
+    ("force", 3, (np.inf, 0, 0)),
+    ("body_force", None, (0, np.nan, 0)),
+])
+def test_a_control_with_a_bad_last_entry_leaves_the_state_untouched(small_body, bad):
+    """The whole Control is validated before anything is applied: a good first impulse followed by a
+    bad entry (impulse, force or body force) raises one SimulationError naming the entry, and the
+    state arrays are bit-identical to before (in place and into a separate output state)."""
+    kind, point, vec = bad
+    solver = rt.ModalSolver(small_body, effects=[rt.Gravity(), rt.Obstacles([rt.Ground(-1.0)])])
+    st = _moving_state(solver, np.random.default_rng(11))
+    control = rt.Control(impulses=[(0, np.array([0.0, 0.0, 0.5])), (3, np.array([0.1, 0.0, 0.0]))])
+    if kind == "impulse":
+        control.impulses.append((point, np.asarray(vec, dtype=float)))
+    elif kind == "force":
+        control.forces.append((point, np.asarray(vec, dtype=float)))
+    else:
+        control.body_force = np.asarray(vec, dtype=float)
+    before = _arrays(st)
+    out = solver.state()
+    out_before = _arrays(out)
+    with pytest.raises(SimulationError, match=kind.replace("_", " ")) as info:
+        solver.advance(st, 1e-3, control)
+    assert "\n" not in str(info.value)
+    with pytest.raises(SimulationError):
+        solver.step(st, out, control, None, 1e-3)
+    for a, b in zip(before, _arrays(st)):
+        assert np.array_equal(a, b)
+    for a, b in zip(out_before, _arrays(out)):
+        assert np.array_equal(a, b)
+    assert st.time == 0.0
+
+
+def test_a_step_that_fails_inside_restores_the_state(small_body):
+    """An effect raising in the middle of a step (after the impulses were applied) leaves the state
+    as it was before the call."""
+    class Boom:
+        def loads(self, solver, state, dt, loads):
+            raise SimulationError("boom")
+
+    solver = rt.ModalSolver(small_body, effects=[Boom()])
+    st = _moving_state(solver, np.random.default_rng(12))
+    before = _arrays(st)
+    with pytest.raises(SimulationError, match="boom"):
+        solver.advance(st, 1e-3, rt.Control().add_impulse(0, (0, 0, 1.0)))
+    for a, b in zip(before, _arrays(st)):
+        assert np.array_equal(a, b)
+
+
+def test_contacts_of_the_wrong_type_are_refused(small_body):
+    solver = rt.ModalSolver(small_body)
+    st = solver.state()
+    with pytest.raises(SimulationError, match="contacts"):
+        solver.step(st, st, None, [1, 2], 1e-3)
