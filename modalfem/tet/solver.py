@@ -98,6 +98,13 @@ class StepInfo:
     total_s: float = 0.0
 
 
+def _bad_rows(a: np.ndarray, what: str = "vertex") -> str:
+    """"k non-finite values, first at vertex i (row values)" for an (n, 3) array with NaN/inf."""
+    bad = ~np.isfinite(a)
+    i = int(np.flatnonzero(bad.reshape(len(a), -1).any(axis=1))[0])
+    return f"{int(bad.sum())} non-finite values, first at {what} {i}: {np.asarray(a[i]).tolist()}"
+
+
 def _pcg(A, b: np.ndarray, prec, rtol: float, maxiter: int, x0: np.ndarray | None = None
          ) -> tuple[np.ndarray, int]:
     """Preconditioned conjugate gradients (``prec(r)`` applies M^-1) from ``x0`` (default 0).
@@ -115,9 +122,14 @@ def _pcg(A, b: np.ndarray, prec, rtol: float, maxiter: int, x0: np.ndarray | Non
     p = z.copy()
     rz = float(r @ z)
     stop = (rtol * float(np.linalg.norm(b))) ** 2
+    if float(r @ r) <= stop:  # already solved (e.g. b = 0: every DOF held, nothing to move)
+        return x, 0
     for it in range(1, maxiter + 1):
         Ap = A @ p
-        alpha = rz / float(p @ Ap)
+        pAp = float(p @ Ap)
+        if not pAp > 0.0:  # a zero search direction (exactly solved) or lost definiteness: stop here
+            return x, it
+        alpha = rz / pAp
         x += alpha * p
         r -= alpha * Ap
         if float(r @ r) <= stop:
@@ -311,17 +323,26 @@ class TetSolver:
             if a.shape != (n, 3):
                 raise SimulationError(f"state {name} must have shape ({n}, 3), got {a.shape}")
             if not np.all(np.isfinite(a)):
-                raise SimulationError(f"state {name} has {int((~np.isfinite(a)).sum())} NaN/inf values")
+                raise SimulationError(f"state {name} has {_bad_rows(a)}")
         fixed, targets = self.fixed.copy(), self.pin_targets.copy()
         if control is not None:
             cv = np.asarray(control.vertices)
-            cp = np.asarray(control.positions, dtype=float)
-            if cv.ndim != 1 or cp.shape != (len(cv), 3):
-                raise SimulationError(f"control needs vertices (k,) and positions (k, 3), got {cv.shape}, {cp.shape}")
+            try:
+                cp = np.asarray(control.positions, dtype=float)
+            except (TypeError, ValueError):
+                raise SimulationError(f"control positions must be numbers (k, 3) [m], got {control.positions!r}") from None
+            if cv.ndim != 1 or (cv.size and not np.issubdtype(cv.dtype, np.integer)):
+                raise SimulationError(f"control vertices must be a 1-D array of integer indices, got "
+                                      f"shape {cv.shape} of {cv.dtype}")
+            if cp.shape != (len(cv), 3):
+                raise SimulationError(f"control positions must have shape ({len(cv)}, 3) (one row per control "
+                                      f"vertex), got {cp.shape}")
             if cv.size and (cv.min() < 0 or cv.max() >= n):
-                raise SimulationError(f"control vertex index out of range [0, {n})")
+                out = cv[(cv < 0) | (cv >= n)]
+                raise SimulationError(f"control vertex {int(out[0])} out of range [0, {n}) "
+                                      f"({len(out)} of {len(cv)} out of range)")
             if not np.all(np.isfinite(cp)):
-                raise SimulationError("control positions have NaN/inf values")
+                raise SimulationError(f"control positions have {_bad_rows(cp, 'row')}")
             fixed[cv] = True
             targets[cv] = cp
         return h, fixed, targets
@@ -361,7 +382,9 @@ class TetSolver:
             D = self.pattern.assemble(He, diag, upper=True)
             info.assembly_s += time.perf_counter() - ta
         lin_tol = self.tol * self.model.size
-        for _ in range(self.newton_max):
+        if fixed.all():  # every vertex pinned or scripted: the body follows its pins, nothing to solve
+            info.converged = True
+        for _ in range(0 if fixed.all() else self.newton_max):
             ta = time.perf_counter()
             E, g, data = self._incremental(x, xn, xhat, h, D, 2)
             info.assembly_s += time.perf_counter() - ta

@@ -269,3 +269,63 @@ def test_step_caches_do_not_change_the_result(model):
     for _ in range(6):
         direct.step(d, d, 0.01)
     np.testing.assert_allclose(c.x, d.x, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("linear_solver, preconditioner", [("cg", "twolevel"), ("cg", "jacobi"), ("splu", "jacobi")])
+def test_a_fully_pinned_body_follows_its_pins(model, linear_solver, preconditioner):
+    """Every vertex held (Pins) or scripted (TetControl): nothing is free, the step is valid and trivial:
+    the body is where its pins put it and v = (x_target - x_n) / h (before: ZeroDivisionError in CG)."""
+    n = model.point_count
+    everything = np.arange(n)
+    solver = TetSolver(model, effects=[fx.Gravity(), fx.Pins(everything)], linear_solver=linear_solver,
+                       preconditioner=preconditioner)
+    s = TetState.at_rest(model)
+    info = solver.step(s, s, 0.01)
+    assert info.converged and info.newton_iterations == 0
+    np.testing.assert_array_equal(s.x, model.rest_points)
+    assert not s.v.any()
+    # scripted: a rigid translation by (0, 0, 1 mm) per step
+    solver = TetSolver(model, effects=[fx.Gravity()], linear_solver=linear_solver, preconditioner=preconditioner)
+    s = TetState.at_rest(model)
+    for k in range(1, 4):
+        target = model.rest_points + [0.0, 0.0, 1e-3 * k]
+        solver.step(s, s, 0.01, control=TetControl(everything, target))
+        np.testing.assert_allclose(s.x, target, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(s.v, np.tile([0.0, 0.0, 0.1], (n, 1)), rtol=1e-12)
+
+
+def test_a_pinned_body_minus_one_vertex_still_solves(model):
+    """The other edge of the class: one free vertex (a 3-DOF system) falls under gravity by the exact
+    backward Euler of its spring to the pinned rest: it moves down, no division by an empty set."""
+    n = model.point_count
+    solver = TetSolver(model, effects=[fx.Gravity(), fx.Pins(np.arange(1, n))])
+    s = TetState.at_rest(model)
+    solver.step(s, s, 0.01)
+    assert s.x[0, 2] < model.rest_points[0, 2] and np.array_equal(s.x[1:], model.rest_points[1:])
+
+
+@pytest.mark.parametrize("what, message", [
+    ("x_nan", r"state positions x has 1 non-finite values, first at vertex 3"),
+    ("control_nan", r"control positions have 1 non-finite values, first at row 1"),
+    ("control_range", r"control vertex 99 out of range \[0, 27\)"),
+    ("control_shape", r"control positions must have shape \(2, 3\).*got \(3, 3\)"),
+    ("control_float", r"control vertices must be a 1-D array of integer indices"),
+])
+def test_bad_step_inputs_say_what_is_wrong(model, what, message):
+    solver = TetSolver(model)
+    s = TetState.at_rest(model)
+    control = None
+    if what == "x_nan":
+        s.x[3, 1] = np.nan
+    elif what == "control_nan":
+        control = TetControl(np.array([0, 1]), np.array([[0.0, 0.0, 0.0], [0, np.inf, 0]]))
+    elif what == "control_range":
+        control = TetControl(np.array([0, 99]), np.zeros((2, 3)))
+    elif what == "control_shape":
+        control = TetControl(np.array([0, 1]), np.zeros((3, 3)))
+    else:
+        control = TetControl(np.array([0.5, 1.0]), np.zeros((2, 3)))
+    before = s.x.copy()
+    with pytest.raises(SimulationError, match=message):
+        solver.step(s, s, 0.01, control=control)
+    np.testing.assert_array_equal(s.x, before)
