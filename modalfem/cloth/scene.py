@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from modalfem.cloth.model import ClothModel
+from modalfem.cloth.model import ClothModel, non_finite
 from modalfem.cloth.solver import ImplicitEuler, LinearSolveInfo
 from modalfem.cloth.wind import Wind
 from modalfem.errors import InputError, SimulationError
@@ -139,9 +139,14 @@ class ClothScene:
 
     @staticmethod
     def _array(name: str, a, n: int) -> np.ndarray:
-        a = np.array(a, dtype=float)
-        if a.shape != (n, 3) or not np.all(np.isfinite(a)):
-            raise InputError(f"{name} must be finite with shape ({n}, 3), got {a.shape}")
+        try:
+            a = np.array(a, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"{name} must be an ({n}, 3) array of numbers, got {type(a).__name__}") from None
+        if a.shape != (n, 3):
+            raise InputError(f"{name} must have shape ({n}, 3) (one row per cloth vertex), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"{name} has {non_finite(a)}")
         return a
 
     def external_forces(self, x: np.ndarray, v: np.ndarray, t: float):
@@ -216,9 +221,16 @@ class ClothScene:
     def step(self, dt: float) -> StepStats:
         """Advance by ``dt`` [s]; returns ``StepStats``.
 
+        The scene (x, v, t and the released contacts) changes only if the step succeeds.
+
         Raises:
-            SimulationError: dt <= 0, non-finite state, or collisions the pipeline left unresolved.
+            SimulationError: dt <= 0, non-finite state, a handle path that is not finite or has the wrong
+                shape at t + dt (named), or collisions the pipeline left unresolved.
         """
+        try:
+            dt = float(dt)
+        except (TypeError, ValueError):
+            raise SimulationError(f"time step must be a number [s], got {dt!r}") from None
         if not (np.isfinite(dt) and dt > 0):
             raise SimulationError(f"time step must be finite and > 0 s, got {dt!r}")
         st = StepStats()
@@ -231,10 +243,10 @@ class ClothScene:
         con = self.contacts(x, v, t, dt)
         v_new, st.linear = self.solver.step_velocity(x, v, f, dt, fixed=idx, fixed_velocity=vh, damping_blocks=blocks,
                                                      contacts=con)
-        self._released[:] = False
+        released = np.zeros_like(self._released)
         if con is not None:
             imp = st.linear.contact_impulses
-            self._released[con[0][imp < 0]] = True
+            released[con[0][imp < 0]] = True
             v_new = self._friction(v_new, con, imp, x, t + dt)
         t2 = time.perf_counter()
         t3 = t4 = t2
@@ -252,11 +264,12 @@ class ClothScene:
             if last.unresolved:
                 raise SimulationError(f"collision pipeline left {last.unresolved} colliding pairs at t = {t:.4g} s")
             v_new = v_col
-        self.x = x + dt * v_new
-        self.v = v_new
-        self.t = t + dt
-        if not np.all(np.isfinite(self.x)):
-            raise SimulationError(f"cloth positions became NaN/inf at t = {self.t:.4g} s")
+        x_new = x + dt * v_new
+        if not np.all(np.isfinite(x_new)):
+            raise SimulationError(f"cloth positions became NaN/inf at t = {t + dt:.4g} s")
+        # all-or-nothing: the scene changes only once the step has succeeded
+        self.x, self.v, self.t = x_new, v_new, t + dt
+        self._released = released
         t5 = time.perf_counter()
         st.seconds = {"forces": t1 - t0, "implicit": t2 - t1, "collisions": t3 - t2, "smoothing": t4 - t3,
                       "total": t5 - t0}
