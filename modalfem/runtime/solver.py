@@ -3,17 +3,20 @@
 Step contract (as in NVIDIA Warp / Newton): ``solver.step(state_in, state_out, control, contacts, dt)``.
 Order inside a step of length h [s]:
 
+0. the inputs are validated whole (dt, every control entry, the contacts) before anything changes;
+   a step that still fails restores ``state_out`` (all-or-nothing);
 1. ``control.impulses`` are applied at once (rigid velocity, angular momentum, modal velocities);
-2. ``contacts`` (from ``solver.collide``) are resolved by sequential impulses
-   (``modalfem.runtime.contact``);
-3. loads held constant over the step are summed: ``control.forces`` and the ``loads`` of every
-   load effect (gravity, pseudo-forces, ...);
-4. the rigid body advances: centre of mass exactly for a constant force; angular momentum by
-   half kicks of the torque around the symplectic free-rotation splitting (``rotation.free_rotation_step``);
-5. the modes advance by their exact solution (``ModalIntegrator``); state-dependent effects
-   (pseudo-forces) are re-evaluated at the end state and the step is corrected with the mean load
-   (Heun on top of the exact integrator: second order in the coupling);
-6. with contacts, vertices still inside an obstacle are pushed out by translating the body.
+2. loads held constant over the step are summed: ``control.forces``, ``control.body_force`` and the
+   ``loads`` of every load effect (gravity, ...);
+3. free motion (``advance_free``): the centre of mass exactly for a constant force; angular momentum
+   by half kicks of the torque around the symplectic free-rotation splitting
+   (``rotation.free_rotation_step``); the modes by their exact solution (``ModalIntegrator``), with
+   state-dependent effects (pseudo-forces) re-evaluated at the end and the step corrected with the
+   mean load (Heun on top of the exact integrator: second order in the coupling);
+4. with contacts (``contacts`` from ``solver.collide``, not None), 3. is split at the events of
+   ``contact.step_with_contacts``: impacts at their predicted time, sustained contact with the
+   step's load, friction stops; vertices still inside an obstacle at the end are pushed out by
+   translating the body, the potential energy this adds being taken from the kinetic energy.
 
 Only what is asked for runs: with no effects, an empty control and ``contacts=None`` a step costs
 the modal update plus the free rigid update (nothing else is called; tested by counting calls).
