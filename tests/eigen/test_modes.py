@@ -124,6 +124,21 @@ def test_mechanism_is_reported_where_it_hinges(make_box, steel, hinge, origin, e
     np.testing.assert_allclose(res.eigenvalues, ref[6 + extra : 8 + extra], rtol=1e-8)
 
 
+@pytest.mark.fenicsx
+def test_modalfem_warning_is_a_python_warning_after_a_fenicsx_solve(make_box, steel):
+    """FFCx's JIT switches Python warnings to logging; after a FEniCSx solve modalfem's own warning (here
+    the mechanism of two cubes sharing a vertex) must still be a warning pytest.warns sees."""
+    pytest.importorskip("dolfinx")
+    modes(make_box((0.1, 0.1, 0.1), (1, 1, 1)), steel, k=1, degree=2, backend="fenicsx")  # JIT first
+    a = make_box((0.1, 0.1, 0.1), (1, 1, 1))
+    b = make_box((0.1, 0.1, 0.1), (1, 1, 1), origin=(0.1, 0.1, 0.1))
+    pts = np.vstack([a.points, b.points])
+    _, first, inv = np.unique(np.round(pts, 12), axis=0, return_index=True, return_inverse=True)
+    mesh = Mesh(pts[first], inv.ravel()[np.vstack([a.cells, b.cells + a.point_count])])
+    with pytest.warns(RuntimeWarning, match="mechanism: piece 0"):
+        modes(mesh, steel, k=2, degree=2, backend="fenicsx")
+
+
 def _assemble(mesh, material, degree=1):
     from modalfem.backends.skfem import assemble
 
