@@ -381,3 +381,30 @@ def test_a_sliding_block_stops_after_v0_squared_over_2_mu_g_at_any_dt(dt):
     assert st.position[0] == pytest.approx(stop, abs=0.01 * mu * G * dt**2 + 1e-9)
     assert abs(st.velocity[0]) < 1e-6 and abs(st.position[1]) < 1e-4 * stop  # (unconverged sweeps: 1e-5 of it)
     assert st.position[2] == pytest.approx(0.05, abs=1e-9)
+
+
+@pytest.mark.parametrize("dt", [1e-3, 1e-2, 0.1, 1.0])
+def test_a_tumbling_flexible_block_never_gains_energy_in_a_contact_step(small_model, dt):
+    """A steel block (anisotropic inertia, its modes on) dropped tumbling with e = 1 and no friction:
+    no step ends with more kinetic + modal + gravitational energy than it began with, beyond 1e-8 of
+    the start energy (rounding). Impact times are predicted without the rotation and the modes, and a
+    push-out of a slow body costs lift; a contact step that would gain is redone in halves (before:
+    gains up to 1.5e-4 of the energy in one step at dt = 10 ms and ~0.2 at 1 s)."""
+    body = rt.ModalBody(small_model, dtype=np.float64)
+    solver = rt.ModalSolver(body, effects=[rt.Gravity((0, 0, -G)), rt.Obstacles([rt.Ground(0.0)], restitution=1.0,
+                                                                              friction=0.0)])
+    axis = np.array([0.3, 0.9, 0.2]) / np.linalg.norm([0.3, 0.9, 0.2])
+    st = solver.state(position=(0, 0, 0.3), orientation=quat_from_axis_angle(axis, 0.8), velocity=(0.2, 0, -0.5),
+                      angular_velocity=(2.0, -3.0, 4.0))
+
+    def energy(s):
+        return solver.energy(s) + body.mass * G * s.position[2]
+
+    e0, hits = energy(st), 0
+    for _ in range(int(min(1000, 2.0 / dt))):
+        before = energy(st)
+        solver.advance(st, dt)
+        assert energy(st) - before <= 1e-8 * e0
+        assert _min_gap(body, st, rt.Ground(0.0)) >= -1e-12
+        hits += int(st.position[2] < 0.15)
+    assert hits > 0  # it did reach the ground
