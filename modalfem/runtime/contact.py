@@ -239,14 +239,19 @@ def merge_contacts(into: Contacts, earlier: Contacts) -> None:
             key = (int(part.vertex[i]), int(part.effect[i]), int(part.obstacle[i]))
             prev = record.get(key)
             record[key] = (part.normal[i], part.gap[i], (0.0 if prev is None else prev[2]) + float(part.impulses[i]))
+    _write_record(into, record)
+
+
+def _write_record(contacts: Contacts, record: dict) -> None:
+    """Set ``contacts`` to a step record {(vertex, effect, obstacle): (normal, gap, total impulse [N s])}."""
     keys = list(record)
-    into.vertex = np.array([k[0] for k in keys], dtype=np.int64)
-    into.effect = np.array([k[1] for k in keys], dtype=np.int64)
-    into.obstacle = np.array([k[2] for k in keys], dtype=np.int64)
-    into.normal = np.array([record[k][0] for k in keys], dtype=np.float64).reshape(-1, 3)
-    into.gap = np.array([record[k][1] for k in keys], dtype=np.float64)
-    into.impulses = np.array([record[k][2] for k in keys], dtype=np.float64)
-    into.tangential = None
+    contacts.vertex = np.array([k[0] for k in keys], dtype=np.int64)
+    contacts.effect = np.array([k[1] for k in keys], dtype=np.int64)
+    contacts.obstacle = np.array([k[2] for k in keys], dtype=np.int64)
+    contacts.normal = np.array([record[k][0] for k in keys], dtype=np.float64).reshape(-1, 3)
+    contacts.gap = np.array([record[k][1] for k in keys], dtype=np.float64)
+    contacts.impulses = np.array([record[k][2] for k in keys], dtype=np.float64)
+    contacts.tangential = None
 
 
 def _positions64(body, state) -> np.ndarray:
@@ -592,14 +597,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         keep(mid, gap_mid)
         solver.advance_free(state, loads, 0.5 * span)
         t_left -= span
-    keys = list(record)
-    contacts.vertex = np.array([k[0] for k in keys], dtype=np.int64)
-    contacts.effect = np.array([k[1] for k in keys], dtype=np.int64)
-    contacts.obstacle = np.array([k[2] for k in keys], dtype=np.int64)
-    contacts.normal = np.array([record[k][0] for k in keys], dtype=np.float64).reshape(-1, 3)
-    contacts.gap = np.array([record[k][1] for k in keys], dtype=np.float64)
-    contacts.impulses = np.array([record[k][2] for k in keys], dtype=np.float64)
-    contacts.tangential = None
+    _write_record(contacts, record)
 
 
 def _fly(solver, state, loads, c: Contacts, h: float, slop: np.ndarray, tries: int = 8):
