@@ -294,7 +294,7 @@ def modes(
 
     say("shift")
     t = time.perf_counter()
-    Z = structure.basis(free, M_ff) if comm is None else _distributed_basis(structure, free, M_ff, rows, comm)
+    Z = structure.basis(free, M_ff, rows=rows, comm=comm)
     shift, theta = estimate_shift(mesh, degree, fixed, K_ff, M_ff, rigid_count=r, rows=rows, comm=comm, deflate=Z)
     unit = theta  # [rad^2/s^2] per eigenvalue unit of the solved pencil
     _scale(K_ff, 1.0 / unit)
@@ -383,19 +383,6 @@ def modes(
         labels=labels, certificate=cert, timings=timings, degree=int(degree), dof_points=points,
         fixed_dofs=fixed, backend=backend, solver=solver, info=info,
     )
-
-
-def _distributed_basis(structure, free, M_ff, rows, comm) -> np.ndarray:
-    """``structure.basis`` when M_ff is a distributed PETSc matrix: Z (n_free, r) on every rank."""
-    from mpi4py import MPI
-
-    from modalfem.eigen.shift import petsc_products
-
-    B = structure.fields[free]
-    for _ in range(2):
-        G = comm.allreduce(B[rows].T @ petsc_products(M_ff, B, rows), op=MPI.SUM)
-        B = B @ np.linalg.inv(np.linalg.cholesky(0.5 * (G + G.T))).T
-    return B
 
 
 def _diagonal_max(A, comm) -> float:

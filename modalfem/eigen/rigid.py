@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from modalfem.eigen.spmm import spmm
+
 __all__ = ["RANK_RTOL", "Deflation", "RigidStructure", "analyse_rigid", "cell_parts", "expected_rigid_count", "node_pieces",
            "rigid_basis", "rigid_fields"]
 
@@ -163,24 +165,33 @@ class RigidStructure:
     mechanisms: tuple[str, ...]
     fields: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
 
-    def basis(self, free: np.ndarray, M_ff) -> np.ndarray:
+    def basis(self, free: np.ndarray, M_ff, *, rows=None, comm=None) -> np.ndarray:
         """M-orthonormal basis Z (n_free, zero_energy_count) of the zero-energy fields: Z^T M_ff Z = I.
 
         Args:
             free: bool mask (N_dof,) of the free DOFs.
-            M_ff: mass matrix [kg] on the free DOFs (scipy sparse).
+            M_ff: mass matrix [kg] on the free DOFs: scipy sparse, or a distributed PETSc matrix with
+                ``rows`` (this rank's canonical free indices) and ``comm`` (mpi4py); Z is then on every rank.
         """
         B = self.fields[np.asarray(free, dtype=bool)]
         if not B.shape[1]:
             return B
-        from modalfem.eigen.spmm import spmm
+        if rows is None:
+            def gram(Y):
+                return Y.T @ spmm(M_ff, Y)
+        else:
+            from mpi4py import MPI
 
-        G = B.T @ spmm(M_ff, B)
+            from modalfem.eigen.shift import petsc_products
+
+            def gram(Y):
+                return comm.allreduce(Y[rows].T @ petsc_products(M_ff, Y, rows), op=MPI.SUM)
+
+        G = gram(B)
         s, U = np.linalg.eigh(0.5 * (G + G.T))
-        T = U / np.sqrt(s)  # the fields are independent by construction (an SVD null space): s > 0
-        Z = B @ T
-        for _ in range(2):  # re-orthonormalise once against rounding in the first pass
-            G = Z.T @ spmm(M_ff, Z)
+        Z = B @ (U / np.sqrt(s))  # the fields are independent by construction (an SVD null space): s > 0
+        for _ in range(2):  # Cholesky QR twice against rounding in the first pass
+            G = gram(Z)
             Z = Z @ np.linalg.inv(np.linalg.cholesky(0.5 * (G + G.T))).T
         return Z
 
@@ -217,18 +228,18 @@ def analyse_rigid(mesh, degree: int, fixed_mask: np.ndarray) -> RigidStructure:
         ``RANK_RTOL``, relative, like the rigid count).
     """
     fixed = np.asarray(fixed_mask, dtype=bool)
-    rigid = expected_rigid_count(mesh, degree, fixed)
     parts = cell_parts(mesh)
     cells_of_piece = _groups(mesh.point_piece[mesh.cells[:, 0]])
     pts = mesh.dof_points(degree)
     cell_nodes = mesh.cell_nodes(degree)
-    zero, notes, cols = 0, [], []
+    rigid, zero, notes, cols = 0, 0, [], []
     n_dof = fixed.size
     for piece, (nodes_p, R_p) in enumerate(rigid_fields(mesh, degree)):
         cells = cells_of_piece[piece]
         plabels = np.unique(parts[cells])
         null = _piece_null(R_p, fixed[_piece_dofs(nodes_p)], len(nodes_p))
-        held = null.shape[1]
+        held = null.shape[1]  # the piece's rigid motions left by the constraints
+        rigid += held
         if len(plabels) == 1:
             zero += held
             if held:
@@ -264,11 +275,9 @@ def analyse_rigid(mesh, degree: int, fixed_mask: np.ndarray) -> RigidStructure:
         sn, so = all_nodes[order], owner[order]
         dup = np.flatnonzero(sn[1:] == sn[:-1]) + 1
         shared = np.unique(sn[dup])
-        first = {}
-        for i in range(len(sn)):
-            first.setdefault(int(sn[i]), int(so[i]))
-        for i in dup:
-            node, a, b = int(sn[i]), first[int(sn[i])], int(so[i])
+        run_start = np.maximum.accumulate(np.where(np.r_[True, sn[1:] != sn[:-1]], np.arange(len(sn)), 0))
+        for i in dup:  # a node of several parts: the same displacement in the part listed first and this one
+            node, a, b = int(sn[i]), int(so[run_start[i]]), int(so[i])
             if a == b:
                 continue
             F = fields_at(np.array([node]))
@@ -320,7 +329,7 @@ class Deflation:
     def __init__(self, Z: np.ndarray | None, M) -> None:
         n = M.shape[0]
         self.Z = np.zeros((n, 0)) if Z is None else np.ascontiguousarray(Z, dtype=np.float64)
-        self.MZ = _spmm(M, self.Z) if self.Z.shape[1] else np.zeros((n, 0))
+        self.MZ = spmm(M, self.Z) if self.Z.shape[1] else np.zeros((n, 0))
 
     @property
     def count(self) -> int:
@@ -341,9 +350,3 @@ class Deflation:
             return np.eye(n)
         q, _ = np.linalg.qr(self.MZ, mode="complete")
         return q[:, self.count :]
-
-
-def _spmm(A, X):
-    from modalfem.eigen.spmm import spmm
-
-    return spmm(A, X)
