@@ -73,16 +73,8 @@ def _ritz_products(B: np.ndarray, K, M, rows, comm):
 
         lam_max = float(np.max(K.diagonal() / M.diagonal()))
         return B.T @ spmm(K, B), B.T @ spmm(M, B), lam_max
-    x, y = K.createVecs()
     Bl = B[rows]
-    KB = np.empty_like(Bl)
-    MB = np.empty_like(Bl)
-    for j in range(B.shape[1]):
-        x.setArray(Bl[:, j])
-        K.mult(x, y)
-        KB[:, j] = y.getArray()
-        M.mult(x, y)
-        MB[:, j] = y.getArray()
+    KB, MB = petsc_products(K, B, rows), petsc_products(M, B, rows)
     dk, dm = K.getDiagonal().getArray(), M.getDiagonal().getArray()
     from mpi4py import MPI
 
