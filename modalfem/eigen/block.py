@@ -165,11 +165,11 @@ def block_krylov_schur(
     if start is not None:
         S = np.asarray(start, dtype=np.float64).reshape(n, -1)[:, :b]
         P[:, : S.shape[1]] = S
-    fixed = [] if deflate is None or not deflate[0].shape[1] else [tuple(deflate)]
-    if fixed and m > n - fixed[0][0].shape[1] - 1:
-        raise SolverError(f"block Krylov-Schur: m={m} exceeds the {n - fixed[0][0].shape[1]} DOFs left after deflation")
-    P, _ = _orthogonalise(P, fixed)
-    P, MP, _ = _new_block(P, M, fixed, rng)
+    deflated = [] if deflate is None or not deflate[0].shape[1] else [tuple(deflate)]
+    if deflated and m > n - deflated[0][0].shape[1] - 1:
+        raise SolverError(f"block Krylov-Schur: m={m} exceeds the {n - deflated[0][0].shape[1]} DOFs left after deflation")
+    P, _ = _orthogonalise(P, deflated)
+    P, MP, _ = _new_block(P, M, deflated, rng)
     V = np.empty((n, max_dim + b), order="F")  # column-major: V[:, :k] is one contiguous block
     MV = np.empty((n, max_dim + b), order="F")
     H = np.zeros((max_dim + b, max_dim + b))
@@ -179,14 +179,15 @@ def block_krylov_schur(
         W = np.asarray(opinv(MP), dtype=np.float64).reshape(n, b)  # T P
         solves += b
         blocks += 1
-        W, _ = _orthogonalise(W, fixed)  # T keeps span(Z) invariant: only roundoff to remove
-        W, (_, C2) = _orthogonalise(W, [(V[:, :k], MV[:, :k]), (P, MP)])
+        # (T keeps a deflated span(Z) invariant: against it there is only roundoff to remove)
+        W, coefs = _orthogonalise(W, [*deflated, (V[:, :k], MV[:, :k]), (P, MP)])
+        C2 = coefs[-1]
         V[:, k : k + b], MV[:, k : k + b] = P, MP
         H[:k, k : k + b] = R.T  # = the coefficients on V in exact arithmetic (T is M-symmetric)
         H[k : k + b, :k] = R
         H[k : k + b, k : k + b] = 0.5 * (C2 + C2.T)
         k += b
-        P, MP, Rb = _new_block(W, M, [*fixed, (V[:, :k], MV[:, :k])], rng)
+        P, MP, Rb = _new_block(W, M, [*deflated, (V[:, :k], MV[:, :k])], rng)
         R = np.zeros((b, k))
         R[:, k - b :] = Rb
         theta, Y = np.linalg.eigh(H[:k, :k])
