@@ -230,16 +230,19 @@ class Contacts:
 def merge_contacts(into: Contacts, earlier: Contacts) -> None:
     """Fold the step record ``earlier`` (an earlier part of the same step) into ``into`` in place: one entry
     per (vertex, effect, obstacle), normal impulses [N s] summed, normal and gap of the later part."""
-    parts = [earlier, into]
     record: dict = {}
-    for part in parts:
-        if part.impulses is None or part.obstacle is None:
-            continue
-        for i in range(part.count):
-            key = (int(part.vertex[i]), int(part.effect[i]), int(part.obstacle[i]))
-            prev = record.get(key)
-            record[key] = (part.normal[i], part.gap[i], (0.0 if prev is None else prev[2]) + float(part.impulses[i]))
+    for part in (earlier, into):
+        if part.impulses is not None and part.obstacle is not None:
+            _accumulate(record, part, part.gap)
     _write_record(into, record)
+
+
+def _accumulate(record: dict, c: Contacts, gap) -> None:
+    """Add the contacts of ``c`` that pushed (impulse > 0) to a step record (see ``_write_record``)."""
+    for i in np.flatnonzero(c.impulses > 0.0):
+        key = (int(c.vertex[i]), int(c.effect[i]), int(c.obstacle[i]))
+        prev = record.get(key)
+        record[key] = (c.normal[i], gap[i], (0.0 if prev is None else prev[2]) + float(c.impulses[i]))
 
 
 def _write_record(contacts: Contacts, record: dict) -> None:
@@ -546,10 +549,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
     record: dict = {}
 
     def keep(c: Contacts, gap) -> None:
-        for i in np.flatnonzero(c.impulses > 0.0):
-            key = (int(c.vertex[i]), int(c.effect[i]), int(c.obstacle[i]))
-            prev = record.get(key)
-            record[key] = (c.normal[i], gap[i], (0.0 if prev is None else prev[2]) + float(c.impulses[i]))
+        _accumulate(record, c, gap)
 
     t_left, events, forced, event_vertex = float(dt), 0, None, -1
     while t_left > 1e-12 * dt:
