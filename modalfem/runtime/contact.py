@@ -55,6 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from modalfem.errors import InputError
+from modalfem.runtime.state import restore, snapshot
 
 __all__ = [
     "Box",
@@ -582,7 +583,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
                 continue
             span = t_hit  # a slow landing first: sustained contact up to the impact
         # 3. sustained contact over the sub-step [0, span]: impulse at its middle
-        saved = _save(state)
+        saved = snapshot(state)
         v_start = state.velocity.copy()
         solver.advance_free(state, loads, 0.5 * span)
         gap_mid, n_mid = _gaps(effects, c, _positions64(body, state))
@@ -590,7 +591,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         resolve_contacts(solver, state, mid, span, accel=accel, sustained=True)
         stop = _stop_fraction(body, mid, v_start, state.velocity, accel, span)
         if stop is not None and events < MAX_EVENTS:  # the sliding ends inside: step to that instant
-            _restore(state, saved)
+            restore(state, saved)
             forced = stop * span
             events += 1
             continue
@@ -608,7 +609,7 @@ def _fly(solver, state, loads, c: Contacts, h: float, slop: np.ndarray, tries: i
     on the exact free trajectory). Returns (time flown [s], index of the vertex that stopped the flight
     or -1).
     """
-    saved = _save(state)
+    saved = snapshot(state)
     t, stopper = h, -1
     for _ in range(tries):
         solver.advance_free(state, loads, t)
@@ -618,22 +619,12 @@ def _fly(solver, state, loads, c: Contacts, h: float, slop: np.ndarray, tries: i
             return t, stopper
         i = int(np.argmin(excess))
         stopper = int(c.vertex[i])
-        _restore(state, saved)
+        restore(state, saved)
         g0 = c.gap[i]
         t = 0.999 * t * g0 / (g0 - gap[i]) if g0 > 0.0 else 0.0
         if t <= 1e-12 * h:
             break
     return 0.0, stopper
-
-
-def _save(state) -> tuple:
-    return (state.q.copy(), state.qdot.copy(), state.position.copy(), state.orientation.copy(),
-            state.velocity.copy(), state.angular_momentum.copy())
-
-
-def _restore(state, saved: tuple) -> None:
-    for name, value in zip(("q", "qdot", "position", "orientation", "velocity", "angular_momentum"), saved):
-        getattr(state, name)[...] = value
 
 
 def _stop_fraction(body, mid: Contacts, v_start, v_after, accel, span):

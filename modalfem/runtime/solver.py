@@ -33,7 +33,7 @@ import numpy as np
 from modalfem.errors import SimulationError
 from modalfem.runtime.integrator import ModalIntegrator, check_dt
 from modalfem.runtime.rotation import free_rotation_step
-from modalfem.runtime.state import Control, State
+from modalfem.runtime.state import Control, State, restore, snapshot
 
 __all__ = ["TINY", "Loads", "ModalSolver"]
 
@@ -59,17 +59,6 @@ def _finite3(name: str, value, unit: str) -> np.ndarray:
 #: started is redone as two half steps, at most SPLIT_DEPTH times deep (a 1 s step -> ~1 ms sub-steps)
 ENERGY_RTOL = 1e-10
 SPLIT_DEPTH = 10
-
-
-def _snapshot(s: State) -> tuple:
-    return (s.q.copy(), s.qdot.copy(), s.position.copy(), s.orientation.copy(), s.velocity.copy(),
-            s.angular_momentum.copy(), s.time)
-
-
-def _restore(s: State, saved: tuple) -> None:
-    for name, value in zip(("q", "qdot", "position", "orientation", "velocity", "angular_momentum"), saved):
-        getattr(s, name)[...] = value
-    s.time = saved[-1]
 
 
 class Loads:
@@ -256,11 +245,11 @@ class ModalSolver:
                 raise SimulationError(f"contacts must be the Contacts of solver.collide or None, "
                                       f"got {type(contacts).__name__}")
         s = state_out
-        saved = _snapshot(s)
+        saved = snapshot(s)
         try:
             self._step(state_in, s, impulses, forces, body_force, contacts, h)
         except BaseException:
-            _restore(s, saved)
+            restore(s, saved)
             raise
         return s
 
@@ -321,7 +310,7 @@ class ModalSolver:
 
         e0 = self._mechanical_energy(s, loads)
         own0 = self.energy(s)
-        saved = _snapshot(s)
+        saved = snapshot(s)
         accel = None if loads is None else loads.force / self.body.mass
         step_with_contacts(self, s, contacts, loads, h)
         push_out(self, s, contacts, accel=accel)
@@ -330,7 +319,7 @@ class ModalSolver:
             np.linalg.norm(loads.force)) * (float(np.linalg.norm(s.position - saved[2])) + self.body.radius))
         if e1 <= e0 + ENERGY_RTOL * scale or depth <= 0:
             return
-        _restore(s, saved)
+        restore(s, saved)
         first = contacts.copy()
         self._contact_step_without_gain(s, first, loads, 0.5 * h, depth - 1)
         self._contact_step_without_gain(s, contacts, loads, 0.5 * h, depth - 1)

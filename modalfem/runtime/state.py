@@ -98,6 +98,21 @@ class State:
                 raise SimulationError(f"state {name} is not finite")
 
 
+_FIELDS = ("q", "qdot", "position", "orientation", "velocity", "angular_momentum")
+
+
+def snapshot(s: State) -> tuple:
+    """The state's values, bit for bit (no validation, no renormalised quaternion), for ``restore``."""
+    return (*(getattr(s, name).copy() for name in _FIELDS), s.time)
+
+
+def restore(s: State, saved: tuple) -> None:
+    """Put a ``snapshot`` back into ``s``'s arrays (in place), bit for bit."""
+    for name, value in zip(_FIELDS, saved):
+        getattr(s, name)[...] = value
+    s.time = saved[-1]
+
+
 def _vec3(name: str, value) -> np.ndarray:
     try:
         a = np.asarray(value, dtype=np.float64).reshape(3)
