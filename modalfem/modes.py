@@ -149,10 +149,11 @@ def _mpi_comm(backend: str, solver: str):
     return MPI.COMM_WORLD if MPI.COMM_WORLD.size > 1 else None
 
 
-def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, groups=None, deflate=None):
+def _solve(solver, K_ff, M_ff, *, nev, shift, tol, rows, comm, say, groups=None, deflate=None, unit=1.0):
     """One eigen solve of the lowest ``nev`` pairs, the ``deflate`` fields (n_free, r) first; ``groups``
-    = the node of each free DOF (serial: PARDISO orders the node graph, a third of the DOF graph)."""
-    say(f"eigen ({solver}, nev={nev}, shift={shift:.4g} rad^2/s^2)")
+    = the node of each free DOF (serial: PARDISO orders the node graph, a third of the DOF graph);
+    ``unit`` [rad^2/s^2] = one eigenvalue unit of the scaled pencil (for the progress line only)."""
+    say(f"eigen ({solver}, nev={nev}, shift={shift * unit:.4g} rad^2/s^2)")
     if comm is None and _have_pardiso():  # PARDISO's MKL threads own the cores (see eigen.blas_threads)
         from modalfem.eigen.blas_threads import one_openblas_thread
 
@@ -304,14 +305,14 @@ def modes(
     t = time.perf_counter()
     groups = np.flatnonzero(free) // 3 if comm is None else None  # node of each free DOF
     raw = _solve(solver, K_ff, M_ff, nev=nev, shift=shift, tol=tol, rows=rows, comm=comm, say=say, groups=groups,
-                 deflate=Z)
+                 deflate=Z, unit=unit)
     missed = _missed(raw)
     if missed > 0 and nev + missed + 4 <= n_free - 1:
         # a Krylov solver can miss copies of a multiple eigenvalue: the Sylvester count says how many;
         # one retry with a wider search usually recovers them
         say(f"retry: {missed} eigenvalue(s) missed below the inertia shift")
         raw = _solve(solver, K_ff, M_ff, nev=nev + missed + 4, shift=shift, tol=tol, rows=rows, comm=comm, say=say,
-                     groups=groups, deflate=Z)
+                     groups=groups, deflate=Z, unit=unit)
     timings["eigen"] = time.perf_counter() - t
     for key, val in raw.timings.items():
         timings[f"eigen.{key}"] = float(val)

@@ -49,6 +49,9 @@ def test_square_beam_pairs_and_public_entry(beam, steel):
     stages = [c.split(" ")[0] for c in calls]
     assert stages[:3] == ["constraints", "assembly", "shift"] and "eigen" in stages
     assert stages.index("eigen") <= 3
+    # the progress line states the shift in rad^2/s^2, not in the solver's scaled units
+    shown = float(next(c for c in calls if c.startswith("eigen")).split("shift=")[1].split()[0])
+    assert shown == pytest.approx(res.info["shift"], rel=1e-3)
     assert calls[-1].startswith("done")
     for key in ("assembly", "constraints", "eigen", "certificate", "labels", "total"):
         assert res.timings[key] >= 0
