@@ -6,6 +6,8 @@ Subcommands:
     ``--out DIR``, mode shapes for ParaView (modes.vtu, modes.xdmf) and a PNG sheet (modes.png);
     with ``--save MODEL.npz``, a ``ModalModel`` file for the numpy-only runtime (``modalfem.model``).
   * ``modalfem bench modes ...``: the cantilever-ladder benchmark (``modalfem.bench.cli``).
+  * ``modalfem export MODEL.npz OUT.glb [--html PAGE.html]``: modes as glTF morph targets and a
+    self-contained page (``modalfem.cli_export``).
 
 Every ``ModalfemError`` (bad material, unknown tag, malformed mesh, k too large, ...) becomes one
 line ``modalfem: error: ...`` on stderr and exit code 2. The outputs of one run (the ``--out`` folder,
@@ -93,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks that write BENCHMARKS.md (see `modalfem bench modes -h`)",
                        add_help=False)
     b.add_argument("args", nargs=argparse.REMAINDER)
+    from modalfem.cli_export import add_parser as add_export_parser
+
+    add_export_parser(sub)
     return p
 
 
@@ -455,6 +460,11 @@ def main(argv: list[str] | None = None) -> int:
 
             print(f"modalfem {modalfem.__version__}")
             return 0
+        if args.command == "export":
+            from modalfem.cli_export import run as export_run
+
+            with _terminate_as_exit(), _one_line_warnings(debug):
+                return export_run(args, argv)
         if args.command != "modes":
             build_parser().print_help(sys.stderr)
             return 2
