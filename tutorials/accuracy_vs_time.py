@@ -45,6 +45,7 @@ import numpy as np
 import modalfem
 from modalfem.backends import get_backend
 from modalfem.mesh import box
+from modalfem.output.notebook import show
 from modalfem.reduction.compare import compare_modes
 from modalfem.reduction.embed import embed_points
 from modalfem.reduction.response import (
@@ -210,6 +211,7 @@ for ax, key, title in ((axes[0], "f_err", f"largest frequency error, first {N} m
 png = OUT / "accuracy_vs_time.png"
 fig.savefig(png, dpi=100)
 print(f"wrote {png}")
+show(png)  # inline when run as a notebook
 # -
 
 # ## Checks

@@ -35,6 +35,7 @@ import numpy as np
 import modalfem
 from modalfem import theory
 from modalfem.mesh import box
+from modalfem.output.notebook import show
 
 OUT = Path(os.environ.get("MODALFEM_OUT", "out/tutorials"))
 OUT.mkdir(parents=True, exist_ok=True)
@@ -107,6 +108,7 @@ fig.colorbar(sc, ax=axes, shrink=0.8, label="|u| / max |u|")
 png = OUT / "cantilever_modes.png"
 fig.savefig(png, dpi=110)
 print(f"wrote {png}")
+show(png)  # inline when run as a notebook
 # -
 
 # ## Checks

@@ -34,6 +34,7 @@ import numpy as np
 
 from modalfem.cloth import scenes
 from modalfem.cloth.render import render_cloth, write_frame_sheet, write_gif
+from modalfem.output.notebook import show
 
 OUT = Path(os.environ.get("MODALFEM_OUT", "out/tutorials"))
 OUT.mkdir(parents=True, exist_ok=True)
@@ -73,6 +74,7 @@ write_frame_sheet(OUT / "cloth_drape.png", images, columns=3)
 write_gif(OUT / "cloth_drape.gif", images, fps=6)
 print(f"drape: {drape_hits} intersections, smallest vertex gap to the obstacles {1e3 * drape_gap:.2f} mm")
 print(f"total energy {e_start:.3f} J -> {e_end:.3f} J (collisions and damping dissipate)")
+show(OUT / "cloth_drape.png", OUT / "cloth_drape.gif")  # inline when run as a notebook
 # -
 
 # The frame sheet `cloth_drape.png`: the cloth falls flat, touches the ball at its middle and its
@@ -92,6 +94,7 @@ timages = render_cloth(tframes, twist.scene.model.mesh.triangles, ground_z=None,
                        labels=[f"t = {t:.2f} s" for t in ttimes])
 write_frame_sheet(OUT / "cloth_twist.png", timages, columns=3)
 print(f"twist: {twist_hits} intersections over {twist.steps} steps")
+show(OUT / "cloth_twist.png")
 # -
 
 # The sheet `cloth_twist.png` shows the square turning into a helicoid whose middle narrows.

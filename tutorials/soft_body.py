@@ -41,6 +41,7 @@ from modalfem.mesh import box
 from modalfem.mesh.core import signed_volumes
 from modalfem.mesh.surface import boundary_surface
 from modalfem.model import ModalModel
+from modalfem.output.notebook import show as show_inline  # `show` is the frame schedule below
 from modalfem.tet import (
     Gravity,
     Ground,
@@ -96,10 +97,9 @@ sheet = plot_frame_sheet(OUT / "soft_body_squash.png", cube, frames, labels=labe
 print(f"wrote {sheet}")
 print(f"energy {energy[0]:.3f} J -> {energy[-1]:.4f} J; min volume ratio at the end {min_J[-1]:.3f}; "
       f"highest jump {100 * top:.0f} cm")
+show_inline(sheet)  # inline when run as a notebook
 # -
 
-# ![frame sheet](soft_body_squash.png)
-#
 # In the first frame every element is flat (`min J = 0`, dark red). After one step of 5 ms the
 # smallest volume ratio is already back to ~0.7 (pink: compressed), after 20 ms the cube has its shape
 # again. The elastic energy stored in the crushed cube (~95 J for 1 kg of jelly) launches it: it
@@ -197,10 +197,9 @@ a2.legend(fontsize=8)
 fig.tight_layout()
 fig.savefig(OUT / "soft_body_modal_vs_corotational.png", dpi=100)
 print(f"after a quarter turn: linear model volume x{ratio_lin[50]:.2f}, tet body x{ratio_tet[50]:.4f}")
+show_inline(OUT / "soft_body_modal_vs_corotational.png")
 # -
 
-# ![modal versus corotational](soft_body_modal_vs_corotational.png)
-#
 # Left: the two tip histories lie on top of each other; the small remainder is the time
 # discretisation of the implicit step (plain backward Euler at the same step damps the higher modes
 # and differs by ~6 %). Right: after a quarter turn the linear model has inflated the bar to 3.5 times

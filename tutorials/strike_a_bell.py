@@ -41,6 +41,7 @@ from modalfem.output.animation import (
     write_frame_sheet,
     write_gif,
 )
+from modalfem.output.notebook import show
 from modalfem.runtime.rotation import quat_from_axis_angle, quat_multiply
 from modalfem.runtime.sound import ModalSound
 from modalfem.runtime.synthesis import F_MAX_HZ
@@ -179,6 +180,7 @@ write_gif(OUT / "bell_drop.gif", images, fps=25)
 pick = sorted({*np.linspace(0, len(images) - 1, 7).round().astype(int), round(t_strike / (frame_every * dt))})
 write_frame_sheet(OUT / "bell_frames.png", images[pick], columns=4)
 print(f"{len(images)} frames, deformation magnified {magnify:.0f}x; wrote bell_drop.gif and bell_frames.png")
+show(OUT / "bell_drop.gif", OUT / "bell_frames.png")  # inline when run as a notebook
 # -
 
 # ## 5. Sound
@@ -214,6 +216,7 @@ for p, m in zip(peaks, miss):
     print(f"  peak {p:9.2f} Hz   nearest model mode {m:.3f} Hz away")
 print(f"wrote bell.wav ({duration:.0f} s, 44.1 kHz, 16 bit) and bell_spectrum.png; "
       f"total {time.perf_counter() - t_start:.1f} s")
+show(OUT / "bell_spectrum.png", OUT / "bell.wav")  # the spectrum, and a player for the sound
 # -
 
 # ## Checks
