@@ -8,6 +8,7 @@ Subcommands:
   * ``modalfem bench modes ...``: the cantilever-ladder benchmark (``modalfem.bench.cli``).
   * ``modalfem export MODEL.npz OUT.glb [--html PAGE.html]``: modes as glTF morph targets and a
     self-contained page (``modalfem.cli_export``).
+  * ``modalfem view MODEL.npz``: live mode explorer in the browser (``modalfem.view.cli``).
 
 Every ``ModalfemError`` (bad material, unknown tag, malformed mesh, k too large, ...) becomes one
 line ``modalfem: error: ...`` on stderr and exit code 2. The outputs of one run (the ``--out`` folder,
@@ -91,6 +92,9 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--verbose", action="store_true",
                    help="also show the FEniCSx JIT compiler's log (FFCx, cffi/gcc lines)")
     o.add_argument("--debug", action="store_true", help="show tracebacks of unexpected errors")
+    from modalfem.reduction import transfer_cli
+
+    transfer_cli.add_arguments(m)
 
     b = sub.add_parser("bench", help="benchmarks that write BENCHMARKS.md (see `modalfem bench modes -h`)",
                        add_help=False)
@@ -98,6 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     from modalfem.cli_export import add_parser as add_export_parser
 
     add_export_parser(sub)
+    sub.add_parser("view", help="live mode explorer of a model file in the browser (see `modalfem view -h`)",
+                   add_help=False).add_argument("args", nargs=argparse.REMAINDER)
     return p
 
 
@@ -305,6 +311,9 @@ def _modes_command(args, argv, say: _Progress) -> int:
     if args.sheet_modes < 1:
         raise InputError(f"--sheet-modes must be >= 1, got {args.sheet_modes}")
     check_targets(out_dir=args.out, files=tuple(p for p in (args.json, args.save) if p is not None))
+    from modalfem.reduction import transfer_cli
+
+    render_surface = transfer_cli.read(args)  # None without --render-surface; read before the solve
     material = _material(args)
     fixed, constraints = _constraints(args)
     say(f"mesh: {args.mesh}")
@@ -312,6 +321,7 @@ def _modes_command(args, argv, say: _Progress) -> int:
     mesh, source = _load_mesh(args)
     t_mesh = time.perf_counter() - t
     say(f"mesh: {mesh!r}")
+    transfer_cli.check(args, render_surface, mesh, say)
     res = modalfem.modes(mesh, material, k=args.k, degree=args.degree, fixed=fixed, backend=args.backend,
                          solver=args.solver, lumped=args.lumped, progress=say)
     outputs = {}
@@ -323,11 +333,16 @@ def _modes_command(args, argv, say: _Progress) -> int:
     if args.save is not None:  # built (and validated) before anything is written
         from modalfem.model import ModalModel
 
-        model = ModalModel.from_modes(res, mesh, material, provenance={
-            "fixed": None if held == "free" else held, "source": source, "command": ["modalfem", *argv]})
+        prov = {"fixed": None if held == "free" else held, "source": source, "command": ["modalfem", *argv]}
+        if render_surface is not None:
+            model, render_info = transfer_cli.build(args, render_surface, res, mesh, material, fixed, prov, say)
+        else:
+            model = ModalModel.from_modes(res, mesh, material, provenance=prov)
         outputs["model"] = str(args.save)
     data = summary(res, mesh=mesh, material=material, source=source, constraints=constraints,
                    timings={"mesh": t_mesh}, outputs=outputs, command=["modalfem", *argv])
+    if render_surface is not None:
+        data["render_surface"] = render_info
     targets = [str(p) + ("/" if p == args.out else "") for p in (args.out, args.json, args.save) if p is not None]
     t_out = time.perf_counter()
     write_times: dict[str, float] = {}
@@ -384,6 +399,8 @@ def _modes_command(args, argv, say: _Progress) -> int:
           f"(inertia {cert.inertia_count} below {cert.inertia_shift:.4g} rad^2/s^2, "
           f"orthonormality {cert.orthonormality_error:.1e}); {res.backend} + {res.solver}, "
           f"{res.timings['total']:.2f} s")
+    if render_surface is not None:
+        transfer_cli.print_report(render_info)
     for what, path in (("json", args.json), ("outputs", args.out), ("model", args.save)):
         if path is not None:
             print(f"{what}: {path}")
@@ -454,6 +471,10 @@ def main(argv: list[str] | None = None) -> int:
             from modalfem.bench.cli import main as bench_main
 
             return int(bench_main(argv[1:]))
+        if argv[:1] == ["view"]:
+            from modalfem.view.cli import main as view_main
+
+            return int(view_main(argv[1:]))
         args = build_parser().parse_args(argv)
         if args.version:
             import modalfem

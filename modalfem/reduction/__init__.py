@@ -4,6 +4,8 @@
 * ``modalfem.reduction.embed``: ``embed_points`` (barycentric coordinates of points in a tet mesh).
 * ``modalfem.reduction.compare``: frequency errors, MAC, mode matching.
 * ``modalfem.reduction.response``: modal impulse response with Rayleigh damping.
+* ``modalfem.reduction.transfer``: coarse physics, fine render surface (``render_surface_model``,
+  ``read_surface``, ``check_transfer``, ``refine_mesh``).
 """
 
 from modalfem.reduction.compare import (
@@ -20,13 +22,27 @@ from modalfem.reduction.response import (
     relative_rms_error,
 )
 from modalfem.reduction.ritz import RitzModes, field_matrix, ritz_modes, solve_reduced
+from modalfem.reduction.transfer import (
+    RenderSurface,
+    TransferCheck,
+    TransferReport,
+    check_transfer,
+    read_surface,
+    refine_mesh,
+    render_surface_model,
+    transfer_modes,
+)
 
 __all__ = [
     "Embedding",
     "ModeComparison",
     "RayleighDamping",
+    "RenderSurface",
     "RitzModes",
+    "TransferCheck",
+    "TransferReport",
     "carry_modes",
+    "check_transfer",
     "compare_modes",
     "embed_points",
     "field_matrix",
@@ -34,7 +50,11 @@ __all__ = [
     "impulse_response",
     "mac_matrix",
     "match_modes",
+    "read_surface",
+    "refine_mesh",
     "relative_rms_error",
+    "render_surface_model",
     "ritz_modes",
     "solve_reduced",
+    "transfer_modes",
 ]
