@@ -6,7 +6,8 @@
  *
  * window.modalfem exposes the running page for tests and for other tools:
  *   ready, error, frames, modeCount, state (visual, slow motion), audioState (real time),
- *   displayGain, timeScale, strike({triangle, barycentric, impulse, listener}), strikeAt(x, y),
+ *   displayGain (morph influence per metre of weight; settable), timeScale (display seconds per
+ *   second; 0 freezes the motion; settable), radius (of the rest shape [m]), strike({triangle, barycentric, impulse, listener}), strikeAt(x, y),
  *   lastSound (Float32Array of the last strike's pressure [Pa]), lastSoundRate, lastStrike.
  */
 (function () {
@@ -69,7 +70,7 @@
     camera.position.copy(center).add(new THREE.Vector3(0.9, 0.7, 1.6).normalize().multiplyScalar(radius * 4.4));
     camera.up.set(0, 0, 1);
     camera.lookAt(center);
-    sun.position.copy(camera.position).add(new THREE.Vector3(0, 0, radius * 4));
+    sun.position.copy(center).add(new THREE.Vector3(-1.2, 1.6, 1.0).multiplyScalar(radius * 4));  // raking: bends show in the shading
     var controls = new THREE.OrbitControls(camera, renderer.domElement);
     controls.target.copy(center);
     controls.update();
@@ -96,10 +97,10 @@
       var tri = s.triangle, corners = [indices[3 * tri], indices[3 * tri + 1], indices[3 * tri + 2]];
       var dv = R.impulseRates(targets, state.masses, corners, s.barycentric, s.impulse);
       state.kick(dv);
-      if (displayGain === 0) {  // peak displacement of the first strike shown as at most 8 % of the body's radius
+      if (displayGain === 0) {  // peak displacement of the first strike shown as at most 15 % of the body's radius
         var bound = 0;
         for (var i = 0; i < k; i++) bound += Math.abs(dv[i]) / state.omega[i];
-        displayGain = bound > 0 ? 0.08 * radius / bound : 0;
+        displayGain = bound > 0 ? 0.15 * radius / bound : 0;
         info();
       }
       var now = performance.now() / 1000;
@@ -188,7 +189,7 @@
     var last = null, influences = mesh.morphTargetInfluences;
     function frame(t) {
       var now = t / 1000;
-      if (last !== null && now > last) state.step(Math.min(now - last, 0.1) * timeScale);
+      if (last !== null && now > last && timeScale > 0) state.step(Math.min(now - last, 0.1) * timeScale);
       last = now;
       for (var i = 0; i < k; i++) influences[i] = displayGain * state.w[i];
       controls.update();
@@ -196,9 +197,11 @@
       api.frames += 1;
       requestAnimationFrame(frame);
     }
+    api.radius = radius;
     api.state = state; api.audioState = audioState; api.modeCount = k; api.extras = extras;
     api.mesh = mesh; api.camera = camera; api.renderer = renderer;
-    Object.defineProperty(api, 'displayGain', { get: function () { return displayGain; } });
+    Object.defineProperty(api, 'displayGain', { get: function () { return displayGain; },
+                                                set: function (x) { displayGain = x; info(); } });
     Object.defineProperty(api, 'timeScale', { get: function () { return timeScale; },
                                               set: function (x) { timeScale = x; info(); } });
     api.gl = renderer.getContext() instanceof WebGL2RenderingContext ? 'webgl2' : 'webgl1';
