@@ -1,0 +1,106 @@
+"""``modalfem view`` in headless Chromium: the page loads, the body renders and moves, a click strikes it
+(modal velocities on the server, sound on the page), the mode picker changes the shape."""
+
+from __future__ import annotations
+
+import base64
+import io
+import time
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.browser
+
+
+@pytest.fixture(scope="module")
+def model():
+    import modalfem
+    from modalfem.mesh import box
+    from modalfem.model import ModalModel
+
+    mesh = box(size=(0.2, 0.1, 0.05), cells=(8, 4, 2))
+    res = modalfem.modes(mesh, modalfem.STEEL, k=8, degree=1, backend="skfem", solver="scipy")
+    return ModalModel.from_modes(res, mesh, modalfem.STEEL, damping=(0.0, 1e-7))
+
+
+@pytest.fixture()
+def explorer(model):
+    from modalfem.view import ModeExplorer
+
+    with ModeExplorer(model, mode=1, amplitude=0.08) as ex:
+        yield ex
+
+
+def _canvas(page) -> np.ndarray:
+    """The WebGL canvas alone (no panel, no status text) as an (h, w, 3) float array in [0, 1]."""
+    import matplotlib.image as mpimg
+
+    url = page.evaluate("document.getElementById('canvas').toDataURL('image/png')")
+    return mpimg.imread(io.BytesIO(base64.b64decode(url.split(",", 1)[1])), format="png")[..., :3]
+
+
+def _body_mask(img: np.ndarray) -> np.ndarray:
+    background = img[2, 2]  # a corner: the clear colour
+    return np.abs(img - background).max(axis=2) > 0.05
+
+
+def _open(page, explorer):
+    page.goto(explorer.url)
+    page.wait_for_function("() => window.modalfemViewer.ready && window.modalfemViewer.framesDrawn > 5", timeout=30000)
+
+
+def test_page_loads_renders_and_moves(page, page_errors, explorer, tmp_path):
+    _open(page, explorer)
+    a = _canvas(page)
+    page.wait_for_timeout(250)  # a quarter of the 1 Hz mode animation
+    b = _canvas(page)
+    page.screenshot(path=str(tmp_path / "view.png"))
+    body = _body_mask(a)
+    assert 0.05 < body.mean() < 0.9, body.mean()  # something is drawn, and it is not the whole canvas
+    assert a[body].std() > 0.02  # shaded, not a flat silhouette
+    moved = np.abs(a - b).max(axis=2) > 0.05
+    assert moved.mean() > 0.005, moved.mean()  # the animated mode moves the body between frames
+    assert page.evaluate("window.modalfemViewer.framesReceived") > 3
+    assert page_errors == [] and page.evaluate("window.modalfemViewer.errors") == []
+
+
+def test_click_strikes_the_body_and_plays_its_sound(page, page_errors, explorer):
+    _open(page, explorer)
+    page.evaluate("document.getElementById('control-amplitude')")  # the panel is built
+    explorer.set_animate(False)
+    assert not explorer.qdot.any()
+    box = page.locator("#canvas").bounding_box()
+    page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)  # the body is in the middle
+    page.wait_for_function("() => window.modalfemViewer.strikes.length === 1 && window.modalfemViewer.soundsReceived === 1",
+                           timeout=10000)
+    strike = page.evaluate("window.modalfemViewer.strikes[0]")
+    assert strike["out"]["ok"] and strike["out"]["result"]["dqdot_norm"] > 0
+    assert np.abs(explorer.qdot).max() > 0 and explorer.strikes == 1  # the server's modal velocities changed
+    sound = page.evaluate("window.modalfemViewer.lastSound")
+    assert sound["samples"] == round(strike["out"]["result"]["sound_s"] * sound["rate"]) and sound["peak"] > 0.8
+    # frames after the strike carry the ringing in modes other than the one picked
+    page.wait_for_timeout(200)
+    q = np.array(page.evaluate("window.modalfemViewer.last.bodies[0].q"))
+    assert np.abs(q[1:]).max() > 0
+    assert page_errors == []
+
+
+def test_mode_picker_changes_the_shape(page, page_errors, explorer, tmp_path):
+    _open(page, explorer)
+    page.uncheck("#controls input[type=checkbox]")  # still shapes: comparable pictures
+    page.wait_for_function("() => window.modalfemViewer.last.controls.animate === false")
+    page.wait_for_timeout(200)
+    first = _canvas(page)
+    page.select_option("#control-mode", "4")  # mode 5
+    page.wait_for_function("() => window.modalfemViewer.last.bodies[0].q[4] !== 0 && "
+                           "window.modalfemViewer.last.bodies[0].q[0] === 0", timeout=10000)
+    page.wait_for_timeout(200)
+    fifth = _canvas(page)
+    assert explorer.mode == 4
+    q = np.array(page.evaluate("window.modalfemViewer.last.bodies[0].q"))
+    assert np.flatnonzero(q).tolist() == [4]
+    changed = np.abs(first - fifth).max(axis=2) > 0.05
+    assert changed.mean() > 0.01, changed.mean()
+    page.screenshot(path=str(tmp_path / "mode5.png"))
+    assert page_errors == []
