@@ -9,7 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV="${1:-.venv}"
 APT_PKGS="python3-dolfinx python3-slepc4py python3-petsc4py python3-venv python3-pip python3-h5py libopenblas0-pthread \
-  openmpi-bin libglu1-mesa libxcursor1 libxft2 libxinerama1 libgl1 libxrender1 libxext6"
+  openmpi-bin libglu1-mesa libxcursor1 libxft2 libxinerama1 libgl1 libxrender1 libxext6 chromium nodejs"
 
 stamp_input() { cat pyproject.toml scripts/setup.sh; echo "pip_only=${MODALFEM_PIP_ONLY:-0}"; }
 STAMP="$VENV/.modalfem-setup-$(stamp_input | sha256sum | cut -c1-16)"
@@ -94,6 +94,12 @@ if [ "$PIP_ONLY" != "1" ]; then
     echo "import os; os.environ.setdefault('OPENBLAS_CORETYPE', '$want')" > "$site/modalfem_openblas_coretype.pth"
     echo "setup: Debian OpenBLAS detected this CPU as $core; pinned OPENBLAS_CORETYPE=$want in $VENV"
   fi
+fi
+# chromium: the headless-browser tests (tests/browser, Playwright drives /usr/bin/chromium); nodejs: the
+# tests of the pages' JavaScript. Where npm is present, the Khronos glTF validator for the export tests.
+if command -v npm >/dev/null 2>&1; then
+  npm install --prefix "$VENV/npm" --no-save --no-audit --no-fund --silent gltf-validator@2.0.0-dev.3.10 >/dev/null 2>&1 \
+    || echo "setup: npm could not install gltf-validator (its test will be skipped)" >&2
 fi
 "$VENV/bin/python" -c "import modalfem, numpy, scipy, h5py; print('setup: modalfem ready in $VENV (numpy', numpy.__version__, ', scipy', scipy.__version__, ', h5py', h5py.__version__, ', fenicsx:', modalfem.have_fenicsx(), ')')"
 touch "$STAMP"
