@@ -50,6 +50,7 @@ __all__ = [
     "TransferCheck",
     "TransferReport",
     "check_transfer",
+    "orient_outward",
     "read_surface",
     "refine_mesh",
     "surface_distances",
@@ -69,8 +70,8 @@ class RenderSurface:
 
     Attributes:
         vertices: (nv, 3) [m].
-        triangles: (nt, 3) int64 indices into ``vertices``, oriented outwards (flipped on reading
-            when the enclosed volume came out negative).
+        triangles: (nt, 3) int64 indices into ``vertices`` (``read_surface`` orients them
+            consistently and outwards, ``orient_outward``).
         source: where it came from (``{"file": ..., "unit_scale": ...}`` or ``{}`` for arrays).
     """
 
@@ -125,7 +126,8 @@ def read_surface(path: str | os.PathLike, *, unit_scale: float = 1.0) -> RenderS
         unit_scale: factor turning file coordinates into metres (1e-3 for a file in mm).
 
     Returns:
-        ``RenderSurface`` (unused vertices dropped; triangles flipped when they enclose a negative volume).
+        ``RenderSurface`` (unused vertices dropped; triangles oriented consistently and outwards by
+        ``orient_outward``; ``source["flipped_triangles"]`` counts the reversed ones).
 
     Raises:
         MeshError: missing or unreadable file, unknown extension, or no triangles in it (the cell
@@ -168,11 +170,64 @@ def read_surface(path: str | os.PathLike, *, unit_scale: float = 1.0) -> RenderS
     t = np.vstack(tris).astype(np.int64)
     if t.min() < 0 or t.max() >= len(v):
         raise MeshError(f"render surface {name} has triangles referencing missing vertices")
-    s = RenderSurface(v * float(unit_scale), t, {"file": str(path), "unit_scale": float(unit_scale)})
-    pts = s.vertices[s.triangles]
-    if np.einsum("ij,ij->i", pts[:, 0], np.cross(pts[:, 1], pts[:, 2])).sum() < 0:
-        s = RenderSurface(s.vertices, s.triangles[:, ::-1], dict(s.source, flipped=True))
-    return s
+    s = RenderSurface(v * float(unit_scale), t)
+    tri, flipped = orient_outward(s.vertices, s.triangles)
+    return RenderSurface(s.vertices, tri, {"file": str(path), "unit_scale": float(unit_scale),
+                                           "flipped_triangles": flipped})
+
+
+def orient_outward(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, int]:
+    """Triangles oriented consistently across shared edges and outwards, piece by piece.
+
+    Two triangles sharing an edge (used by exactly two) agree when they run along it in opposite
+    directions. Each edge-connected piece is made to agree by a breadth-first walk, then flipped as a
+    whole when it encloses a negative volume (divergence theorem; for an open piece this is the
+    best available guess). Edges shared by more than two triangles do not link their triangles.
+
+    Args:
+        vertices: (nv, 3) [m].
+        triangles: (nt, 3) vertex indices.
+
+    Returns:
+        ``(triangles, flipped)``: the oriented triangles (nt, 3) int64 and how many were reversed.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    t = np.asarray(triangles, dtype=np.int64)
+    nt = len(t)
+    e = t[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)  # directed edges, 3 per triangle
+    lo, hi = e.min(axis=1), e.max(axis=1)
+    key = lo * (int(t.max()) + 1) + hi
+    order = np.argsort(key, kind="stable")
+    k = key[order]
+    start = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
+    count = np.diff(np.r_[start, len(k)])
+    two = start[count == 2]  # manifold edges: their two directed uses
+    a, b = order[two], order[two + 1]
+    ta, tb = a // 3, b // 3
+    same = e[a, 0] == e[b, 0]  # both run the same way: one of the two must flip
+    g = coo_matrix((np.ones(len(ta)), (ta, tb)), shape=(nt, nt)).tocsr()
+    pieces, label = connected_components(g, directed=False)
+    parent = np.arange(nt)  # a spanning forest: every triangle's parent in a breadth-first walk of its piece
+    for root in np.unique(label, return_index=True)[1]:
+        bfs, pred = breadth_first_order(g, root, directed=False, return_predecessors=True)
+        parent[bfs[1:]] = pred[bfs[1:]]
+    pair_key = np.minimum(ta, tb) * nt + np.maximum(ta, tb)
+    o = np.argsort(pair_key)
+    child = np.flatnonzero(parent != np.arange(nt))
+    pos = o[np.searchsorted(pair_key[o], np.minimum(child, parent[child]) * nt + np.maximum(child, parent[child]))]
+    step = np.zeros(nt, dtype=bool)  # flip relative to the parent: the shared edge runs the same way in both
+    step[child] = same[pos]
+    flip, anc = step.copy(), parent.copy()  # pointer jumping: flip = parity of the path to the piece's root
+    while np.any(anc != anc[anc]):
+        flip, anc = flip ^ flip[anc], anc[anc]
+    out = np.where(flip[:, None], t[:, ::-1], t)
+    p = np.asarray(vertices, dtype=np.float64)[out]
+    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2]))
+    negative = np.bincount(label, weights=vol, minlength=pieces) < 0
+    out = np.where(negative[label][:, None], out[:, ::-1], out)
+    return out, int(np.sum(negative[label] != flip))
 
 
 @dataclass(frozen=True)

@@ -283,7 +283,7 @@ def test_read_surface_formats_units_and_orientation(tmp_path, ext):
     path = tmp_path / f"s.{ext}"
     meshio.write(path, meshio.Mesh(bs.vertices * 1000.0, [("triangle", bs.triangles[:, ::-1])]))  # mm, inward
     s = read_surface(path, unit_scale=1e-3)
-    assert len(s.triangles) == len(bs.triangles) and s.source["flipped"] is True
+    assert len(s.triangles) == len(bs.triangles) and s.source["flipped_triangles"] == len(bs.triangles)
     p = s.vertices[s.triangles]
     vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6
     np.testing.assert_allclose(vol, 0.3 * 0.2 * 0.1, rtol=1e-6)
@@ -365,3 +365,45 @@ def test_cli_bad_render_surface_is_one_line(tmp_path, capsys, case):
             "no-save": "--render-surface needs --save", "check-alone": "--check-transfer needs --render-surface"}[case]
     assert want in err[0]
     assert not (tmp_path / "m.npz").exists()
+
+
+def test_orient_outward_makes_every_piece_consistent_and_outward():
+    from modalfem.reduction.transfer import orient_outward
+
+    a = boundary_surface(box(size=(0.3, 0.2, 0.1), cells=(3, 2, 1)))
+    b = boundary_surface(box(size=(0.1, 0.1, 0.1), cells=(1, 1, 1), origin=(1.0, 0.0, 0.0)))
+    v = np.vstack([a.vertices, b.vertices])
+    t = np.vstack([a.triangles, b.triangles + len(a.vertices)])  # two pieces, both outward
+    scrambled = t.copy()
+    flip = np.random.default_rng(3).random(len(t)) < 0.4
+    scrambled[flip] = scrambled[flip][:, ::-1]
+    scrambled[len(a.triangles):] = scrambled[len(a.triangles):, ::-1]  # and the second piece mostly inward
+    out, flipped = orient_outward(v, scrambled)
+    np.testing.assert_array_equal(out, t)
+    assert flipped == int(np.sum(np.any(scrambled != t, axis=1)))
+
+
+def test_cli_check_against_a_reference_mesh_of_the_fine_surface(tmp_path, capsys):
+    """Coarse rod file, render surface = the fine rod's boundary, reference = the fine rod's mesh."""
+    from modalfem.mesh import write
+
+    coarse, fine = rod(0.2, 0.02, h=0.012), rod(0.2, 0.02, h=0.006)
+    write(coarse, tmp_path / "coarse.msh")
+    write(fine, tmp_path / "fine.msh")
+    bs = boundary_surface(fine)
+    _write_obj(tmp_path / "fine.obj", bs.vertices * 1e3, bs.triangles)  # the surface in millimetres
+    rc = main(["modes", str(tmp_path / "coarse.msh"), "-k", "4", "--quiet", "--render-surface",
+               str(tmp_path / "fine.obj"), "--render-unit-scale", "1e-3", "--save", str(tmp_path / "m.npz"),
+               "--json", str(tmp_path / "m.json"), "--check-transfer", str(tmp_path / "fine.msh")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    info = json.loads((tmp_path / "m.json").read_text())["render_surface"]
+    check = info["check"]
+    assert check["reference"].startswith("reference mesh") and check["reference_dof_count"] == 3 * fine.node_count(2)
+    assert info["transfer"]["outside_count"] > 0 and info["vertex_count"] == len(bs.vertices)
+    # the coarse polygonal section is thinner than the fine one: lower bending frequencies, within a few %
+    assert all(-0.05 < e < 0.01 for e in check["frequency_error"]) and check["min_mac"] > 0.999
+    assert check["clusters"][0] == [0, 1]  # the two first bendings of the round rod
+    model = ModalModel.load(tmp_path / "m.npz")
+    np.testing.assert_allclose(model.vertices, bs.vertices, rtol=1e-12)
+    assert "transfer check against a finer solve (reference mesh" in out
