@@ -24,6 +24,7 @@ from modalfem.material import ALUMINIUM, BRASS, STEEL, Material
 from modalfem.mesh.core import Mesh
 from modalfem.modes import modes  # binds the function over the submodule name
 from modalfem.result import Certificate, ModalResult
+from modalfem.threads import set_threads, thread_count, threads
 
 __version__ = "0.1.0"
 
@@ -46,6 +47,9 @@ __all__ = [
     "InputError",
     "have_fenicsx",
     "have_slepc",
+    "set_threads",
+    "thread_count",
+    "threads",
     "__version__",
 ]
 

@@ -10,13 +10,23 @@ vertex: ``kind[i]`` 0 free, 1 the normal component along the unit ``normal[i]`` 
 pass over the matrix per iteration (product, projection and dot product together), one over the vectors
 (update, residual norm) and the additive multilevel preconditioner (restriction up the aggregation
 levels, their block-Jacobi and coarsest solves, prolongation down with block Jacobi and the projection,
-dot product); ``aggregate`` and ``level_matrices`` build its levels.
+dot product); ``aggregate`` and ``level_matrices`` build its levels. The passes over vertices run in
+parallel (:mod:`modalfem.threads`) on chunks of ``CHUNK`` vertices or more whose bounds depend on the
+vertex count only; dot products add the chunks' partial sums in chunk order, so a solve gives the same
+bits on any number of threads.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
+
+from modalfem.threads import apply as _apply_threads
+from modalfem.threads import chunk_bounds, chunk_count
+
+#: vertices per chunk of the parallel loops (fewer chunks than threads on small cloths: a parallel
+#: launch costs more than a few hundred vertices' work)
+CHUNK = 256
 
 #: weight of the aggregation levels' corrections against the fine block Jacobi in the additive
 #: preconditioner (the piecewise-constant corrections of the overlapping levels add up and over-correct
@@ -26,6 +36,8 @@ import numpy as np
 COARSE_WEIGHT = 0.5
 
 __all__ = ["aggregate", "bsr_matvec", "level_matrices", "pcg", "scatter_blocks"]
+
+_apply_threads()
 
 
 @numba.njit(cache=True)
@@ -43,10 +55,10 @@ def _row_product(indptr, indices, data, x, i):
     return a0, a1, a2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def bsr_matvec(indptr, indices, data, x, out):
-    """``out = A x`` for block ``A`` and ``x``, ``out`` (n, 3)."""
-    for i in range(len(indptr) - 1):
+    """``out = A x`` for block ``A`` and ``x``, ``out`` (n, 3) (rows in parallel)."""
+    for i in numba.prange(len(indptr) - 1):
         out[i, 0], out[i, 1], out[i, 2] = _row_product(indptr, indices, data, x, i)
 
 
@@ -103,18 +115,27 @@ def _inverse3(D, out):
     out[2, 2] = (D[0, 0] * D[1, 1] - D[0, 1] * D[1, 0]) / det
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _preconditioner(data, diag, kind, normal):
     """(n, 3, 3) ``S_i B_i^-1 S_i`` with ``B_i`` the diagonal block, for a contact ``S D S + tr(D)/3 n n^T``
-    (its inverse keeps range(S))."""
+    (its inverse keeps range(S)). Chunks of vertices in parallel."""
     n = len(diag)
     P = np.zeros((n, 3, 3))
-    D = np.empty((3, 3))
-    S = np.empty((3, 3))
-    inv = np.empty((3, 3))
-    for i in range(n):
-        if kind[i] == 2:
-            continue
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        D = np.empty((3, 3))
+        S = np.empty((3, 3))
+        inv = np.empty((3, 3))
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            _preconditioner_block(data, diag, kind, normal, i, D, S, inv, P)
+    return P
+
+
+@numba.njit(cache=True)
+def _preconditioner_block(data, diag, kind, normal, i, D, S, inv, P):
+    """``P[i]`` of :func:`_preconditioner` (``D``, ``S``, ``inv``: 3x3 scratch)."""
+    if kind[i] != 2:
         for a in range(3):
             for b in range(3):
                 D[a, b] = data[diag[i], a, b]
@@ -129,7 +150,6 @@ def _preconditioner(data, diag, kind, normal):
             _sandwich(S, inv, P[i])
         else:
             _inverse3(D, P[i])
-    return P
 
 
 @numba.njit(cache=True)
@@ -144,19 +164,79 @@ def _sandwich(S, D, out):
             out[a, b] = t
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _residual(indptr, indices, data, kind, normal, b, y, r):
-    """``r = S (b - A y)``; returns ``|r|^2``."""
+    """``r = S (b - A y)``; returns ``|r|^2`` (chunks in parallel, partial sums added in chunk order)."""
     n = len(indptr) - 1
-    rr = 0.0
-    for i in range(n):
-        a0, a1, a2 = _row_product(indptr, indices, data, y, i)
-        a0, a1, a2 = _project(kind, normal, i, b[i, 0] - a0, b[i, 1] - a1, b[i, 2] - a2)
-        r[i, 0] = a0
-        r[i, 1] = a1
-        r[i, 2] = a2
-        rr += a0 * a0 + a1 * a1 + a2 * a2
-    return rr
+    chunks = chunk_count(n, CHUNK)
+    part = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        rr = 0.0
+        for i in range(start, stop):
+            a0, a1, a2 = _row_product(indptr, indices, data, y, i)
+            a0, a1, a2 = _project(kind, normal, i, b[i, 0] - a0, b[i, 1] - a1, b[i, 2] - a2)
+            r[i, 0] = a0
+            r[i, 1] = a1
+            r[i, 2] = a2
+            rr += a0 * a0 + a1 * a1 + a2 * a2
+        part[ch] = rr
+    return _sum(part)
+
+
+@numba.njit(cache=True)
+def _sum(part):
+    """Sum in index order (the chunks' partial sums: the same order for every thread count)."""
+    s = 0.0
+    for v in part:
+        s += v
+    return s
+
+
+@numba.njit(cache=True, parallel=True)
+def _product(indptr, indices, data, kind, normal, c, q):
+    """``q = S A c`` (c in range(S)); returns ``c . q`` (chunks in parallel, partial sums in chunk order)."""
+    n = len(indptr) - 1
+    chunks = chunk_count(n, CHUNK)
+    part = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        cq = 0.0
+        for i in range(start, stop):
+            a0, a1, a2 = _row_product(indptr, indices, data, c, i)
+            a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
+            q[i, 0] = a0
+            q[i, 1] = a1
+            q[i, 2] = a2
+            cq += c[i, 0] * a0 + c[i, 1] * a1 + c[i, 2] * a2
+        part[ch] = cq
+    return _sum(part)
+
+
+@numba.njit(cache=True, parallel=True)
+def _update(y, r, c, q, alpha):
+    """``y += alpha c``, ``r -= alpha q``; returns ``|r|^2`` (chunks in parallel, sums in chunk order)."""
+    n = len(y)
+    chunks = chunk_count(n, CHUNK)
+    part = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        rr = 0.0
+        for i in range(start, stop):
+            for a in range(3):
+                y[i, a] += alpha * c[i, a]
+                r[i, a] -= alpha * q[i, a]
+                rr += r[i, a] * r[i, a]
+        part[ch] = rr
+    return _sum(part)
+
+
+@numba.njit(cache=True, parallel=True)
+def _direction(c, z, beta):
+    """``c = z + beta c`` (rows in parallel)."""
+    for i in numba.prange(len(c)):
+        for a in range(3):
+            c[i, a] = z[i, a] + beta * c[i, a]
 
 
 @numba.njit(cache=True)
@@ -276,20 +356,33 @@ def _precondition(P, r, z, kind, normal, agg, up, off, Dinv, Cinv, w, e):
             for a in range(3):
                 e[g, a] = (COARSE_WEIGHT * (Dinv[g, a, 0] * w[g, 0] + Dinv[g, a, 1] * w[g, 1] + Dinv[g, a, 2] * w[g, 2])
                            + e[up[g], a])
-    rz = 0.0
-    for i in range(n):  # block Jacobi plus the projected prolongation
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        if L > 0:
-            g = agg[i]
-            s0, s1, s2 = _project(kind, normal, i, e[g, 0], e[g, 1], e[g, 2])
-        for a in range(3):
-            t = P[i, a, 0] * r[i, 0] + P[i, a, 1] * r[i, 1] + P[i, a, 2] * r[i, 2]
-            t += s0 if a == 0 else (s1 if a == 1 else s2)
-            z[i, a] = t
-            rz += r[i, a] * t
-    return rz
+    return _fine(P, r, z, kind, normal, agg, e, L > 0)
+
+
+@numba.njit(cache=True, parallel=True)
+def _fine(P, r, z, kind, normal, agg, e, levels):
+    """``z = P r`` plus the projected prolongation of the levels' correction ``e`` (when ``levels``);
+    returns ``r . z`` (chunks in parallel, partial sums in chunk order)."""
+    n = len(r)
+    chunks = chunk_count(n, CHUNK)
+    part = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        rz = 0.0
+        for i in range(start, stop):  # block Jacobi plus the projected prolongation
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            if levels:
+                g = agg[i]
+                s0, s1, s2 = _project(kind, normal, i, e[g, 0], e[g, 1], e[g, 2])
+            for a in range(3):
+                t = P[i, a, 0] * r[i, 0] + P[i, a, 1] * r[i, 1] + P[i, a, 2] * r[i, 2]
+                t += s0 if a == 0 else (s1 if a == 1 else s2)
+                z[i, a] = t
+                rz += r[i, a] * t
+        part[ch] = rz
+    return _sum(part)
 
 
 @numba.njit(cache=True)
@@ -348,30 +441,15 @@ def pcg(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, agg, up,
     P = _preconditioner(data, diag, kind, normal)
     rz = _precondition(P, r, c, kind, normal, agg, up, off, Dinv, Cinv, w, e)
     for k in range(1, maxiter + 1):
-        cq = 0.0
-        for i in range(n):  # q = S A c (c is in range(S)), c . q
-            a0, a1, a2 = _row_product(indptr, indices, data, c, i)
-            a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
-            q[i, 0] = a0
-            q[i, 1] = a1
-            q[i, 2] = a2
-            cq += c[i, 0] * a0 + c[i, 1] * a1 + c[i, 2] * a2
+        cq = _product(indptr, indices, data, kind, normal, c, q)  # q = S A c (c is in range(S)), c . q
         if not cq > 0.0:
             return -1, rn / nb
         alpha = rz / cq
-        rr = 0.0
-        for i in range(n):  # y += alpha c, r -= alpha q, |r|^2
-            for a in range(3):
-                y[i, a] += alpha * c[i, a]
-                r[i, a] -= alpha * q[i, a]
-                rr += r[i, a] * r[i, a]
-        rn = np.sqrt(rr)
+        rn = np.sqrt(_update(y, r, c, q, alpha))  # y += alpha c, r -= alpha q, |r|^2
         if rn <= rtol * nb:
             return k, rn / nb
         rz_new = _precondition(P, r, z, kind, normal, agg, up, off, Dinv, Cinv, w, e)
         beta = rz_new / rz
         rz = rz_new
-        for i in range(n):
-            for a in range(3):
-                c[i, a] = z[i, a] + beta * c[i, a]
+        _direction(c, z, beta)
     return -1, rn / nb

@@ -17,11 +17,15 @@ import math
 import numba
 import numpy as np
 
+from modalfem.threads import apply as _apply_threads
 from modalfem.collision._contour_kernels import contour_ok
+from modalfem.threads import MAX_CHUNKS, chunk_bounds, chunk_count
 
 __all__ = ["query", "refit", "refit_triangles", "traverse"]
 
 _HALF_PI = 0.5 * math.pi - 1e-9
+
+_apply_threads()
 
 
 @numba.njit(cache=True)
@@ -97,28 +101,32 @@ def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, slot_a, slo
 
 
 @numba.njit(cache=True)
-def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a, shi_a,
-             Pb: int, lo_b, hi_b, ne_b, slot_b, slo_b, shi_b,
-             connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit: int,
-             x0, x1, static: bool, check_contour: bool, dirty_nodes, dirty_tris):
-    """Triangle pairs (tree a, tree b) whose boxes overlap, and the number of triangle-pair (leaf) tests.
+def _walk(a0: int, b0: int, split: int, same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, Pb: int, lo_b, hi_b,
+          ne_b, connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit: int, x0, x1, static: bool,
+          check_contour: bool, dirty_nodes):
+    """Depth-first walk from the node pair ``(a0, b0)`` (see :func:`traverse`).
 
-    ``same``: b is a itself (each unordered pair once, no pair of a triangle with itself), with normal
-    cone and contour culling when ``culling`` (a node that is one connected patch, with a cone narrower
-    than a half-space and a non-crossing contour, is not tested against itself; two adjacent such
-    patches are not tested against each other when their union passes both tests). ``dirty_nodes``
-    (2Pa,) / ``dirty_tris`` (m_a,) (empty: no filter): only pairs holding a flagged triangle of tree a.
+    ``split`` < 0: returns the leaf pairs reached (leaf indices), in depth-first order. ``split`` >= 0:
+    returns node pairs instead, for :func:`traverse` to walk from in parallel: every pair popped at depth
+    ``split`` (not tested) and every pair that would give a leaf pair above it, in depth-first order, so
+    that the walks from them, concatenated, give the leaf pairs of one whole walk in its order.
     """
     filt = len(dirty_nodes) > 0
-    stack = np.empty((256, 2), dtype=np.int64)
-    stack[0, 0], stack[0, 1] = 1, 1
+    stack = np.empty((256, 3), dtype=np.int64)
+    stack[0, 0], stack[0, 1], stack[0, 2] = a0, b0, 0
     top = 1
     leaves = np.empty((1024, 2), dtype=np.int64)
     count = 0
     ax = np.empty(3)
     while top:
         top -= 1
-        a, b = stack[top, 0], stack[top, 1]
+        a, b, depth = stack[top, 0], stack[top, 1], stack[top, 2]
+        if split >= 0 and depth >= split:
+            if count == len(leaves):
+                leaves = _grow(leaves, count)
+            leaves[count, 0], leaves[count, 1] = a, b
+            count += 1
+            continue
         if same and a == b:  # the node's self-test
             if not ne_a[a] or (filt and not dirty_nodes[a]):
                 continue
@@ -129,14 +137,14 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
             if a >= Pa:
                 if count == len(leaves):
                     leaves = _grow(leaves, count)
-                leaves[count, 0], leaves[count, 1] = a - Pa, a - Pa
+                leaves[count, 0], leaves[count, 1] = (a, a) if split >= 0 else (a - Pa, a - Pa)
                 count += 1
                 continue
             if top + 3 > len(stack):
                 stack = _grow(stack, top + 3)
-            stack[top, 0], stack[top, 1] = 2 * a, 2 * a
-            stack[top + 1, 0], stack[top + 1, 1] = 2 * a + 1, 2 * a + 1
-            stack[top + 2, 0], stack[top + 2, 1] = 2 * a, 2 * a + 1
+            stack[top, 0], stack[top, 1], stack[top, 2] = 2 * a, 2 * a, depth + 1
+            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = 2 * a + 1, 2 * a + 1, depth + 1
+            stack[top + 2, 0], stack[top + 2, 1], stack[top + 2, 2] = 2 * a, 2 * a + 1, depth + 1
             top += 3
             continue
         if filt and not (dirty_nodes[a] or (same and dirty_nodes[b])):
@@ -161,7 +169,7 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
         if leaf_a and leaf_b:
             if count == len(leaves):
                 leaves = _grow(leaves, count)
-            leaves[count, 0], leaves[count, 1] = a - Pa, b - Pb
+            leaves[count, 0], leaves[count, 1] = (a, b) if split >= 0 else (a - Pa, b - Pb)
             count += 1
             continue
         size_a = (hi_a[a, 0] - lo_a[a, 0]) + (hi_a[a, 1] - lo_a[a, 1]) + (hi_a[a, 2] - lo_a[a, 2])
@@ -169,25 +177,101 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
         if top + 2 > len(stack):
             stack = _grow(stack, top + 2)
         if not leaf_a and (leaf_b or size_a >= size_b):
-            stack[top, 0], stack[top, 1] = 2 * a, b
-            stack[top + 1, 0], stack[top + 1, 1] = 2 * a + 1, b
+            stack[top, 0], stack[top, 1], stack[top, 2] = 2 * a, b, depth + 1
+            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = 2 * a + 1, b, depth + 1
         else:
-            stack[top, 0], stack[top, 1] = a, 2 * b
-            stack[top + 1, 0], stack[top + 1, 1] = a, 2 * b + 1
+            stack[top, 0], stack[top, 1], stack[top, 2] = a, 2 * b, depth + 1
+            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, 2 * b + 1, depth + 1
         top += 2
-    return _leaf_triangle_pairs(leaves, count, same, slot_a, slo_a, shi_a, slot_b, slo_b, shi_b, filt, dirty_tris)
+    return leaves[:count]
+
+
+#: depth of the serial walk that hands node pairs to the parallel walks (a self-test splits in 3: up to
+#: 3^6 = 729 tasks, fewer where pruned)
+SPLIT_DEPTH = 6
+#: node pairs per chunk of the parallel walks
+TASK_CHUNK = 4
 
 
 @numba.njit(cache=True)
-def query(qlo: np.ndarray, qhi: np.ndarray, P: int, lo: np.ndarray, hi: np.ndarray, nonempty: np.ndarray,
-          slot_tri: np.ndarray, slo: np.ndarray, shi: np.ndarray):
-    """All (query, triangle) pairs whose boxes overlap: query boxes ``qlo``/``qhi`` (k, 3) [m] against
-    the tree; returns (p, 2) indices."""
+def _walk_tasks(tasks, start: int, stop: int, same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a,
+                shi_a, Pb: int, lo_b, hi_b, ne_b, slot_b, slo_b, shi_b, connected, cone_axis, cone_angle, adj,
+                bnd_start, bnd_edge, bnd_id, limit: int, x0, x1, static: bool, check_contour: bool, dirty_nodes,
+                dirty_tris):
+    """Triangle pairs and leaf tests of the walks from ``tasks[start:stop]``, concatenated in task order."""
+    filt = len(dirty_nodes) > 0
+    leaves = np.empty((0, 2), dtype=np.int64)
+    for t in range(start, stop):
+        got = _walk(tasks[t, 0], tasks[t, 1], -1, same, culling, Pa, lo_a, hi_a, ne_a, Pb, lo_b, hi_b, ne_b,
+                    connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static,
+                    check_contour, dirty_nodes)
+        if len(leaves) == 0:
+            leaves = got
+        elif len(got):
+            both = np.empty((len(leaves) + len(got), 2), dtype=np.int64)
+            both[:len(leaves)] = leaves
+            both[len(leaves):] = got
+            leaves = both
+    return _leaf_triangle_pairs(leaves, len(leaves), same, slot_a, slo_a, shi_a, slot_b, slo_b, shi_b, filt,
+                                dirty_tris)
+
+
+@numba.njit(cache=True, parallel=True)
+def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a, shi_a,
+             Pb: int, lo_b, hi_b, ne_b, slot_b, slo_b, shi_b,
+             connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit: int,
+             x0, x1, static: bool, check_contour: bool, dirty_nodes, dirty_tris):
+    """Triangle pairs (tree a, tree b) whose boxes overlap, and the number of triangle-pair (leaf) tests.
+
+    ``same``: b is a itself (each unordered pair once, no pair of a triangle with itself), with normal
+    cone and contour culling when ``culling`` (a node that is one connected patch, with a cone narrower
+    than a half-space and a non-crossing contour, is not tested against itself; two adjacent such
+    patches are not tested against each other when their union passes both tests). ``dirty_nodes``
+    (2Pa,) / ``dirty_tris`` (m_a,) (empty: no filter): only pairs holding a flagged triangle of tree a.
+
+    A serial walk to depth ``SPLIT_DEPTH`` lists node pairs in depth-first order; chunks of them are
+    walked, and their leaves tested, in parallel (:mod:`modalfem.threads`), and the chunks' pairs
+    concatenated in order: the pairs, and their order, are those of one depth-first walk on any number
+    of threads.
+    """
+    tasks = _walk(1, 1, SPLIT_DEPTH, same, culling, Pa, lo_a, hi_a, ne_a, Pb, lo_b, hi_b, ne_b, connected,
+                  cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static, check_contour,
+                  dirty_nodes)
+    T = len(tasks)
+    chunks = max(1, min(MAX_CHUNKS, -(-T // TASK_CHUNK)))
+    bufs = [np.empty((0, 2), dtype=np.int64) for _ in range(chunks)]
+    tests = np.zeros(chunks, dtype=np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(T, chunks, ch)
+        bufs[ch], tests[ch] = _walk_tasks(tasks, start, stop, same, culling, Pa, lo_a, hi_a, ne_a, slot_a, slo_a,
+                                          shi_a, Pb, lo_b, hi_b, ne_b, slot_b, slo_b, shi_b, connected, cone_axis,
+                                          cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static,
+                                          check_contour, dirty_nodes, dirty_tris)
+    return _concat(bufs), tests.sum()
+
+
+@numba.njit(cache=True)
+def _concat(bufs):
+    """The (k_i, 2) arrays of ``bufs`` one after the other."""
+    total = 0
+    for b in bufs:
+        total += len(b)
+    out = np.empty((total, 2), dtype=np.int64)
+    o = 0
+    for b in bufs:
+        out[o:o + len(b)] = b
+        o += len(b)
+    return out
+
+
+@numba.njit(cache=True)
+def _query_range(qlo, qhi, start: int, stop: int, P: int, lo, hi, nonempty, slot_tri, slo, shi):
+    """The (query, triangle) pairs of queries ``start..stop-1`` (see :func:`query`)."""
     L = slot_tri.shape[1]
-    out = np.empty((1024, 2), dtype=np.int64)
+    out = np.empty((64, 2), dtype=np.int64)
     count = 0
     stack = np.empty(64, dtype=np.int64)
-    for q in range(len(qlo)):
+    for q in range(start, stop):
         stack[0] = 1
         top = 1
         while top:
@@ -216,7 +300,25 @@ def query(qlo: np.ndarray, qhi: np.ndarray, P: int, lo: np.ndarray, hi: np.ndarr
                 stack = np.concatenate((stack, np.empty(len(stack), dtype=np.int64)))
             stack[top], stack[top + 1] = 2 * a, 2 * a + 1
             top += 2
-    return out[:count].copy()
+    return out[:count]
+
+
+#: queries per chunk of :func:`query`
+QUERY_CHUNK = 64
+
+
+@numba.njit(cache=True, parallel=True)
+def query(qlo: np.ndarray, qhi: np.ndarray, P: int, lo: np.ndarray, hi: np.ndarray, nonempty: np.ndarray,
+          slot_tri: np.ndarray, slo: np.ndarray, shi: np.ndarray):
+    """All (query, triangle) pairs whose boxes overlap: query boxes ``qlo``/``qhi`` (k, 3) [m] against
+    the tree; returns (p, 2) indices, by query (chunks of queries in parallel, concatenated in order)."""
+    k = len(qlo)
+    chunks = chunk_count(k, QUERY_CHUNK)
+    bufs = [np.empty((0, 2), dtype=np.int64) for _ in range(chunks)]
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        bufs[ch] = _query_range(qlo, qhi, start, stop, P, lo, hi, nonempty, slot_tri, slo, shi)
+    return _concat(bufs)
 
 
 @numba.njit(cache=True)

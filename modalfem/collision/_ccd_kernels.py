@@ -13,9 +13,13 @@ import math
 import numba
 import numpy as np
 
+from modalfem.threads import apply as _apply_threads
 from modalfem.collision._distance_kernels import edge_edge_lb, point_triangle_lb
+from modalfem.threads import chunk_bounds, chunk_count
 
 __all__ = ["ccd_batch", "ccd_candidates"]
+
+_apply_threads()
 
 #: relative rounding bound (times the coordinate scale) added to the tolerance [-]
 ROUNDING = 1e-12
@@ -172,27 +176,53 @@ def ccd_batch(vf: bool, x0: np.ndarray, x1: np.ndarray, eta: float, max_depth: i
     return toi
 
 
-@numba.njit(cache=True)
+#: candidate pairs per chunk of :func:`ccd_candidates`
+CCD_CHUNK = 256
+
+
+@numba.njit(cache=True, parallel=True)
 def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, movable: np.ndarray,
                    roots: np.ndarray, eta: float, max_depth: int, max_intervals: int):
     """The pipeline's CCD of candidate pairs ``quads`` (k, 4) on trajectories ``X0 -> X1`` ((N, 3) [m]):
     pairs without a ``movable`` ((N,) bool) vertex, pairs inside one zone (all four ``roots`` ((N,) int,
     empty: no zones) equal) and pairs whose primitives' trajectory boxes are farther apart than ``eta``
-    [m] are skipped; the others get :func:`ccd_batch`'s test.
+    [m] are skipped; the others get :func:`ccd_batch`'s test. Chunks of pairs run in parallel
+    (:mod:`modalfem.threads`); each query is independent, so the result does not depend on the thread count.
 
     Returns:
-        ``(idx, toi)``: (h,) indices into ``quads`` of the colliding pairs and their (h,) times in [0, 1].
+        ``(idx, toi)``: (h,) indices into ``quads`` of the colliding pairs (ascending) and their (h,) times
+        in [0, 1].
     """
     k = len(quads)
-    zones = len(roots) > 0
     idx = np.empty(k, dtype=np.int64)
     tois = np.empty(k)
+    chunks = chunk_count(k, CCD_CHUNK)
+    counts = np.zeros(chunks, dtype=np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        counts[ch] = _ccd_range(vf, X0, X1, quads, movable, roots, eta, max_depth, max_intervals, start, stop, idx,
+                                tois)
     n = 0
+    for ch in range(chunks):  # compact the chunks' hits (each written from its chunk's start) in order
+        start, _ = chunk_bounds(k, chunks, ch)
+        for j in range(counts[ch]):
+            idx[n], tois[n] = idx[start + j], tois[start + j]
+            n += 1
+    return idx[:n].copy(), tois[:n].copy()
+
+
+@numba.njit(cache=True)
+def _ccd_range(vf: bool, X0, X1, quads, movable, roots, eta: float, max_depth: int, max_intervals: int, start: int,
+               stop: int, idx, tois) -> int:
+    """:func:`ccd_candidates` of the pairs ``start..stop-1``: hits written to ``idx``/``tois`` from ``start``
+    on; returns their count."""
+    zones = len(roots) > 0
+    n = start
     t0, td, x = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
     coef = np.empty(4)
     m = 2 * max_intervals + 2
     lo, hi, nlo, nhi = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
-    for q in range(k):
+    for q in range(start, stop):
         c0, c1, c2, c3 = quads[q, 0], quads[q, 1], quads[q, 2], quads[q, 3]
         if not (movable[c0] or movable[c1] or movable[c2] or movable[c3]):
             continue
@@ -218,4 +248,4 @@ def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, 
         if toi <= 1.0:
             idx[n], tois[n] = q, toi
             n += 1
-    return idx[:n].copy(), tois[:n].copy()
+    return n - start

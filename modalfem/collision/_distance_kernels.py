@@ -12,6 +12,8 @@ import math
 import numba
 import numpy as np
 
+from modalfem.threads import chunk_bounds, chunk_count
+
 __all__ = [
     "contact_frames",
     "edge_edge_batch",
@@ -217,16 +219,30 @@ def edge_edge_batch(x: np.ndarray) -> tuple:
     return d, s, t
 
 
-@numba.njit(cache=True)
+#: pairs per chunk of :func:`contact_frames`
+FRAME_CHUNK = 256
+
+
+@numba.njit(cache=True, parallel=True)
 def contact_frames(vf: bool, X: np.ndarray, quads: np.ndarray, Xref: np.ndarray) -> tuple:
     """Weights (k, 4), unit normals (k, 3) and distances (k,) [m] of the primitive pairs ``quads`` (k, 4)
     at positions ``X`` (N, 3) [m]; ``Xref`` (N, 3) [m] orients the normal of touching pairs (see
-    :func:`modalfem.collision.repulsion.contact_frames`)."""
+    :func:`modalfem.collision.repulsion.contact_frames`). Chunks of pairs in parallel (each pair alone)."""
     k = len(quads)
     W, N, D = np.empty((k, 4)), np.empty((k, 3)), np.empty(k)
+    chunks = chunk_count(k, FRAME_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        _frames_range(vf, X, quads, Xref, start, stop, W, N, D)
+    return W, N, D
+
+
+@numba.njit(cache=True)
+def _frames_range(vf: bool, X, quads, Xref, start: int, stop: int, W, N, D) -> None:
+    """:func:`contact_frames` of the pairs ``start..stop-1``, into ``W``, ``N``, ``D``."""
     bary = np.empty(3)
     x = np.empty((4, 3))
-    for q in range(k):
+    for q in range(start, stop):
         for v in range(4):
             for c in range(3):
                 x[v, c] = X[quads[q, v], c]
@@ -262,4 +278,3 @@ def contact_frames(vf: bool, X: np.ndarray, quads: np.ndarray, Xref: np.ndarray)
         else:
             dd = d if d > 0 else 1.0
             N[q, 0], N[q, 1], N[q, 2] = sep0 / dd, sep1 / dd, sep2 / dd
-    return W, N, D

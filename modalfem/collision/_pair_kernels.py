@@ -7,7 +7,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from modalfem.threads import apply as _apply_threads
+from modalfem.threads import chunk_bounds, chunk_count
+
 __all__ = ["drop_indexed", "drop_pairs", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
+
+_apply_threads()
 
 
 @numba.njit(cache=True)
@@ -17,7 +22,11 @@ def _boxes_overlap(alo, ahi, blo, bhi, i: int, j: int) -> bool:
             & (alo[i, 2] <= bhi[j, 2]) & (blo[j, 2] <= ahi[i, 2]))
 
 
-@numba.njit(cache=True)
+#: triangle pairs per chunk of :func:`primitive_pairs`
+PAIR_CHUNK = 256
+
+
+@numba.njit(cache=True, parallel=True)
 def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: np.ndarray, own_e: np.ndarray,
                     vlo: np.ndarray, vhi: np.ndarray, dirty: np.ndarray):
     """Point-triangle and edge-edge pairs of the triangle pairs ``tp`` (k, 2) whose boxes overlap.
@@ -26,37 +35,71 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     pair comes from the triangle pair of its owners only. Boxes are the vertex boxes ``vlo``/``vhi``
     (N, 3) [m] (already grown by the margin), a triangle's or edge's the union of its vertices'. Pairs
     sharing a vertex are left out; with ``dirty`` ((N,) bool, empty: no filter) only pairs holding a
-    flagged vertex are kept.
+    flagged vertex are kept. Chunks of ``tp`` run in parallel (:mod:`modalfem.threads`), their pairs
+    concatenated in order: the same pairs in the same order on any number of threads.
 
     Returns:
         ``(vf, ee)``: (p, 4) vertex quadruples ``(p, a, b, c)`` and (q, 4) ``(a0, a1, b0, b1)``.
     """
-    filt = len(dirty) > 0
     F, E = len(tris), len(edges)
     k = len(tp)
     # boxes of the triangles in tp and of the edges they own only (a dirty search holds a few of them)
     flo, fhi = np.empty((F, 3)), np.empty((F, 3))
     elo, ehi = np.empty((E, 3)), np.empty((E, 3))
     fdone = np.zeros(F, dtype=np.bool_)
+    used = np.empty(2 * k, dtype=np.int64)
+    nu = 0
     for p in range(k):
         for side in range(2):
             f = tp[p, side]
-            if fdone[f]:
-                continue
-            fdone[f] = True
-            for c in range(3):
-                flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
-                fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
-            for r in range(3):
-                e = own_e[f, r]
-                if e >= 0:
-                    for c in range(3):
-                        elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
-                        ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
+            if not fdone[f]:
+                fdone[f] = True
+                used[nu] = f
+                nu += 1
+    for u in numba.prange(nu):
+        f = used[u]
+        for c in range(3):
+            flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
+            fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
+        for r in range(3):
+            e = own_e[f, r]
+            if e >= 0:
+                for c in range(3):
+                    elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
+                    ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
+    chunks = chunk_count(k, PAIR_CHUNK)
+    vbufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
+    ebufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        vbufs[ch], ebufs[ch] = _primitive_range(tp, start, stop, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
+                                                ehi, dirty)
+    return _concat4(vbufs), _concat4(ebufs)
+
+
+@numba.njit(cache=True)
+def _concat4(bufs):
+    """The (k_i, 4) arrays of ``bufs`` one after the other."""
+    total = 0
+    for b in bufs:
+        total += len(b)
+    out = np.empty((total, 4), dtype=np.int64)
+    o = 0
+    for b in bufs:
+        out[o:o + len(b)] = b
+        o += len(b)
+    return out
+
+
+@numba.njit(cache=True)
+def _primitive_range(tp, start: int, stop: int, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi, dirty):
+    """:func:`primitive_pairs` of the triangle pairs ``tp[start:stop]``, given the triangle and edge boxes."""
+    filt = len(dirty) > 0
+    k = stop - start
     vf_ids = np.empty((6 * k, 2), dtype=np.int64)
     ee_ids = np.empty((9 * k, 2), dtype=np.int64)
     nv = ne = 0
-    for p in range(k):
+    for p in range(start, stop):
         for side in range(2):
             A, B = tp[p, side], tp[p, 1 - side]
             b0, b1, b2 = tris[B, 0], tris[B, 1], tris[B, 2]
