@@ -104,3 +104,36 @@ def test_mode_picker_changes_the_shape(page, page_errors, explorer, tmp_path):
     assert changed.mean() > 0.01, changed.mean()
     page.screenshot(path=str(tmp_path / "mode5.png"))
     assert page_errors == []
+
+
+def test_viewer_for_a_running_world_positions_pose_and_transport(page, page_errors, model, tmp_path):
+    """The server side a later `run --view` reuses: a body without modes gets positions, any body a pose,
+    and the transport buttons call back."""
+    from modalfem.view import Viewer
+
+    calls = []
+    viewer = Viewer(on_play=lambda: calls.append("play"), on_pause=lambda: calls.append("pause"),
+                    on_step=lambda: calls.append("step"), on_reset=lambda: calls.append("reset"))
+    viewer.add_body(model.vertices, model.triangles, shapes=model.shapes, name="modal")
+    viewer.add_body(model.vertices, model.triangles, name="soft", color=(0.3, 0.6, 0.9))
+    with viewer:
+        page.goto(viewer.url)
+        page.wait_for_function("() => window.modalfemViewer.ready && window.modalfemViewer.framesDrawn > 2")
+        x = model.vertices * (1.0, 1.0, 1.6)  # the second body stretched, and moved aside
+        viewer.update(1, positions=x, position=(0.0, 0.15, 0.0), orientation=(np.cos(0.3), 0, 0, np.sin(0.3)))
+        viewer.update(0, q=np.eye(model.mode_count)[0] * 0.5 / np.abs(model.shapes[:, 0]).max() * 0.02)
+        page.wait_for_function("() => window.modalfemViewer.bodies[1].positions !== null && "
+                               "window.modalfemViewer.bodies[0].q[0] !== 0")
+        page.wait_for_timeout(200)
+        got = np.array(page.evaluate("Array.from(window.modalfemViewer.bodies[1].cur)")).reshape(-1, 3)
+        np.testing.assert_array_equal(got, x.astype(np.float32))
+        pose = page.evaluate("window.modalfemViewer.bodies[1].pose")
+        np.testing.assert_allclose(pose, [0, 0.15, 0, np.cos(0.3), 0, 0, np.sin(0.3)], rtol=1e-12, atol=1e-15)
+        for name in ("play", "pause", "step", "reset"):
+            page.click(f"#controls button:text-is('{name}')")
+        page.wait_for_timeout(300)
+        assert calls == ["play", "pause", "step", "reset"]
+        img = _canvas(page)
+        page.screenshot(path=str(tmp_path / "world.png"))
+        assert _body_mask(img).mean() > 0.03
+    assert page_errors == []

@@ -7,7 +7,7 @@
 
 const V = window.modalfemViewer = {
   ready: false, framesReceived: 0, framesDrawn: 0, fps: 0, bodies: [], last: null,
-  soundsReceived: 0, soundsPlayed: 0, lastSound: null, errors: [], strikes: [],
+  deforms: 0, deformMs: 0, soundsReceived: 0, soundsPlayed: 0, lastSound: null, errors: [], strikes: [],
 };
 window.addEventListener("error", (e) => V.errors.push(String(e.message)));
 
@@ -62,7 +62,7 @@ void main() {
   vec3 n = normalize(vN); if (!gl_FrontFacing) n = -n;
   vec3 l = normalize(uEye - vW);
   float d = max(dot(n, l), 0.0);
-  vec3 base = mix(uColor, vec3(0.85, 0.18, 0.12), clamp(vD, 0.0, 1.0));
+  vec3 base = mix(uColor, vec3(0.85, 0.18, 0.12), 0.8 * clamp(vD, 0.0, 1.0));
   o = vec4(base * (0.28 + 0.72 * d) + vec3(0.18) * pow(d, 40.0), 1.0);
 }`;
 function program() {
@@ -134,6 +134,7 @@ function splitCreases(rest, tris, nv) {
 }
 
 function deform(b) {  // cur = X + Phi q (modal) or the sent positions; render vertices, normals, |u|
+  const t0 = performance.now();
   const { nv, rest, cur, nrm, disp, orig, rpos, nr } = b, tris = b.rtris;
   if (b.positions) cur.set(b.positions);
   else {
@@ -148,7 +149,8 @@ function deform(b) {  // cur = X + Phi q (modal) or the sent positions; render v
   for (let j = 0; j < nr; j++) {
     const i = 3 * orig[j];
     rpos[3 * j] = cur[i]; rpos[3 * j + 1] = cur[i + 1]; rpos[3 * j + 2] = cur[i + 2];
-    disp[j] = Math.hypot(cur[i] - rest[i], cur[i + 1] - rest[i + 1], cur[i + 2] - rest[i + 2]);
+    // colour shows the modal deformation; a body without modes (sent positions) keeps its colour
+    disp[j] = b.positions ? 0 : Math.hypot(cur[i] - rest[i], cur[i + 1] - rest[i + 1], cur[i + 2] - rest[i + 2]);
     peak = Math.max(peak, disp[j]);
   }
   nrm.fill(0);
@@ -165,6 +167,7 @@ function deform(b) {  // cur = X + Phi q (modal) or the sent positions; render v
     gl.bindBuffer(gl.ARRAY_BUFFER, buffer); gl.bufferSubData(gl.ARRAY_BUFFER, 0, data);
   }
   b.stale = false;
+  V.deforms++; V.deformMs += performance.now() - t0;
 }
 
 // ---------------------------------------------------------------------------- camera
