@@ -407,3 +407,21 @@ def test_cli_check_against_a_reference_mesh_of_the_fine_surface(tmp_path, capsys
     model = ModalModel.load(tmp_path / "m.npz")
     np.testing.assert_allclose(model.vertices, bs.vertices, rtol=1e-12)
     assert "transfer check against a finer solve (reference mesh" in out
+
+
+def test_surface_distances_match_the_box_analytically():
+    """Distance to the surface of the box [0, 0.4] x [0, 0.05]^2, inside and outside, in closed form."""
+    from modalfem.reduction.transfer import surface_distances
+
+    mesh = box(**BEAM)
+    half, c = np.array([0.2, 0.025, 0.025]), np.array([0.2, 0.025, 0.025])
+    p = np.random.default_rng(8).uniform(-0.03, 0.43, size=(3000, 3)) * [1, 0.25, 0.25]
+    a = np.abs(p - c) - half
+    exact = np.where(np.all(a <= 0, axis=1), -a.max(axis=1), np.linalg.norm(np.maximum(a, 0), axis=1))
+    dist, allowed, edge = surface_distances(mesh, p, max_distance=1.0)
+    assert edge == 0.05 and allowed == 1.0
+    np.testing.assert_allclose(dist, exact, rtol=0, atol=1e-12)
+    _, report = transfer_modes(modalfem.modes(mesh, STEEL, k=1, degree=1), mesh, p, max_distance=1.0)
+    outside = np.any(a > 0, axis=1)
+    assert report.outside_count == int(outside.sum())
+    np.testing.assert_allclose(report.outside_distance_mean, np.where(outside, exact, 0).mean(), rtol=1e-12)
