@@ -30,6 +30,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     e.add_argument("-k", type=int, default=None, help="export the first K modes (default all)")
     e.add_argument("--crease-angle", type=float, default=60.0,
                    help="faces meeting at more than this angle [deg] keep separate normals (default 60; 180: smooth)")
+    e.add_argument("--damping", type=float, nargs=2, metavar=("ALPHA", "BETA"), default=None,
+                   help="Rayleigh damping alpha [1/s] and beta [s] replacing the model's (mu_i = alpha + beta "
+                        "omega_i^2; e.g. 2 1e-9 for a long-ringing bell)")
     e.add_argument("--no-normal-targets", action="store_true",
                    help="write only POSITION morph targets (normals then stay at rest)")
     e.add_argument("--title", default=None, help="page title (default: the model file name)")
@@ -78,7 +81,7 @@ def _export(args, say) -> int:
     say(f"model: {model!r}")
     say("surface and morph targets")
     surface = modal_surface(model, mode_count=args.k, crease_angle=args.crease_angle,
-                            normals=not args.no_normal_targets,
+                            normals=not args.no_normal_targets, damping=args.damping,
                             progress=lambda i, n: i % max(1, n // 10) or say.bar(i, n, "normal targets"))
     data = glb_bytes(model, crease_angle=args.crease_angle, surface=surface,
                      source={"model_file": args.model.name})

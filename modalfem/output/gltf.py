@@ -85,6 +85,7 @@ class ModalSurface:
         scales: (k,) c_i [m/sqrt(kg)] (phi_i = c_i t_i).
         mode_masses: (k,) m_i = 1 / c_i^2 [kg].
         omega: (k,) [rad/s]; mu: (k,) [1/s] modal damping.
+        damping: Rayleigh (alpha [1/s], beta [s]) behind ``mu``.
     """
 
     positions: np.ndarray
@@ -97,6 +98,7 @@ class ModalSurface:
     mode_masses: np.ndarray
     omega: np.ndarray
     mu: np.ndarray
+    damping: tuple = (0.0, 0.0)
 
     @property
     def mode_count(self) -> int:
@@ -160,7 +162,7 @@ def _scatter(index: np.ndarray, values: np.ndarray, size: int) -> np.ndarray:
 
 
 def modal_surface(model, *, mode_count: int | None = None, crease_angle: float = 60.0,
-                  normals: bool = True, progress=None) -> ModalSurface:
+                  normals: bool = True, damping=None, progress=None) -> ModalSurface:
     """The export geometry of ``model`` (see the module docstring).
 
     Args:
@@ -169,16 +171,19 @@ def modal_surface(model, *, mode_count: int | None = None, crease_angle: float =
         crease_angle: faces meeting at more than this angle [deg] get separate vertex normals;
             180 gives smooth normals everywhere (no vertex is split).
         normals: compute the normal morph targets (``normal_targets``; None otherwise).
+        damping: Rayleigh (alpha [1/s], beta [s]) replacing the model's (``mu_i = alpha + beta omega_i^2``).
         progress: optional ``progress(done, total)`` called as the normal targets are built.
 
     Returns:
         ``ModalSurface``.
 
     Raises:
-        InputError: ``mode_count`` out of 1..r, a crease angle outside [0, 180], or a model without modes.
+        InputError: ``mode_count`` out of 1..r, a crease angle outside [0, 180], damping not two finite
+            numbers >= 0, or a model without modes.
         ModelFileError: a mode does not move the surface at all (it cannot be scaled to a peak of 1 m).
     """
     modes = _mode_indices(model, mode_count)
+    alpha, beta = _damping(model.damping if damping is None else damping)
     try:
         crease = float(crease_angle)
     except (TypeError, ValueError):
@@ -230,15 +235,25 @@ def modal_surface(model, *, mode_count: int | None = None, crease_angle: float =
             dA = np.cross(U[tris[:, 1]] - U[tris[:, 0]], ec) + np.cross(eb, U[tris[:, 2]] - U[tris[:, 0]])
             dN = _scatter(pc, dA[pf], n)
             normal_targets[i] = (dN - n0 * np.einsum("ij,ij->i", n0, dN)[:, None]) / norm[:, None]
-    mu = np.asarray(model.modal_damping, dtype=np.float64)[modes]
+    omega = np.asarray(model.omega, dtype=np.float64)[modes]
     return ModalSurface(
         positions=X[source], normals=n0, indices=new_of_corner.reshape(-1, 3).astype(np.int64),
         source_vertex=source.astype(np.int64), targets=targets_src[:, source, :], normal_targets=normal_targets,
-        scales=scales, mode_masses=1.0 / scales**2, omega=np.asarray(model.omega, dtype=np.float64)[modes], mu=mu)
+        scales=scales, mode_masses=1.0 / scales**2, omega=omega, mu=alpha + beta * omega**2, damping=(alpha, beta))
+
+
+def _damping(value) -> tuple:
+    try:
+        alpha, beta = (float(x) for x in value)
+    except (TypeError, ValueError):
+        raise InputError(f"damping must be (alpha [1/s], beta [s]), got {value!r}") from None
+    if not (math.isfinite(alpha) and math.isfinite(beta)) or alpha < 0 or beta < 0:
+        raise InputError(f"Rayleigh damping (alpha, beta) must be finite and >= 0, got ({alpha:g}, {beta:g})")
+    return alpha, beta
 
 
 def _extras(model, surface: ModalSurface, crease_angle: float, source: dict | None) -> dict:
-    alpha, beta = (float(x) for x in model.damping)
+    alpha, beta = surface.damping
     src = {"model_checksum": model.checksum()}
     src.update(source or {})
     return {
@@ -292,7 +307,7 @@ class _Builder:
 
 
 def glb_bytes(model, *, mode_count: int | None = None, crease_angle: float = 60.0, normals: bool = True,
-              source: dict | None = None, surface: ModalSurface | None = None) -> bytes:
+              damping=None, source: dict | None = None, surface: ModalSurface | None = None) -> bytes:
     """The binary glTF 2.0 file (.glb) of ``model`` with its modes as morph targets.
 
     Args:
@@ -300,6 +315,7 @@ def glb_bytes(model, *, mode_count: int | None = None, crease_angle: float = 60.
         mode_count: the first ``mode_count`` modes become targets (default all), 1..r.
         crease_angle: [deg], see ``modal_surface``.
         normals: also write NORMAL morph targets (otherwise only POSITION ones).
+        damping: Rayleigh (alpha [1/s], beta [s]) replacing the model's, or None.
         source: extra JSON-able entries for ``extras["modalfem"]["source"]`` (e.g. the model file name).
         surface: a ``modal_surface`` of ``model`` already computed with these options.
 
@@ -311,8 +327,8 @@ def glb_bytes(model, *, mode_count: int | None = None, crease_angle: float = 60.
     """
     import modalfem
 
-    s = surface if surface is not None else modal_surface(model, mode_count=mode_count,
-                                                          crease_angle=crease_angle, normals=normals)
+    s = surface if surface is not None else modal_surface(model, mode_count=mode_count, crease_angle=crease_angle,
+                                                          normals=normals, damping=damping)
     b = _Builder()
     f32 = np.float32
     idx_type, idx_dtype = (_UINT16, np.uint16) if s.vertex_count <= 65535 else (_UINT32, np.uint32)

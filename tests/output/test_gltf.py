@@ -163,6 +163,15 @@ def test_mode_count_selects_the_lowest_modes_and_refuses_out_of_range(model):
         modal_surface(model, crease_angle=200)
 
 
+def test_damping_override_sets_the_modal_damping(model):
+    ex = _load(glb_bytes(model, damping=(1.5, 3e-9))).extras["modalfem"]
+    np.testing.assert_allclose(ex["damping_per_s"], 1.5 + 3e-9 * model.omega**2, rtol=1e-15)
+    assert ex["rayleigh_damping"] == {"alpha_per_s": 1.5, "beta_s": 3e-9}
+    for bad in ((-1.0, 0.0), (0.0, float("nan")), (1.0,)):
+        with pytest.raises(InputError, match="damping"):
+            modal_surface(model, damping=bad)
+
+
 def test_write_glb_round_trip(model, tmp_path):
     write_glb(tmp_path / "m.glb", model, mode_count=2)
     assert _load((tmp_path / "m.glb").read_bytes()).extras["modalfem"]["mode_count"] == 2

@@ -31,12 +31,14 @@ def _error_line(capsys) -> str:
 
 
 def test_export_writes_the_glb_and_the_page(model_file, tmp_path, capsys):
-    assert main(["export", str(model_file), str(tmp_path / "b.glb"), "--html", str(tmp_path / "b.html"), "-k", "4"]) == 0
+    assert main(["export", str(model_file), str(tmp_path / "b.glb"), "--html", str(tmp_path / "b.html"), "-k", "4",
+                 "--damping", "2", "1e-9"]) == 0
     out = capsys.readouterr().out
     assert "4 modes" in out and "b.glb" in out and "b.html" in out
     g = pygltflib.GLTF2.load_from_bytes((tmp_path / "b.glb").read_bytes())
     assert len(g.meshes[0].primitives[0].targets) == 4
     assert g.extras["modalfem"]["source"]["model_file"] == "block.npz"
+    assert g.extras["modalfem"]["rayleigh_damping"] == {"alpha_per_s": 2.0, "beta_s": 1e-9}
     page = (tmp_path / "b.html").read_text(encoding="utf-8")
     assert "<title>block: 4 modes</title>" in page
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.glb", "b.html"]  # no temporaries left
@@ -50,6 +52,7 @@ def test_export_writes_the_glb_and_the_page(model_file, tmp_path, capsys):
     ("suffix", "must name a .glb file"),
     ("html-suffix", "--html must name a .html file"),
     ("self", "is the model file itself"),
+    ("damping", "Rayleigh damping (alpha, beta) must be finite and >= 0"),
 ])
 def test_bad_input_is_one_line_and_writes_nothing(model_file, tmp_path, capsys, case, expect):
     model, glb, extra = model_file, tmp_path / "out.glb", []
@@ -70,6 +73,8 @@ def test_bad_input_is_one_line_and_writes_nothing(model_file, tmp_path, capsys, 
         glb = tmp_path / "out.gltf"
     elif case == "html-suffix":
         extra = ["--html", str(tmp_path / "page.txt")]
+    elif case == "damping":
+        extra = ["--damping", "-1", "0"]
     elif case == "self":
         glb = tmp_path / "copy.glb"
         model = glb
