@@ -53,6 +53,9 @@ class StepStats:
         collision: the pipeline's ``CollisionStats`` of the first call (None without collisions).
         recheck: the ``CollisionStats`` of the call after smoothing (None if not run).
         smooth_iterations: CG iterations of the smoothing solve (0 if not run or not CG).
+        collision_velocity_change: (n, 3) [m/s] the velocity change the collision handling (pipeline and
+            smoothing) made to the implicit step's answer (None without collisions); ``m dv`` is the impulse
+            the cloth received from contacts (a ``World`` gives it back to the bodies the cloth touched).
     """
 
     seconds: dict = field(default_factory=dict)
@@ -60,6 +63,7 @@ class StepStats:
     collision: object | None = None
     recheck: object | None = None
     smooth_iterations: int = 0
+    collision_velocity_change: np.ndarray | None = None
 
 
 class ClothScene:
@@ -218,6 +222,27 @@ class ClothScene:
         out["total"] = sum(out.values())
         return out
 
+    def implicit_velocity(self, dt: float, st: StepStats | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+        """Stages 1-2 of a step from the current state: the new velocities (n, 3) [m/s] of the implicit step
+        (forces, handles, contact constraints and their friction) before collision handling, the contact
+        constraints released by it (n,) bool, and the wall-clock time after the forces (for ``StepStats``).
+        Nothing of the scene changes (a ``World`` runs its own collision stage on them)."""
+        st = st if st is not None else StepStats()
+        x, v, t = self.x, self.v, self.t
+        f, blocks = self.external_forces(x, v, t)
+        t1 = time.perf_counter()
+        idx, pos = self.model.handle_targets(t + dt)
+        vh = (pos - x[idx]) / dt
+        con = self.contacts(x, v, t, dt)
+        v_new, st.linear = self.solver.step_velocity(x, v, f, dt, fixed=idx, fixed_velocity=vh, damping_blocks=blocks,
+                                                     contacts=con)
+        released = np.zeros_like(self._released)
+        if con is not None:
+            imp = st.linear.contact_impulses
+            released[con[0][imp < 0]] = True
+            v_new = self._friction(v_new, con, imp, x, t + dt)
+        return v_new, released, t1
+
     def step(self, dt: float) -> StepStats:
         """Advance by ``dt`` [s]; returns ``StepStats``.
 
@@ -236,18 +261,8 @@ class ClothScene:
         st = StepStats()
         t0 = time.perf_counter()
         x, v, t = self.x, self.v, self.t
-        f, blocks = self.external_forces(x, v, t)
-        t1 = time.perf_counter()
-        idx, pos = self.model.handle_targets(t + dt)
-        vh = (pos - x[idx]) / dt
-        con = self.contacts(x, v, t, dt)
-        v_new, st.linear = self.solver.step_velocity(x, v, f, dt, fixed=idx, fixed_velocity=vh, damping_blocks=blocks,
-                                                     contacts=con)
-        released = np.zeros_like(self._released)
-        if con is not None:
-            imp = st.linear.contact_impulses
-            released[con[0][imp < 0]] = True
-            v_new = self._friction(v_new, con, imp, x, t + dt)
+        v_new, released, t1 = self.implicit_velocity(dt, st)
+        idx = self.model.handle_targets(t + dt)[0]
         t2 = time.perf_counter()
         t3 = t4 = t2
         if self.pipeline is not None:
@@ -263,6 +278,7 @@ class ClothScene:
             t4 = time.perf_counter()
             if last.unresolved:
                 raise SimulationError(f"collision pipeline left {last.unresolved} colliding pairs at t = {t:.4g} s")
+            st.collision_velocity_change = v_col - v_new
             v_new = v_col
         x_new = x + dt * v_new
         if not np.all(np.isfinite(x_new)):

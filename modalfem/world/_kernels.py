@@ -1,0 +1,127 @@
+"""Compiled matrix-free sequential impulses over contacts between any bodies (numba, cached on disk).
+
+Generalised velocities of every body sit in one vector ``V``: a modal body's ``(v, w, qdot)`` (6 + r), a tet
+or cloth vertex's velocity (3). Contact ``c`` has entries ``e`` in ``ptr[c]:ptr[c + 1]``, each a block of
+``nd[e]`` velocities at ``off[e]`` with its Jacobian ``J_e`` (3 x nd, the contact point's velocity is
+``sum_e J_e V_e``, the second body's entries negated) and ``W_e J_e^T`` (nd x 3, W the inverse mass).
+An iteration costs O(sum nd) per contact (6 + r for a modal body, 3 per vertex): no contacts x contacts
+matrix is ever formed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True)
+def effective_masses(ptr, off, nd, jptr, J, WJt):
+    """Per contact the 3 x 3 ``K_c = sum_e J_e W_e J_e^T`` [1/kg] (velocity per unit impulse), (k, 3, 3)."""
+    k = len(ptr) - 1
+    K = np.zeros((k, 3, 3))
+    for c in range(k):
+        for e in range(ptr[c], ptr[c + 1]):
+            n = nd[e]
+            base = jptr[e]
+            for a in range(3):
+                for b in range(3):
+                    s = 0.0
+                    for j in range(n):
+                        s += J[base + a * n + j] * WJt[base + j * 3 + b]
+                    K[c, a, b] += s
+    return K
+
+
+@numba.njit(cache=True, inline="always")
+def _velocity(V, ptr, off, nd, jptr, J, c):
+    u0 = u1 = u2 = 0.0
+    for e in range(ptr[c], ptr[c + 1]):
+        n = nd[e]
+        base = jptr[e]
+        o = off[e]
+        for j in range(n):
+            vj = V[o + j]
+            u0 += J[base + j] * vj
+            u1 += J[base + n + j] * vj
+            u2 += J[base + 2 * n + j] * vj
+    return u0, u1, u2
+
+
+@numba.njit(cache=True)
+def contact_velocities(V, ptr, off, nd, jptr, J):
+    """Relative velocities (k, 3) [m/s] of the contacts at ``V``."""
+    k = len(ptr) - 1
+    out = np.empty((k, 3))
+    for c in range(k):
+        u0, u1, u2 = _velocity(V, ptr, off, nd, jptr, J, c)
+        out[c, 0], out[c, 1], out[c, 2] = u0, u1, u2
+    return out
+
+
+@numba.njit(cache=True)
+def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, iterations, lam_n, lam_t):
+    """Projected Gauss-Seidel on the contacts, in place on ``V``; returns the sweeps taken.
+
+    Each contact wants its normal relative velocity ``>= target[c]`` [m/s] with a normal impulse
+    ``lam_n[c] >= 0`` [N s], and Coulomb friction ``|lam_t[c]| <= mu[c] lam_n[c]`` against its sliding
+    (the tangential impulse along the sliding velocity that stops it, clamped to the disc).
+    """
+    k = len(ptr) - 1
+    sweeps = 0
+    for it in range(iterations):
+        sweeps += 1
+        change = 0.0
+        scale = 0.0
+        for c in range(k):
+            n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
+            kn = (n0 * (K[c, 0, 0] * n0 + K[c, 0, 1] * n1 + K[c, 0, 2] * n2)
+                  + n1 * (K[c, 1, 0] * n0 + K[c, 1, 1] * n1 + K[c, 1, 2] * n2)
+                  + n2 * (K[c, 2, 0] * n0 + K[c, 2, 1] * n1 + K[c, 2, 2] * n2))
+            if not kn > 0.0:
+                continue
+            u0, u1, u2 = _velocity(V, ptr, off, nd, jptr, J, c)
+            vn = u0 * n0 + u1 * n1 + u2 * n2
+            new = max(0.0, lam_n[c] + (target[c] - vn) / kn)
+            dn = new - lam_n[c]
+            lam_n[c] = new
+            d0, d1, d2 = dn * n0, dn * n1, dn * n2
+            if mu[c] > 0.0:
+                # velocity after the normal change, its tangential part
+                w0 = u0 + K[c, 0, 0] * d0 + K[c, 0, 1] * d1 + K[c, 0, 2] * d2
+                w1 = u1 + K[c, 1, 0] * d0 + K[c, 1, 1] * d1 + K[c, 1, 2] * d2
+                w2 = u2 + K[c, 2, 0] * d0 + K[c, 2, 1] * d1 + K[c, 2, 2] * d2
+                wn = w0 * n0 + w1 * n1 + w2 * n2
+                t0, t1, t2 = w0 - wn * n0, w1 - wn * n1, w2 - wn * n2
+                speed = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+                c0, c1, c2 = lam_t[c, 0], lam_t[c, 1], lam_t[c, 2]
+                if speed > 0.0:
+                    e0, e1, e2 = t0 / speed, t1 / speed, t2 / speed
+                    kt = (e0 * (K[c, 0, 0] * e0 + K[c, 0, 1] * e1 + K[c, 0, 2] * e2)
+                          + e1 * (K[c, 1, 0] * e0 + K[c, 1, 1] * e1 + K[c, 1, 2] * e2)
+                          + e2 * (K[c, 2, 0] * e0 + K[c, 2, 1] * e1 + K[c, 2, 2] * e2))
+                    if kt > 0.0:
+                        s = speed / kt
+                        c0, c1, c2 = c0 - s * e0, c1 - s * e1, c2 - s * e2
+                lim = mu[c] * new
+                norm = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+                if norm > lim:
+                    f = lim / norm
+                    c0, c1, c2 = c0 * f, c1 * f, c2 * f
+                d0 += c0 - lam_t[c, 0]
+                d1 += c1 - lam_t[c, 1]
+                d2 += c2 - lam_t[c, 2]
+                lam_t[c, 0], lam_t[c, 1], lam_t[c, 2] = c0, c1, c2
+            if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
+                for e in range(ptr[c], ptr[c + 1]):
+                    m = nd[e]
+                    base = jptr[e]
+                    o = off[e]
+                    for j in range(m):
+                        V[o + j] += WJt[base + 3 * j] * d0 + WJt[base + 3 * j + 1] * d1 + WJt[base + 3 * j + 2] * d2
+                change = max(change, abs(d0) + abs(d1) + abs(d2))
+            scale = max(scale, lam_n[c])
+        if change <= 1e-12 * scale:
+            break
+    return sweeps

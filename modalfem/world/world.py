@@ -1,0 +1,1248 @@
+"""``World``: modal, tet and cloth bodies, obstacles and effects advanced together by ``step``.
+
+Contract (as Newton/Warp): the world and its bodies' models are fixed; a ``WorldState`` changes; a
+``WorldControl`` holds the inputs of one step; ``world.step(state_in, state_out, control, dt)``.
+
+The step plan is compiled once from the bodies and effects (``world.plan``), so a stage that was not asked
+for is never called. In order:
+
+1. ``tet step``: each tet body's implicit step (backward Euler with its gravity, wind, damping, pins and
+   scripted vertices) to a predicted end state;
+2. ``cloth step``: each cloth's implicit step (gravity, wind, damping, handles, constraint filtering on
+   planes and spheres) to predicted velocities;
+3. ``modal contacts``: one compiled sequential-impulse solve (``modalfem.world._kernels``) over the contacts
+   of modal bodies' surface vertices with moving obstacles, triangle-mesh obstacles and the other modal
+   bodies' surfaces, found at the step start within the margin plus what the bodies travel in the step
+   (speculative contacts: a contact ``g`` [m] apart may approach by ``g / dt``, so nothing tunnels at any
+   dt). Equal and opposite impulses act on both bodies' rigid and modal velocities (``J W J^T``, O(6 + r)
+   work per contact and sweep, no contacts x contacts matrix). The static ground, planes, spheres and boxes
+   are left to the modal runtime's own contact (impacts at their predicted time, sustained contact,
+   friction stops: ``runtime.contact``);
+4. ``modal step``: each modal body's exact step (its gravity, wind, pseudo-forces, static obstacles);
+5. ``deformable collisions``: one collision pipeline (repulsion, CCD, impact zones: zero false negatives)
+   over the surfaces of every tet and cloth body that has contact or self-collision, with the obstacles and
+   the modal bodies' surfaces as moving triangle meshes (from their start to their end positions), so no
+   deformable surface crosses another surface, itself or an obstacle in the step. The momentum the
+   pipeline gave the deformable vertices next to a modal body is given back to that body (equal and
+   opposite impulses at the closest surface points: ``StepReport.exchanged``);
+6. ``sound``: the impacts of sounding modal bodies are recorded (``world.sound(name)``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from modalfem import effects as fx
+from modalfem.errors import InputError, SimulationError
+from modalfem.world import _kernels
+from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
+from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
+from modalfem.world.proximity import SurfaceProximity
+from modalfem.world.tetcontact import STIFFNESS, PenaltyContacts
+
+__all__ = ["Stage", "StepReport", "World", "WorldControl", "WorldState"]
+
+#: impacts slower than this [m/s] do not bounce and are not heard (resting contact)
+BOUNCE_THRESHOLD = 0.05
+#: fraction of a penetration depth [m] undone per step by the solid contact solve (its push-out speed is
+#: ``PUSH_OUT * depth / dt``)
+PUSH_OUT = 0.2
+
+
+@dataclass
+class WorldState:
+    """Changing state: ``time`` [s] and one state per body (``bodies[name]``: ``runtime.State`` for a modal
+    body, ``tet.TetState`` for a tet body, ``ClothState`` for a cloth)."""
+
+    time: float
+    bodies: dict
+
+    def copy(self) -> WorldState:
+        return WorldState(self.time, {k: v.copy() for k, v in self.bodies.items()})
+
+    def __getitem__(self, name: str):
+        return self.bodies[name]
+
+
+@dataclass
+class WorldControl:
+    """Inputs of one step: point impulses (strikes) and scripted tet vertices. Cleared by ``clear``."""
+
+    impulses: list = field(default_factory=list)
+    scripted: dict = field(default_factory=dict)
+
+    def add_impulse(self, body: str, point, J) -> WorldControl:
+        """An impulse ``J`` (3,) [N s] (world) at a surface point of ``body`` at the step start: a vertex
+        index (tet, cloth: of the body's points; modal: of its surface) or a ``runtime.SurfacePoint``."""
+        self.impulses.append((body, point, np.asarray(J, dtype=np.float64)))
+        return self
+
+    def script(self, body: str, vertices, positions) -> WorldControl:
+        """Tet vertices ``vertices`` driven to ``positions`` (k, 3) [m] at the step end."""
+        self.scripted[body] = (np.asarray(vertices, dtype=np.int64), np.asarray(positions, dtype=np.float64))
+        return self
+
+    def clear(self) -> None:
+        self.impulses.clear()
+        self.scripted.clear()
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of the step plan: its name, the bodies it runs for and the effects it evaluates."""
+
+    name: str
+    bodies: tuple
+    effects: tuple = ()
+
+    def __str__(self) -> str:
+        s = f"{self.name}: {', '.join(self.bodies)}"
+        return s + (f" [{', '.join(self.effects)}]" if self.effects else "")
+
+
+@dataclass
+class StepReport:
+    """What one step did: wall time per stage [s], contacts per kind, impulses exchanged between bodies.
+
+    Attributes:
+        seconds: stage name -> wall time [s].
+        contacts: ``solid`` (contacts in the solid solve), ``modal_static`` (modal runtime contacts),
+            ``cloth_reaction`` (cloth vertices pushing back on solids).
+        exchanged: list of ``(body_a, body_b, impulse (3,) [N s], torque impulse (3,) [N m s])``: what body a
+            received from body b in this step (body b received the opposite).
+        sweeps: sequential-impulse sweeps of the solid solve.
+    """
+
+    seconds: dict = field(default_factory=dict)
+    contacts: dict = field(default_factory=dict)
+    exchanged: list = field(default_factory=list)
+    sweeps: int = 0
+
+
+class _Motion:
+    """A solid's surface between two instants, linear in time (the cloth pipeline's moving obstacle)."""
+
+    def __init__(self, x: np.ndarray) -> None:
+        self.t0, self.t1 = 0.0, 1.0
+        self.x0 = self.x1 = x
+
+    def set(self, t0: float, x0: np.ndarray, t1: float, x1: np.ndarray) -> None:
+        self.t0, self.x0, self.t1, self.x1 = t0, x0, t1, x1
+
+    def __call__(self, t: float) -> np.ndarray:
+        if self.t1 <= self.t0:
+            return self.x1
+        s = min(max((t - self.t0) / (self.t1 - self.t0), 0.0), 1.0)
+        return (1.0 - s) * self.x0 + s * self.x1
+
+
+class World:
+    """Bodies of any kinds, obstacles and effects, stepped together.
+
+    Args:
+        bodies: ``Modal``, ``Tet`` and ``Cloth`` bodies with unique names.
+        obstacles: ``Ground``, ``Plane``, ``Sphere``, ``Box``, ``TriangleMesh`` (each optionally on a path).
+        effects: effects from ``modalfem.effects`` (``Gravity``, ``Wind``, ``Damping``, ``Contact``,
+            ``SelfCollision``, ``PseudoForces``, ``Sound``), global or per body.
+
+    Raises:
+        InputError: unknown or duplicate body names, an effect a body kind cannot take (named), an effect
+            that acts on no body, bad obstacles.
+    """
+
+    def __init__(self, *, bodies: Sequence, obstacles: Sequence = (), effects: Sequence = ()) -> None:
+        self.bodies = list(bodies)
+        if not self.bodies:
+            raise InputError("a world needs at least one body")
+        names = [getattr(b, "name", None) for b in self.bodies]
+        bad = [type(b).__name__ for b in self.bodies if not isinstance(b, (Modal, Tet, Cloth))]
+        if bad:
+            raise InputError(f"unknown body type(s) {', '.join(bad)}: use world.Modal, world.Tet or world.Cloth")
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise InputError(f"duplicate body name(s): {', '.join(dup)}")
+        self.by_name = {b.name: b for b in self.bodies}
+        self.obstacles = list(obstacles)
+        bad = [type(o).__name__ for o in self.obstacles if not isinstance(o, (Plane, Sphere, Box, TriangleMesh))]
+        if bad:
+            raise InputError(f"unknown obstacle type(s) {', '.join(bad)}: use world.Ground, Plane, Sphere, Box or "
+                             "TriangleMesh")
+        self.effects = list(effects)
+        self._check_effects()
+        self._build()
+
+    # ------------------------------------------------------------------ effects
+    def _check_effects(self) -> None:
+        kinds = tuple(fx.EFFECTS.values())
+        for e in self.effects:
+            if not isinstance(e, kinds):
+                raise InputError(f"unknown effect {type(e).__name__}: use one of modalfem.effects "
+                                 f"({', '.join(c.__name__ for c in kinds)})")
+            if e.bodies is not None:
+                for n in e.bodies:
+                    if n not in self.by_name:
+                        raise InputError(f"effect {e.name} names body {n!r}, which is not in the world "
+                                         f"(bodies: {', '.join(self.by_name)})")
+                    kind = self.by_name[n].kind
+                    if e.name not in fx.supported(kind):
+                        raise InputError(f"effect {e.name} cannot act on {kind} body {n!r}: a {kind} body takes "
+                                         f"{', '.join(fx.supported(kind))}")
+            elif not any(e.name in fx.supported(b.kind) for b in self.bodies):
+                raise InputError(f"effect {e.name} acts on no body of this world (it needs a "
+                                 f"{' or '.join(k for k in ('modal', 'tet', 'cloth') if e.name in fx.supported(k))} "
+                                 "body)")
+        for cls in (fx.Damping, fx.Contact, fx.SelfCollision, fx.PseudoForces, fx.Sound):
+            for b in self.bodies:
+                n = sum(1 for e in self.effects if isinstance(e, cls) and e.applies_to(b.name)
+                        and e.name in fx.supported(b.kind))
+                if n > 1:
+                    raise InputError(f"body {b.name!r} has {n} {cls.name} effects: give at most one per body")
+
+    def effects_of(self, name: str) -> list:
+        """The effects acting on body ``name`` (those its kind supports)."""
+        kind = self.by_name[name].kind
+        return [e for e in self.effects if e.applies_to(name) and e.name in fx.supported(kind)]
+
+    def _one(self, name: str, cls):
+        for e in self.effects_of(name):
+            if isinstance(e, cls):
+                return e
+        return None
+
+    # ------------------------------------------------------------------ build
+    def _build(self) -> None:
+        from modalfem import runtime as rt
+
+        self._modal, self._tet, self._cloth = {}, {}, {}
+        for b in self.bodies:
+            eff = self.effects_of(b.name)
+            if b.kind == "modal":
+                self._modal[b.name] = self._build_modal(b, eff, rt)
+            elif b.kind == "tet":
+                self._tet[b.name] = self._build_tet(b, eff)
+            else:
+                self._cloth[b.name] = self._build_cloth(b, eff)
+        # modal bodies in the compiled solve: against each other, moving and mesh obstacles
+        self._modal_contact = [n for n in self._modal if self._one(n, fx.Contact)]
+        self._surf = {n: SurfaceProximity(self._modal[n]["body"].triangles, self._modal[n]["body"].rest)
+                      for n in self._modal_contact}
+        self._world_obstacles = {}
+        for n in self._modal_contact:
+            obs = [o for o in self.obstacles if o.moving or isinstance(o, TriangleMesh)]
+            if obs:
+                self._world_obstacles[n] = obs
+        self._pairs = [(a, b) for i, a in enumerate(self._modal_contact) for b in self._modal_contact[i + 1:]]
+        self._obstacle_surf = {i: SurfaceProximity(o.triangles, o.vertices) for i, o in enumerate(self.obstacles)
+                               if isinstance(o, TriangleMesh)}
+        self._build_deformable()
+        self._sounds = {}
+        for n, m in self._modal.items():
+            s = self._one(n, fx.Sound)
+            if s is not None:
+                self._sounds[n] = rt.ModalSound(m["body"].model, listener=s.listener, distance=s.distance,
+                                                damping=m["body"].damping)
+        self.plan = self._compile_plan()
+
+    def _build_modal(self, b: Modal, eff: list, rt) -> dict:
+        damping = self._one(b.name, fx.Damping)
+        body = rt.ModalBody(b.model, damping=None if damping is None else (damping.alpha, damping.beta),
+                            dtype=np.float64)
+        inner, names = [], []
+        for e in eff:
+            if isinstance(e, fx.Gravity):
+                inner.append(rt.Gravity(e.g))
+            elif isinstance(e, fx.Wind):
+                if callable(e.velocity):
+                    raise InputError(f"wind on modal body {b.name!r}: a modal body takes a constant wind velocity "
+                                     "(3 numbers [m/s]); wind fields (x, t) act on cloth and tet bodies")
+                inner.append(rt.Wind(e.velocity, density=e.density, drag=e.drag))
+            elif isinstance(e, fx.PseudoForces):
+                if body.coupling is None:
+                    raise InputError(f"pseudo-forces on modal body {b.name!r}: its model file has no rotation "
+                                     "coupling (rebuild it with ModalModel.from_modes)")
+                inner.append(rt.PseudoForces(coriolis=e.coriolis, centripetal=e.centripetal, euler=e.euler))
+            elif isinstance(e, fx.Damping):
+                pass  # in the body's modal damping
+            else:
+                continue
+            names.append(e.name)
+        contact = self._one(b.name, fx.Contact)
+        static = []
+        if contact is not None:
+            for o in self.obstacles:
+                if o.moving:
+                    continue
+                if isinstance(o, Ground):
+                    static.append(rt.Ground(o.height))
+                elif isinstance(o, Plane):
+                    static.append(rt.Plane(o.normal, o.point))
+                elif isinstance(o, Sphere):
+                    static.append(rt.Sphere(o.center, o.radius))
+                elif isinstance(o, Box):
+                    static.append(rt.Box(o.center, o.half, o.rotation))
+            if static:
+                inner.append(rt.Obstacles(static, restitution=contact.restitution, friction=contact.friction,
+                                          margin=contact.margin, bounce_threshold=BOUNCE_THRESHOLD))
+                names.append("contact")
+        solver = rt.ModalSolver(body, effects=inner)
+        g = np.zeros(3)
+        for e in eff:
+            if isinstance(e, fx.Gravity):
+                g += np.asarray(e.g)
+        return {"body": body, "solver": solver, "effects": tuple(names), "static": bool(static), "g": g}
+
+    def _build_tet(self, b: Tet, eff: list) -> dict:
+        from modalfem import tet
+        from modalfem.mesh.surface import boundary_surface
+
+        inner, names = [], []
+        wind = None
+        for e in eff:
+            if isinstance(e, fx.Gravity):
+                inner.append(tet.Gravity(e.g))
+            elif isinstance(e, fx.Damping):
+                inner.append(tet.RayleighDamping(e.alpha, e.beta))
+            elif isinstance(e, fx.Wind):
+                wind = _TetWind(e)
+                inner.append(wind)
+            else:
+                continue
+            names.append(e.name)
+        if b.pins is not None and len(b.pins):
+            p = b.model.rest_points[b.pins] + (0.0 if b.position is None else b.position)
+            inner.append(tet.Pins(b.pins, p))
+        contact = self._one(b.name, fx.Contact)
+        penalty = None
+        if contact is not None:
+            penalty = PenaltyContacts(b.model.point_count)
+            inner.append(penalty)
+            names.append("contact")
+        solver = tet.TetSolver(b.model, effects=inner, newton_max=b.newton_max, linear_solver=b.linear_solver)
+        surf = boundary_surface(b.model.mesh)
+        if wind is not None:
+            wind.bind(surf)
+        masses = b.model.masses.copy()
+        if b.pins is not None:
+            masses[b.pins] = np.inf
+        tris = np.ascontiguousarray(surf.triangles)
+        out = {"solver": solver, "effects": tuple(names), "surface": surf.mesh_vertices, "triangles": tris,
+               "wind": wind, "masses": masses, "penalty": penalty, "contact": contact, "pipeline": None,
+               "proximity": SurfaceProximity(tris, surf.vertices)}
+        sc = self._one(b.name, fx.SelfCollision)
+        if sc is not None:
+            from modalfem.collision.pipeline import CollisionConfig, CollisionPipeline
+
+            out["pipeline"] = CollisionPipeline(tris, config=CollisionConfig(
+                thickness=self._thickness(b.name), friction=0.0 if contact is None else contact.friction))
+            names.append("self-collision")
+            out["effects"] = tuple(names)
+        return out
+
+    def _build_cloth(self, b: Cloth, eff: list) -> dict:
+        import dataclasses
+
+        from modalfem.cloth.scene import ClothScene
+        from modalfem.collision import obstacles as co
+        from modalfem.collision.pipeline import CollisionConfig
+
+        model = b.model
+        names = []
+        g = None
+        wind = None
+        for e in eff:
+            if isinstance(e, fx.Gravity):
+                g = np.asarray(e.g) if g is None else g + np.asarray(e.g)
+            elif isinstance(e, fx.Wind):
+                if wind is not None:
+                    raise InputError(f"cloth {b.name!r} has two wind effects: give at most one per cloth")
+                wind = _cloth_wind(e)
+            elif isinstance(e, fx.Damping):
+                model = dataclasses.replace(model, mass_damping=e.alpha, stiffness_damping=e.beta)
+            else:
+                continue
+            names.append(e.name)
+        contact = self._one(b.name, fx.Contact)
+        config, analytic = None, []
+        if contact is not None:  # the constraint filtering of the implicit step on static planes and spheres
+            config = CollisionConfig(thickness=self._thickness(b.name), friction=contact.friction,
+                                     self_collision=False)
+            for o in self.obstacles:
+                if isinstance(o, Plane) and not o.moving:
+                    analytic.append(co.Plane(o.point, o.normal))
+                elif isinstance(o, Sphere) and not o.moving:
+                    analytic.append(co.Sphere(o.center, o.radius))
+        x0 = b.x0 if b.x0 is not None else model.mesh.points
+        scene = ClothScene(model, gravity=g, wind=wind, collisions=config, obstacles=analytic,
+                           smoothing=0.0, linear_solver=b.linear_solver, x0=x0, v0=b.v0)
+        masses = model.masses.copy()
+        masses[model.handle_indices] = np.inf
+        return {"scene": scene, "effects": tuple(names), "masses": masses}
+
+    def _thickness(self, name: str) -> float:
+        sc, c = self._one(name, fx.SelfCollision), self._one(name, fx.Contact)
+        if sc is not None and sc.thickness is not None:
+            return sc.thickness
+        return c.thickness if c is not None else 2e-3
+
+    def _build_deformable(self) -> None:
+        """One collision pipeline over every tet surface and cloth with contact or self-collision; obstacles
+        and modal surfaces (with contact) as triangle meshes moving over each step."""
+        from modalfem.collision import obstacles as co
+        from modalfem.collision.pipeline import CollisionConfig, CollisionPipeline
+
+        members = [n for n in self._cloth if self._one(n, fx.Contact) or self._one(n, fx.SelfCollision)]
+        self._deform = None
+        if not members:
+            return
+        tris, offs, masses = [], {}, []
+        n = 0
+        for name in members:
+            c = self._cloth[name]
+            tris.append(np.asarray(c["scene"].model.mesh.triangles, dtype=np.int64) + n)
+            masses.append(c["masses"])
+            k = len(c["masses"])
+            offs[name] = (n, k)
+            n += k
+        touching = [m for m in members if self._one(m, fx.Contact)]
+        selfc = any(self._one(m, fx.SelfCollision) for m in members) or len(touching) > 1
+        obstacles, motions = [], {}
+        if touching:
+            for o in self.obstacles:
+                if isinstance(o, Plane) and not o.moving:
+                    obstacles.append(co.Plane(o.point, o.normal))
+                elif isinstance(o, Sphere) and not o.moving:
+                    obstacles.append(co.Sphere(o.center, o.radius))
+                else:
+                    V, F = o.surface(0.0)
+                    obstacles.append(co.TriangleMeshObstacle(V, F, motion=_ObstacleMotion(o) if o.moving else None))
+            for m in self._modal_contact:
+                body = self._modal[m]["body"]
+                mot = _Motion(body.rest)
+                motions[m] = mot
+                obstacles.append(co.TriangleMeshObstacle(body.rest, body.triangles, motion=mot))
+            for m, t in self._tet.items():
+                if t["contact"] is not None:
+                    x = self.by_name[m].model.rest_points[t["surface"]]
+                    mot = _Motion(x)
+                    motions[m] = mot
+                    obstacles.append(co.TriangleMeshObstacle(x, t["triangles"], motion=mot))
+        h = min(self._thickness(m) for m in members)
+        frictions = [self._one(m, fx.Contact).friction for m in touching]
+        config = CollisionConfig(thickness=h, friction=float(np.mean(frictions)) if frictions else 0.0,
+                                 self_collision=selfc)
+        self._deform = {"members": members, "offsets": offs, "masses": np.concatenate(masses),
+                        "pipeline": CollisionPipeline(np.concatenate(tris), config=config, obstacles=obstacles,
+                                                      n_vertices=n),
+                        "motions": motions, "thickness": h}
+
+    # ------------------------------------------------------------------ plan
+    def _compile_plan(self) -> list:
+        plan = []
+
+        def effects(group):
+            return tuple(sorted({e for g in group.values() for e in g["effects"]}))
+
+        if self._pairs or self._world_obstacles:
+            plan.append((Stage("modal contacts", tuple(self._modal_contact), ("contact",)), self._stage_contacts))
+        if self._modal:
+            plan.append((Stage("modal step", tuple(self._modal), effects(self._modal)), self._stage_modal_step))
+        if self._tet:
+            plan.append((Stage("tet step", tuple(self._tet), effects(self._tet)), self._stage_tet_step))
+        selfc = tuple(n for n, t in self._tet.items() if t["pipeline"] is not None)
+        if selfc:
+            plan.append((Stage("tet self-collision", selfc, ("self-collision",)), self._stage_tet_self))
+        if self._cloth:
+            plan.append((Stage("cloth step", tuple(self._cloth), effects(self._cloth)), self._stage_cloth_step))
+        if self._deform is not None:
+            d = self._deform
+            eff = ("contact",) if any(self._one(m, fx.Contact) for m in d["members"]) else ()
+            if d["pipeline"].config.self_collision:
+                eff += ("self-collision",)
+            plan.append((Stage("cloth collisions", tuple(d["members"]) + tuple(d["motions"]), eff),
+                         self._stage_deformable))
+        if self._sounds:
+            plan.append((Stage("sound", tuple(self._sounds), ("sound",)), self._stage_sound))
+        self._plan = plan
+        return [s for s, _ in plan]
+
+    def describe_plan(self) -> str:
+        """The step plan, one stage per line."""
+        return "\n".join(f"{i + 1}. {s}" for i, s in enumerate(self.plan))
+
+    # ------------------------------------------------------------------ states
+    def state(self) -> WorldState:
+        """The start state: every body where its definition places it, t = 0."""
+        from modalfem import runtime as rt
+        from modalfem.tet import TetState
+
+        out = {}
+        for b in self.bodies:
+            if b.kind == "modal":
+                body = self._modal[b.name]["body"]
+                out[b.name] = rt.State.rest(body, position=b.position, orientation=b.orientation,
+                                            velocity=b.velocity, angular_velocity=b.angular_velocity)
+            elif b.kind == "tet":
+                s = TetState.at_rest(b.model)
+                if b.position is not None:
+                    s.x += b.position
+                if b.velocity is not None:
+                    s.v[:] = b.velocity
+                out[b.name] = s
+            else:
+                sc = self._cloth[b.name]["scene"]
+                out[b.name] = ClothState(sc.x.copy(), sc.v.copy(), sc._released.copy())
+        return WorldState(0.0, out)
+
+    def control(self) -> WorldControl:
+        return WorldControl()
+
+    # ------------------------------------------------------------------ surfaces
+    def surface(self, state: WorldState, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """World surface of body ``name``: vertices (nv, 3) [m] and outward triangles (nt, 3)."""
+        b = self.by_name[name]
+        if b.kind == "modal":
+            body = self._modal[name]["body"]
+            return body.positions(state.bodies[name], precise=True).copy(), body.triangles
+        if b.kind == "tet":
+            t = self._tet.get(name)
+            return state.bodies[name].x[t["surface"]], t["triangles"]
+        return state.bodies[name].x, self._cloth[name]["scene"].model.mesh.triangles
+
+    # ------------------------------------------------------------------ step
+    def step(self, state_in: WorldState, state_out: WorldState, control: WorldControl | None, dt: float
+             ) -> StepReport:
+        """Advance every body by ``dt`` [s] from ``state_in`` into ``state_out`` (may be the same object).
+
+        All or nothing: if a stage fails, ``state_out`` is left as it was and the error names the body.
+
+        Raises:
+            SimulationError: bad dt, a control naming an unknown body or point, a body's step failing.
+        """
+        try:
+            dt = float(dt)
+        except (TypeError, ValueError):
+            raise SimulationError(f"time step must be a number [s], got {dt!r}") from None
+        if not (math.isfinite(dt) and dt > 0):
+            raise SimulationError(f"time step must be finite and > 0 s, got {dt!r}")
+        control = control or WorldControl()
+        for body, _, J in control.impulses:
+            if body not in self.by_name:
+                raise SimulationError(f"control impulse on unknown body {body!r} (bodies: {', '.join(self.by_name)})")
+            if J.shape != (3,) or not np.all(np.isfinite(J)):
+                raise SimulationError(f"control impulse on {body!r} must be 3 finite numbers [N s], got {J.tolist()}")
+        for body in control.scripted:
+            if body not in self._tet:
+                raise SimulationError(f"scripted vertices need a tet body, {body!r} is not one")
+        ctx = _StepContext(state_in, state_in.copy(), control, dt)
+        report = StepReport()
+        ctx.report = report
+        for stage, fn in self._plan:
+            t0 = time.perf_counter()
+            fn(ctx)
+            report.seconds[stage.name] = time.perf_counter() - t0
+        for b in self.bodies:  # bodies no stage moved (none today; kept for completeness)
+            if b.name not in ctx.done:
+                raise SimulationError(f"body {b.name!r} was not stepped (internal plan error)")
+        ctx.out.time = state_in.time + dt
+        state_out.time = ctx.out.time
+        state_out.bodies = ctx.out.bodies
+        return report
+
+    def advance(self, state: WorldState, dt: float, control: WorldControl | None = None) -> StepReport:
+        """``step(state, state, control, dt)``."""
+        return self.step(state, state, control, dt)
+
+    # ------------------------------------------------------------------ stages
+    def _strikes(self, ctx, name: str):
+        return [(p, J) for b, p, J in ctx.control.impulses if b == name]
+
+    def _stage_tet_step(self, ctx) -> None:
+        from modalfem.tet import TetControl
+
+        dt = ctx.dt
+        for name, t in self._tet.items():
+            s = ctx.state_in.bodies[name].copy()
+            for p, J in self._strikes(ctx, name):
+                i = _vertex(name, p, len(s.x))
+                if np.isfinite(t["masses"][i]):
+                    s.v[i] += J / t["masses"][i]
+            for vid, dv in ctx.kicks.pop(name, []):  # reactions of tet bodies stepped before this one
+                s.v[vid] += dv
+            if t["wind"] is not None:
+                t["wind"].update(s.x, s.v, ctx.state_in.time)
+            links = self._tet_contacts(ctx, name, s) if t["penalty"] is not None else None
+            out = s.copy()
+            ctl = TetControl(*ctx.control.scripted[name]) if name in ctx.control.scripted else None
+            try:
+                t["solver"].step(s, out, dt, control=ctl)
+            except SimulationError as exc:
+                raise SimulationError(f"tet body {name!r}: {exc}") from None
+            if links is not None:
+                self._tet_reactions(ctx, name, out, links)
+            ctx.out.bodies[name] = out
+            ctx.start[name] = s  # the start the step used (strikes applied)
+            ctx.done.add(name)
+
+    def _surface_now(self, ctx, name: str) -> np.ndarray:
+        """World surface vertices of a body: at the step end if it has stepped, else at the start."""
+        if name in self._modal:
+            st = ctx.out.bodies[name] if name in ctx.done else ctx.state_in.bodies[name]
+            return self._modal[name]["body"].positions(st, precise=True)
+        st = ctx.out.bodies[name] if name in ctx.done else ctx.state_in.bodies[name]
+        return st.x[self._tet[name]["surface"]]
+
+    def _tet_contacts(self, ctx, name: str, s) -> list:
+        """Set this step's penalty contacts of tet body ``name`` (start state ``s``); returns what each contact
+        pushes against: ``(kind, other, data)`` per contact (see ``_tet_reactions``)."""
+        t = self._tet[name]
+        c = t["contact"]
+        dt, t1 = ctx.dt, ctx.state_in.time + ctx.dt
+        dhat = c.margin
+        sv = t["surface"]
+        xs = s.x[sv]
+        vmax = float(np.sqrt(np.einsum("ij,ij->i", s.v, s.v)).max()) if len(s.v) else 0.0
+        reach = dhat + c.margin + 2.0 * vmax * dt + 9.81 * dt * dt
+        verts, ws, ps, ns, links = [], [], [], [], []
+
+        def add_vertex(idx, p, n, link):
+            verts.append(np.stack([sv[idx], -np.ones(len(idx), np.int64), -np.ones(len(idx), np.int64)], 1))
+            ws.append(np.column_stack([np.ones(len(idx)), np.zeros(len(idx)), np.zeros(len(idx))]))
+            ps.append(p)
+            ns.append(n)
+            links.extend(link)
+
+        for o in self.obstacles:
+            r = reach + (0.0 if not o.moving else float(np.linalg.norm(o.path.velocity(ctx.state_in.time, dt))) * dt)
+            if isinstance(o, TriangleMesh):
+                Vo = o.vertices + o.offset(t1)
+                h = self._obstacle_surf[self.obstacles.index(o)].query(xs, Vo, r)
+                if len(h.point):
+                    p = np.einsum("kj,kjd->kd", h.bary, Vo[o.triangles[h.triangle]])
+                    add_vertex(h.point, p, h.normal, [("obstacle", o, None)] * len(h.point))
+            else:
+                gap, n = o.signed_distance(xs, t1)
+                idx = np.flatnonzero(gap < r)
+                if len(idx):
+                    n = np.asarray(n)[idx]
+                    add_vertex(idx, xs[idx] - gap[idx, None] * n, n, [("obstacle", o, None)] * len(idx))
+        others = [m for m in self._modal_contact] + [u for u in self._tet if u != name and self._tet[u]["contact"]]
+        for other in others:
+            xo = self._surface_now(ctx, other)
+            lo = np.maximum(xs.min(0), xo.min(0)) - reach
+            hi = np.minimum(xs.max(0), xo.max(0)) + reach
+            if np.any(lo > hi):
+                continue
+            tri_o = self._modal[other]["body"].triangles if other in self._modal else self._tet[other]["triangles"]
+            prox_o = self._surf[other] if other in self._modal else self._tet[other]["proximity"]
+            kind = "modal" if other in self._modal else "tet"
+            # our vertices against the other's surface
+            near = np.flatnonzero(np.all((xs >= lo) & (xs <= hi), axis=1))
+            if len(near):
+                h = prox_o.query(xs[near], xo, reach)
+                if len(h.point):
+                    p = np.einsum("kj,kjd->kd", h.bary, xo[tri_o[h.triangle]])
+                    add_vertex(near[h.point], p, h.normal,
+                               [(kind, other, (tri_o[tr], w, pt)) for tr, w, pt in zip(h.triangle, h.bary, p)])
+            # the other's vertices against our surface (they push our faces)
+            near = np.flatnonzero(np.all((xo >= lo) & (xo <= hi), axis=1))
+            if len(near):
+                h = t["proximity"].query(xo[near], xs, reach)
+                if len(h.point):
+                    verts.append(sv[t["triangles"][h.triangle]])
+                    ws.append(h.bary)
+                    ps.append(xo[near[h.point]])
+                    ns.append(-h.normal)
+                    links.extend((kind, other, (np.array([j]), np.ones(1), xo[j])) for j in near[h.point])
+        pen = t["penalty"]
+        if not verts:
+            pen.set(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), dhat)
+            return []
+        V, W = np.concatenate(verts), np.concatenate(ws)
+        inv = np.where(V >= 0, 1.0 / t["masses"][np.where(V >= 0, V, 0)], 0.0)
+        meff_inv = np.einsum("cj,cj->c", W**2, inv)
+        ok = meff_inv > 0
+        k = np.where(ok, STIFFNESS / np.where(ok, meff_inv, 1.0) / dt**2, 0.0)
+        pen.set(V, W, np.concatenate(ps), np.concatenate(ns), k, dhat)
+        return links
+
+    def _tet_reactions(self, ctx, name: str, out, links: list) -> None:
+        """Friction on the tet's contacts and the equal and opposite impulses on the bodies it touched."""
+        t = self._tet[name]
+        pen = t["penalty"]
+        if not pen.count:
+            return
+        dt = ctx.dt
+        f = pen.forces(out.x)
+        mu = t["contact"].friction
+        per = {}
+        for c in np.flatnonzero(f > 0):
+            kind, other, data = links[c]
+            J = f[c] * dt * pen.nrm[c]  # what the tet received along the normal [N s]
+            single = pen.verts[c, 1] < 0
+            if mu > 0 and single:  # Coulomb friction of a vertex contact against the other surface's velocity
+                i = pen.verts[c, 0]
+                if np.isfinite(t["masses"][i]):
+                    vo = self._velocity_at(ctx, kind, other, data, out.x[i])
+                    rel = out.v[i] - vo
+                    vt = rel - pen.nrm[c] * (rel @ pen.nrm[c])
+                    sp = float(np.linalg.norm(vt))
+                    if sp > 0:
+                        cut = min(sp, mu * f[c] * dt / t["masses"][i])
+                        dv = -cut / sp * vt
+                        out.v[i] += dv
+                        out.x[i] += dt * dv
+                        J = J + t["masses"][i] * dv
+            if kind == "obstacle":
+                continue
+            self._kick(ctx, kind, other, data, -J)
+            pt = data[2]
+            J0, L0 = per.get(other, (np.zeros(3), np.zeros(3)))
+            per[other] = (J0 + J, L0 + np.cross(pt, J))
+        for other, (J, L) in per.items():
+            ctx.report.exchanged.append((name, other, J, L))
+        ctx.report.contacts["tet"] = ctx.report.contacts.get("tet", 0) + int((f > 0).sum())
+
+    def _velocity_at(self, ctx, kind: str, other, data, x: np.ndarray) -> np.ndarray:
+        if kind == "obstacle":
+            return np.asarray(other.velocity(x[None], ctx.state_in.time, ctx.dt))[0]
+        if kind == "modal":
+            st = ctx.out.bodies[other]
+            return st.velocity + np.cross(self._modal[other]["body"].angular_velocity(st), x - st.position)
+        st = ctx.out.bodies[other] if other in ctx.done else ctx.state_in.bodies[other]
+        ids, w, _ = data
+        return np.einsum("j,jd->d", w, st.v[self._tet[other]["surface"][np.asarray(ids)]])
+
+    def _kick(self, ctx, kind: str, other: str, data, J: np.ndarray) -> None:
+        """Impulse ``J`` (3,) [N s] on body ``other`` at its contact point: a modal body's rigid motion at the
+        step end (see ``_reaction``), a tet body's vertices (at its step end, or its start if not stepped)."""
+        ids, w, pt = data
+        if kind == "modal":
+            st = ctx.out.bodies[other]
+            st.velocity += J / self._modal[other]["body"].mass
+            st.angular_momentum += np.cross(pt - st.position, J)
+            return
+        t = self._tet[other]
+        vid = t["surface"][np.asarray(ids)]  # surface-local -> mesh vertex ids
+        m = t["masses"][vid]
+        dv = np.where(np.isfinite(m), 1.0, 0.0)[:, None] * (w / np.where(np.isfinite(m), m, 1.0))[:, None] * J
+        if other in ctx.done:
+            ctx.out.bodies[other].v[vid] += dv
+        else:
+            ctx.kicks.setdefault(other, []).append((vid, dv))
+
+    def _stage_tet_self(self, ctx) -> None:
+        dt = ctx.dt
+        for name, t in self._tet.items():
+            if t["pipeline"] is None:
+                continue
+            x0 = ctx.start[name].x
+            out = ctx.out.bodies[name]
+            sv = t["surface"]
+            v = (out.x[sv] - x0[sv]) / dt
+            v_new, stats = t["pipeline"].resolve(x0[sv], v, t["masses"][sv], dt, t=ctx.state_in.time)
+            if stats.unresolved:
+                raise SimulationError(f"tet body {name!r}: self-collision left {stats.unresolved} colliding pairs")
+            out.v[sv] += v_new - v
+            out.x[sv] = x0[sv] + dt * v_new
+
+    def _stage_cloth_step(self, ctx) -> None:
+        dt = ctx.dt
+        for name, c in self._cloth.items():
+            sc = c["scene"]
+            s = ctx.state_in.bodies[name]
+            sc.x, sc.v, sc.t, sc._released = s.x.copy(), s.v.copy(), ctx.state_in.time, s.released.copy()
+            for p, J in self._strikes(ctx, name):
+                i = _vertex(name, p, len(sc.x))
+                if np.isfinite(c["masses"][i]):
+                    sc.v[i] += J / c["masses"][i]
+            try:
+                v_new, released, _ = sc.implicit_velocity(dt)
+            except SimulationError as exc:
+                raise SimulationError(f"cloth {name!r}: {exc}") from None
+            ctx.start[name] = ClothState(sc.x.copy(), sc.v.copy(), s.released)
+            ctx.out.bodies[name] = ClothState(sc.x + dt * v_new, v_new, released)
+            ctx.done.add(name)
+
+    def _stage_contacts(self, ctx) -> None:
+        dt = ctx.dt
+        t0 = ctx.state_in.time
+        seg, V_parts, pos, speed = {}, [], {}, {}
+        n_off = 0
+        for name in self._modal_contact:
+            m = self._modal[name]
+            s = ctx.state_in.bodies[name]
+            body = m["body"]
+            w = body.angular_velocity(s)
+            V_parts.append(np.concatenate([s.velocity + m["g"] * dt, w, s.qdot]))
+            pos[name] = body.positions(s, precise=True)
+            speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
+                                + np.linalg.norm(m["g"]) * dt)
+            if body.mode_count:
+                speed[name] += float(np.abs(body.shapes_t.T @ s.qdot).max())
+            seg[name] = (n_off, 6 + body.mode_count)
+            n_off += 6 + body.mode_count
+        V = np.concatenate(V_parts)
+        builder = _ContactBuilder(self, ctx, seg)
+        for name, obs in self._world_obstacles.items():  # moving obstacles and meshes
+            c = self._one(name, fx.Contact)
+            x = pos[name]
+            for o in obs:
+                reach = c.margin + speed[name] * dt
+                if o.moving:
+                    reach += float(np.linalg.norm(o.path.velocity(t0, dt))) * dt
+                if isinstance(o, TriangleMesh):
+                    hits = self._obstacle_surf[self.obstacles.index(o)].query(x, o.vertices + o.offset(t0), reach)
+                    idx, gap, nrm = hits.point, hits.gap, hits.normal
+                else:
+                    gap_all, n_all = o.signed_distance(x, t0)
+                    idx = np.flatnonzero(gap_all < reach)
+                    gap, nrm = gap_all[idx], np.asarray(n_all)[idx]
+                if len(idx):
+                    builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c)
+        for a, b in self._pairs:  # modal bodies against each other: each one's vertices on the other's surface
+            ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
+            reach = max(ca.margin, cb.margin) + (speed[a] + speed[b]) * dt
+            xa, xb = pos[a], pos[b]
+            lo = np.maximum(xa.min(0), xb.min(0)) - reach
+            hi = np.minimum(xa.max(0), xb.max(0)) + reach
+            if np.any(lo > hi):
+                continue
+            for p, q, xp, xq, cp, cq in ((a, b, xa, xb, ca, cb), (b, a, xb, xa, cb, ca)):
+                near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
+                if not len(near):
+                    continue
+                hits = self._surf[q].query(xp[near], xq, reach)
+                if len(hits.point):
+                    builder.pair(p, near[hits.point], q, hits.triangle, hits.bary, hits.gap, hits.normal, cp, cq)
+        k = builder.count
+        ctx.report.contacts["modal"] = k
+        if k == 0:
+            return
+        data = builder.arrays()
+        K = _kernels.effective_masses(data["ptr"], data["off"], data["nd"], data["jptr"], data["J"], data["WJt"])
+        u = _kernels.contact_velocities(V, data["ptr"], data["off"], data["nd"], data["jptr"], data["J"])
+        n = data["normal"]
+        vn = np.einsum("ij,ij->i", u, n) - data["vobs_n"]
+        gap = data["gap"]
+        target = np.where(gap > 0, -gap / dt, -PUSH_OUT * gap / dt)
+        e = data["restitution"]
+        bounce = (vn < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
+        target = np.where(bounce, np.maximum(target, -e * vn), target) + data["vobs_n"]
+        lam_n, lam_t = np.zeros(k), np.zeros((k, 3))
+        V0 = V.copy()
+        ctx.report.sweeps = _kernels.sequential_impulses(V, data["ptr"], data["off"], data["nd"], data["jptr"],
+                                                         data["J"], data["WJt"], K, n, target, data["mu"],
+                                                         int(data["iterations"]), lam_n, lam_t)
+        lam = lam_n[:, None] * n + lam_t
+        dV = V - V0
+        for name, (o, nd) in seg.items():
+            ctx.dV[name] = dV[o:o + nd]
+        ex = {}  # what each body received from each other body (the other received the opposite)
+        for c in np.flatnonzero(data["other"] >= 0):
+            key = (int(data["body"][c]), int(data["other"][c]))
+            J0, L0 = ex.get(key, (np.zeros(3), np.zeros(3)))
+            ex[key] = (J0 + lam[c], L0 + np.cross(data["point"][c], lam[c]))
+        for (a, b), (J, L) in ex.items():
+            ctx.report.exchanged.append((self._modal_contact[a], self._modal_contact[b], J, L))
+        for name in self._sounds:  # what sounding bodies hear: the modal kick of the contacts that bounced
+            if name in seg:
+                i = self._modal_contact.index(name)
+                sel = np.flatnonzero(bounce & ((data["body"] == i) | (data["other"] == i)))
+                if len(sel):
+                    ctx.impacts[name] = builder.modal_change(name, sel, lam)
+
+    def _stage_modal_step(self, ctx) -> None:
+        from modalfem import runtime as rt
+
+        dt = ctx.dt
+        for name, m in self._modal.items():
+            s = ctx.state_in.bodies[name].copy()
+            body, solver = m["body"], m["solver"]
+            dV = ctx.dV.get(name)
+            if dV is not None:  # the contact impulses of the modal contact solve, at the step start
+                s.velocity += dV[0:3]
+                R = s.rotation()
+                s.angular_momentum += R @ (body.inertia @ (R.T @ dV[3:6]))
+                s.qdot += dV[6:]
+            ctl = None
+            strikes = self._strikes(ctx, name)
+            if strikes:
+                ctl = rt.Control()
+                for p, J in strikes:
+                    ctl.add_impulse(p, J)
+            out = s.copy()
+            contacts = solver.collide(s, dt) if m["static"] else None
+            try:
+                solver.step(s, out, ctl, contacts, dt)
+            except SimulationError as exc:
+                raise SimulationError(f"modal body {name!r}: {exc}") from None
+            if strikes and name in self._sounds:
+                self._sounds[name].add_impulses(ctx.state_in.time, [p for p, _ in strikes],
+                                                [J for _, J in strikes], rotation=s.rotation())
+            if contacts is not None:
+                ctx.report.contacts["modal_static"] = ctx.report.contacts.get("modal_static", 0) + contacts.count
+                if name in self._sounds and contacts.count:
+                    self._sounds[name].add_contacts(ctx.state_in.time, contacts, rotation=s.rotation())
+            ctx.out.bodies[name] = out
+            ctx.done.add(name)
+
+    def _stage_deformable(self, ctx) -> None:
+        d = self._deform
+        dt, t0 = ctx.dt, ctx.state_in.time
+        for n, mot in d["motions"].items():  # solid surfaces from their start to their (final) end positions
+            if n in self._modal:
+                body = self._modal[n]["body"]
+                x0 = body.positions(ctx.state_in.bodies[n], precise=True).copy()
+                x1 = body.positions(ctx.out.bodies[n], precise=True).copy()
+            else:
+                sv = self._tet[n]["surface"]
+                x0, x1 = ctx.start[n].x[sv].copy(), ctx.out.bodies[n].x[sv].copy()
+            mot.set(t0, x0, t0 + dt, x1)
+        x0 = np.concatenate([ctx.start[m].x for m in d["members"]])
+        v = np.concatenate([ctx.out.bodies[m].v for m in d["members"]])
+        v_new, stats = d["pipeline"].resolve(x0, v, d["masses"], dt, t=t0)
+        if stats.unresolved:
+            raise SimulationError(f"the collision pipeline left {stats.unresolved} colliding pairs at t = {t0:.4g} s "
+                                  f"(cloth {', '.join(d['members'])})")
+        dv = v_new - v
+        ctx.report.contacts["cloth"] = int(stats.touched.sum()) if stats.touched is not None else 0
+        for name in d["members"]:
+            o, k = d["offsets"][name]
+            out = ctx.out.bodies[name]
+            out.v = v_new[o:o + k].copy()
+            out.x = ctx.start[name].x + dt * out.v
+            if not np.all(np.isfinite(out.x)):
+                raise SimulationError(f"cloth {name!r}: positions became NaN/inf at t = {t0 + dt:.4g} s")
+        if d["motions"]:
+            self._reaction(ctx, x0 + dt * v_new, dv)
+
+    def _reaction(self, ctx, x1: np.ndarray, dv: np.ndarray) -> None:
+        """Give the solid bodies back the momentum the pipeline gave the cloth vertices next to them: equal and
+        opposite impulses at the closest points of their end surfaces (a modal body's rigid motion only: the
+        pipeline saw its vibrating surface at the step's two ends, and feeding impulses into modes faster than
+        the step pumps energy between the aliased vibration and the cloth)."""
+        d = self._deform
+        moved = np.flatnonzero(np.any(dv != 0.0, axis=1) & np.isfinite(d["masses"]))
+        total = 0
+        if len(moved):
+            reach = 2.0 * d["thickness"]
+            best = {}
+            for n in d["motions"]:
+                xs = self._surface_now(ctx, n)
+                prox = self._surf[n] if n in self._modal else self._tet[n]["proximity"]
+                tri_all = self._modal[n]["body"].triangles if n in self._modal else self._tet[n]["triangles"]
+                h = prox.query(x1[moved], xs, reach)
+                for i, tri, w, g in zip(h.point, h.triangle, h.bary, h.gap):
+                    if i not in best or abs(g) < best[i][3]:
+                        best[i] = (n, tri_all[tri], w, abs(g), np.einsum("j,jd->d", w, xs[tri_all[tri]]))
+            owner = {m: d["offsets"][m] for m in d["members"]}
+            per = {}
+            for i, (n, tri, w, _, pt) in best.items():
+                v = moved[i]
+                J = -d["masses"][v] * dv[v]  # what the solid receives
+                kind = "modal" if n in self._modal else "tet"
+                self._kick(ctx, kind, n, (tri, w, pt), J)
+                src = next(m for m, (a, k) in owner.items() if a <= v < a + k)
+                J0, L0 = per.get((n, src), (np.zeros(3), np.zeros(3)))
+                per[(n, src)] = (J0 + J, L0 + np.cross(pt, J))
+                total += 1
+            for (n, src), (J, L) in per.items():
+                ctx.report.exchanged.append((n, src, J, L))
+        ctx.report.contacts["reaction"] = total
+
+    def _stage_sound(self, ctx) -> None:
+        for name, snd in self._sounds.items():
+            dq = ctx.impacts.get(name)
+            if dq is not None:
+                snd.add_impact(ctx.state_in.time, dq, rotation=ctx.state_in.bodies[name].rotation())
+
+    # ------------------------------------------------------------------ outputs
+    def sound(self, name: str):
+        """The ``runtime.ModalSound`` recording the impacts of sounding modal body ``name``
+        (``.render(duration)`` gives the pressure samples [Pa] at ``.sample_rate``)."""
+        if name not in self._sounds:
+            raise InputError(f"body {name!r} has no Sound effect (sounding bodies: {', '.join(self._sounds) or 'none'})")
+        return self._sounds[name]
+
+    def momentum(self, state: WorldState, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Linear (3,) [kg m/s] and angular momentum about the origin (3,) [kg m^2/s] of body ``name``."""
+        s = state.bodies[name]
+        if name in self._modal:
+            return self._modal[name]["solver"].momentum(s)
+        m = self.by_name[name].model.masses
+        p = (m[:, None] * s.v).sum(axis=0)
+        return p, (m[:, None] * np.cross(s.x, s.v)).sum(axis=0)
+
+    def energy(self, state: WorldState, name: str) -> dict:
+        """Energies [J] of body ``name``: kinetic, elastic, gravity (``-m g . x``) and their total."""
+        s = state.bodies[name]
+        g = np.zeros(3)
+        for e in self.effects_of(name):
+            if isinstance(e, fx.Gravity):
+                g += np.asarray(e.g)
+        if name in self._modal:
+            m = self._modal[name]
+            body = m["body"]
+            out = {"kinetic": body.kinetic_energy_rigid(s) + 0.5 * float(s.qdot @ s.qdot),
+                   "elastic": 0.5 * float(np.sum((body.omega * s.q) ** 2)),
+                   "gravity": -body.mass * float(g @ s.position)}
+        elif name in self._tet:
+            m = self.by_name[name].model.masses
+            e = self._tet[name]["solver"].energies(s)
+            out = {"kinetic": e["kinetic"], "elastic": e["elastic"], "gravity": -float(m @ (s.x @ g))}
+        else:
+            sc = self._cloth[name]["scene"]
+            m = sc.model.masses
+            out = {"kinetic": 0.5 * float(m @ np.sum(s.v**2, axis=1)), "elastic": sc.model.elastic_energy(s.x),
+                   "gravity": -float(m @ (s.x @ g))}
+        out["total"] = sum(out.values())
+        return out
+
+    def intersections(self, state: WorldState) -> list:
+        """Intersecting triangle pairs between any two bodies' surfaces (the exact test,
+        ``collision.tritri``): a list of ``(body_a, body_b, count)`` with count > 0."""
+        from modalfem.collision.tritri import intersecting_pairs
+
+        out = []
+        names = [b.name for b in self.bodies]
+        surf = {n: self.surface(state, n) for n in names}
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                xa, fa = surf[a]
+                xb, fb = surf[b]
+                lo = np.maximum(xa.min(0), xb.min(0))
+                hi = np.minimum(xa.max(0), xb.max(0))
+                if np.any(lo > hi):
+                    continue
+                k = len(intersecting_pairs(xa, fa, other_points=xb, other_triangles=fb))
+                if k:
+                    out.append((a, b, k))
+        return out
+
+
+class _StepContext:
+    def __init__(self, state_in: WorldState, out: WorldState, control: WorldControl, dt: float) -> None:
+        self.state_in, self.out, self.control, self.dt = state_in, out, control, dt
+        self.start = {}
+        self.done = set()
+        self.dV = {}
+        self.cloth_dv = {}
+        self.impacts = {}
+        self.kicks = {}
+        self.report = None
+
+
+def _vertex(name: str, p, n: int) -> int:
+    if isinstance(p, (int, np.integer)) and 0 <= int(p) < n:
+        return int(p)
+    raise SimulationError(f"control impulse on {name!r}: the point must be a vertex index in [0, {n}), got {p!r}")
+
+
+def _skew(r: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+
+
+class _ContactBuilder:
+    """Entries of the compiled solve (see ``modalfem.world._kernels``) for obstacle and body-body contacts."""
+
+    def __init__(self, world: World, ctx: _StepContext, seg: dict) -> None:
+        self.w, self.ctx, self.seg = world, ctx, seg
+        self.count = 0
+        self.ptr = [0]
+        self.off, self.nd, self.jptr = [], [], []
+        self.J, self.WJt = [], []
+        self.jlen = 0
+        self.normal, self.gap, self.vobs_n, self.mu, self.e, self.margin = [], [], [], [], [], []
+        self.body, self.other, self.point = [], [], []
+        self.iterations = 1
+        self._modal_frames = {}
+
+    def _modal_frame(self, name: str):
+        f = self._modal_frames.get(name)
+        if f is None:
+            m = self.w._modal[name]
+            s = self.ctx.state_in.bodies[name]
+            R = s.rotation()
+            Iw_inv = R @ m["body"].inertia_inv @ R.T
+            f = (R, Iw_inv, s)
+            self._modal_frames[name] = f
+        return f
+
+    def _entries_modal(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
+        """(k,) entries for points sum_j w_j vertex_j of a modal body: J (k, 3, 6 + r), WJt (k, 6 + r, 3), r (k, 3)."""
+        body = self.w._modal[name]["body"]
+        R, Iw_inv, s = self._modal_frame(name)
+        phi = np.einsum("kj,kjcr->kcr", w, body.vertex_shapes(verts.reshape(-1)).reshape(verts.shape + (3, -1)))
+        rest = np.einsum("kj,kjc->kc", w, body.rest[verts])
+        r = (rest + np.einsum("kcr,r->kc", phi, s.q)) @ R.T
+        k, nm = len(r), body.mode_count
+        J = np.zeros((k, 3, 6 + nm))
+        J[:, :, 0:3] = np.eye(3)
+        S = np.zeros((k, 3, 3))
+        S[:, 0, 1], S[:, 0, 2] = -r[:, 2], r[:, 1]
+        S[:, 1, 0], S[:, 1, 2] = r[:, 2], -r[:, 0]
+        S[:, 2, 0], S[:, 2, 1] = -r[:, 1], r[:, 0]
+        J[:, :, 3:6] = -S
+        J[:, :, 6:] = np.einsum("ab,kbr->kar", R, phi)
+        WJt = np.transpose(J, (0, 2, 1)).copy()
+        WJt[:, 0:3, :] /= body.mass
+        WJt[:, 3:6, :] = np.einsum("ab,kbc->kac", Iw_inv, S)  # Iw^-1 (-[r]x)^T = Iw^-1 [r]x
+        return sign * J, sign * WJt, r + s.position
+
+    def _add(self, name_a, ent_a, name_b, ent_b, n, gap, vobs_n, ca, cb, point, other):
+        """Append contacts: ent_* = list over contacts of lists of (off, nd, J (3, nd), WJt (nd, 3))."""
+        k = len(gap)
+        for c in range(k):
+            for ents in (ent_a, ent_b):
+                if ents is None:
+                    continue
+                for o, nd, Jb, Wb in ents[c]:
+                    self.off.append(o)
+                    self.nd.append(nd)
+                    self.jptr.append(self.jlen)
+                    self.J.append(np.ascontiguousarray(Jb).reshape(-1))
+                    self.WJt.append(np.ascontiguousarray(Wb).reshape(-1))
+                    self.jlen += 3 * nd
+            self.ptr.append(len(self.off))
+        self.normal.append(n)
+        self.gap.append(gap)
+        self.vobs_n.append(vobs_n)
+        mu = ca.friction if cb is None else math.sqrt(ca.friction * cb.friction)
+        e = ca.restitution if cb is None else min(ca.restitution, cb.restitution)
+        self.mu.append(np.full(k, mu))
+        self.e.append(np.full(k, e))
+        self.margin.append(np.full(k, ca.margin if cb is None else max(ca.margin, cb.margin)))
+        ia = self.w._modal_contact.index(name_a)
+        self.body.append(np.full(k, ia))
+        self.other.append(np.full(k, other))
+        self.point.append(point)
+        self.iterations = max(self.iterations, ca.iterations, 0 if cb is None else cb.iterations)
+        self.count += k
+
+    def _side(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
+        """Per contact a list of entries for body ``name`` at points sum_j w_j verts_j (verts (k, m))."""
+        o0, _ = self.seg[name]
+        J, WJt, p = self._entries_modal(name, verts, w, sign)
+        nd = J.shape[2]
+        return [[(o0, nd, J[c], WJt[c])] for c in range(len(J))], p
+
+    def obstacle(self, name, idx, gap, nrm, vobs, contact) -> None:
+        ents, p = self._side(name, idx[:, None], np.ones((len(idx), 1)), 1.0)
+        self._add(name, ents, None, None, np.asarray(nrm, dtype=float), np.asarray(gap, dtype=float),
+                  np.einsum("ij,ij->i", vobs, nrm), contact, None, p, -1)
+
+    def pair(self, a, idx, b, tri, bary, gap, nrm, ca, cb) -> None:
+        ents_a, p = self._side(a, idx[:, None], np.ones((len(idx), 1)), 1.0)
+        tb = self.w._modal[b]["body"].triangles[tri]
+        ents_b, _ = self._side(b, tb, bary, -1.0)
+        self._add(a, ents_a, b, ents_b, nrm, gap, np.zeros(len(gap)), ca, cb, p, self.w._modal_contact.index(b))
+
+    def arrays(self) -> dict:
+        return {"ptr": np.asarray(self.ptr, dtype=np.int64), "off": np.asarray(self.off, dtype=np.int64),
+                "nd": np.asarray(self.nd, dtype=np.int64), "jptr": np.asarray(self.jptr, dtype=np.int64),
+                "J": np.concatenate(self.J) if self.J else np.zeros(0),
+                "WJt": np.concatenate(self.WJt) if self.WJt else np.zeros(0),
+                "normal": np.ascontiguousarray(np.concatenate(self.normal)),
+                "gap": np.concatenate(self.gap), "vobs_n": np.concatenate(self.vobs_n),
+                "mu": np.concatenate(self.mu), "restitution": np.concatenate(self.e),
+                "margin": np.concatenate(self.margin), "body": np.concatenate(self.body),
+                "other": np.concatenate(self.other), "point": np.concatenate(self.point),
+                "iterations": self.iterations}
+
+    def modal_change(self, name: str, sel: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """The modal velocity change (r,) of modal body ``name`` from the impulses of contacts ``sel``."""
+        o0, nd = self.seg[name]
+        dq = np.zeros(nd - 6)
+        W = np.concatenate(self.WJt)
+        for c in sel:
+            for e in range(self.ptr[c], self.ptr[c + 1]):
+                if self.off[e] == o0 and self.nd[e] == nd:
+                    base = self.jptr[e]
+                    blk = W[base:base + 3 * nd].reshape(nd, 3)
+                    dq += blk[6:] @ lam[c]
+        return dq
+
+
+class _TetWind:
+    """Wind on a tet body's surface: pressure ``0.5 rho C s^2`` on the faces the air meets, held over a step
+    (a vertex load of the implicit step, updated at each step start)."""
+
+    kind = "vertex"
+
+    def __init__(self, wind: fx.Wind) -> None:
+        self.wind = wind
+        self.f = None
+
+    def bind(self, surf) -> None:
+        self.surface_vertices = surf.mesh_vertices
+        self.triangles = surf.triangles
+
+    def update(self, x: np.ndarray, v: np.ndarray, t: float) -> None:
+        sv = self.surface_vertices
+        xs, vs = x[sv], v[sv]
+        T = self.triangles
+        a = xs[T[:, 0]]
+        cr = np.cross(xs[T[:, 1]] - a, xs[T[:, 2]] - a)
+        area2 = np.sqrt(np.einsum("ij,ij->i", cr, cr))
+        n = cr / np.where(area2 > 0, area2, 1.0)[:, None]
+        c = xs[T].mean(axis=1)
+        u = vs[T].mean(axis=1)
+        s = np.einsum("ij,ij->i", self.wind.at(c, t) - u, n)
+        s = np.minimum(s, 0.0)  # air flowing into the face (outward normal against the flow)
+        F = (-0.25 * self.wind.density * self.wind.drag * area2 * s * s)[:, None] * n
+        f = np.zeros((len(x), 3))
+        for k in range(3):
+            np.add.at(f, sv[T[:, k]], F / 3.0)
+        self.f = f
+
+    def energy(self, x: np.ndarray, masses: np.ndarray) -> float:
+        return -float(np.sum(self.f * x))
+
+    def gradient(self, x: np.ndarray, masses: np.ndarray) -> np.ndarray:
+        return -self.f
+
+    def hessian_diagonal(self, x: np.ndarray, masses: np.ndarray):
+        return None
+
+
+def _cloth_wind(wind: fx.Wind):
+    """The public ``Wind`` for a cloth: ``0.5 rho C A |s| s n`` per triangle, implicit in the velocities."""
+    from modalfem.cloth.wind import Wind as ClothWind
+
+    class _Quadratic(ClothWind):
+        def __init__(self, w: fx.Wind) -> None:
+            object.__setattr__(self, "velocity", np.zeros(3))
+            object.__setattr__(self, "drag", 1.0)
+            object.__setattr__(self, "air", w)
+
+        def forces(self, x, v, triangles, t=0.0):
+            q = x[triangles]
+            nrm = np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
+            a2 = np.linalg.norm(nrm, axis=1)
+            n = nrm / np.maximum(a2, 1e-300)[:, None]
+            area = 0.5 * a2
+            wv = self.air.at(q.mean(axis=1), t)
+            s = np.einsum("mi,mi->m", wv - v[triangles].mean(axis=1), n)
+            k = self.air.density * self.air.drag * area
+            f_tri = (0.5 * k * np.abs(s) * s / 3.0)[:, None] * n
+            f = np.zeros_like(x, dtype=float)
+            np.add.at(f, triangles.reshape(-1), np.repeat(f_tri, 3, axis=0))
+            nn = (k * np.abs(s) / 9.0)[:, None, None] * n[:, :, None] * n[:, None, :]
+            return f, np.tile(nn, (1, 3, 3))
+
+    return _Quadratic(wind)
+
+
+class _ObstacleMotion:
+    """A moving obstacle's surface positions over time (the cloth pipeline's ``motion``)."""
+
+    def __init__(self, o) -> None:
+        self.o = o
+
+    def __call__(self, t: float) -> np.ndarray:
+        return self.o.surface(t)[0]
