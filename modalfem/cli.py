@@ -61,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--cells", type=int, nargs=3, metavar=("NX", "NY", "NZ"), help="box/plate cells per axis")
     g.add_argument("--length", type=float, help="rod length [m]")
     g.add_argument("--radius", type=float, help="rod radius [m]")
-    g.add_argument("--h", type=float, help="target element size [m] (rod, tuning_fork, bell)")
+    g.add_argument("--h", type=float, help="target element size [m] (rod, tuning_fork, bell; surface files)")
     f = m.add_argument_group("mesh files")
     f.add_argument("--unit-scale", type=float, default=1.0,
                    help="factor turning file coordinates into metres (1e-3 for a file in mm)")
@@ -107,10 +107,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _load_mesh(args):
+def _load_mesh(args, say=None):
     from modalfem.errors import InputError
 
     name = args.mesh
+    from modalfem.mesh.solid import is_surface_file, load_surface
+
+    if is_surface_file(name):  # STL/OBJ/PLY/OFF: made solid; report printed and stored in source["surface"]
+        return load_surface(name, h=args.h, unit_scale=args.unit_scale, progress=say,
+                            others={o: getattr(args, o) for o in ("size", "cells", "length", "radius")})
     if name in GENERATOR_NAMES:
         from modalfem.mesh import GENERATORS
 
@@ -318,7 +323,7 @@ def _modes_command(args, argv, say: _Progress) -> int:
     fixed, constraints = _constraints(args)
     say(f"mesh: {args.mesh}")
     t = time.perf_counter()
-    mesh, source = _load_mesh(args)
+    mesh, source = _load_mesh(args, say)
     t_mesh = time.perf_counter() - t
     say(f"mesh: {mesh!r}")
     transfer_cli.check(args, render_surface, mesh, say)

@@ -31,6 +31,8 @@ an unknown extension (the known ones are listed), not the format its extension s
 (which section or closing tag is missing) or corrupt. A body larger than 50 m or smaller than
 0.1 mm after ``unit_scale`` gives one ``UnitWarning`` suggesting the ``unit_scale`` that fixes it.
 
+Surface files (.stl, .obj, .ply, .off) are tetrahedralised by :func:`modalfem.mesh.from_surface`.
+
 Only tetrahedra and boundary triangles are kept: several volume regions (e.g. gmsh Physical
 Volumes) are read as one body, and other cell types (lines, vertices, quads) are ignored.
 """
@@ -62,6 +64,8 @@ __all__ = ["read", "write", "WRITE_FORMATS", "UnitWarning", "LARGE_BODY", "SMALL
 WRITE_FORMATS = {".msh": "gmsh", ".vtu": "vtu", ".xdmf": "xdmf"}
 _TAG_PREFIX = "tag:"
 _TET_TYPES = ("tetra", "tetra10")
+#: surface files, made solid by ``modalfem.mesh.from_surface`` (modalfem.mesh.solid)
+SURFACE_SUFFIXES = (".stl", ".obj", ".ply", ".off")
 _TRI_TYPES = ("triangle", "triangle6")
 
 
@@ -118,7 +122,9 @@ def read(path, *, unit_scale: float = 1.0) -> Mesh:
     """Read a tetrahedral mesh and its boundary tags.
 
     Args:
-        path: mesh file (.msh gmsh 2.2/4.x, .vtu, .xdmf, or any meshio format with tetrahedra).
+        path: mesh file (.msh gmsh 2.2/4.x, .vtu, .xdmf, or any meshio format with tetrahedra), or a
+            surface (.stl, .obj, .ply, .off), made solid by ``modalfem.mesh.from_surface`` with its
+            defaults (h 5 % of the diagonal; use that function for other settings and its report).
         unit_scale: factor turning file coordinates into metres, e.g. ``1e-3`` for a file in mm;
             finite and > 0.
 
@@ -148,7 +154,12 @@ def read(path, *, unit_scale: float = 1.0) -> Mesh:
     scale = _check_unit_scale(unit_scale)
     p = _as_path(path, "mesh")
     try:
-        mesh = _read(p, scale)
+        if p.suffix.lower() in SURFACE_SUFFIXES:  # a surface: tetrahedralised (modalfem.mesh.from_surface)
+            from modalfem.mesh.solid import from_surface
+
+            mesh = from_surface(p, unit_scale=scale)
+        else:
+            mesh = _read(p, scale)
     except MeshError as exc:
         text = str(exc)
         if "\n" in text or "\r" in text:  # a file name or a parser message with a line break

@@ -1,0 +1,545 @@
+"""Solid tetrahedral meshes from surface meshes (STL, OBJ, PLY, OFF or arrays), with a quality report.
+
+``from_surface(source, h=...)`` returns a ``Mesh``; ``tetrahedralize(source, ...)`` returns the mesh
+and a ``SurfaceReport``. The pipeline (``method="auto"``), chosen by measurement (``modalfem bench
+surface``, BENCHMARKS.md):
+
+1. **Clean**: merge coincident vertices, drop degenerate and duplicate triangles, count boundary
+   edges (holes), non-manifold edges and orientation flips. A surface that cannot be made solid is
+   refused with one ``MeshError`` line: no triangles, a point cloud, a flat (planar) surface, or an
+   open sheet/shell (its boundary loops span more than ``max_open_fraction`` of its area).
+2. **Decimate** scans much finer than ``h`` (quadric decimation, ``fast-simplification``) to at most
+   ``max_triangles`` triangles.
+3. **Closed, manifold, consistently oriented surfaces**: gmsh meshes the volume inside the
+   (cleaned) triangles, with interior size ``h`` (fast: ~1 s). If gmsh fails (self-intersecting
+   input) or the worst tetrahedron stays below the bound, step 4 is taken instead.
+4. **Anything else** (holes, non-manifold edges, self-intersections, flipped triangles): fTetWild
+   (``pytetwild``, MPL-2.0), which keeps the tetrahedra inside the input's generalised winding
+   number and stays within an envelope ``envelope * diagonal`` of the input surface.
+5. **Optimise** (``modalfem.mesh.tet_quality.improve_quality``): boundary slivers removed, interior
+   vertices smoothed, until the worst radius ratio ``3 r_in / R_circ`` reaches ``quality_bound``
+   (0.1 by default); a mesh that still misses it gets a ``QualityWarning`` and says so in the report.
+
+The report gives tets, worst quality, the volume against the surface's own (signed volume of the
+closed surface; not defined for a surface with holes) and the sampled Hausdorff distance between the
+input surface and the tet mesh's boundary, both ways.
+"""
+
+from __future__ import annotations
+
+import importlib.machinery
+import importlib.util
+import math
+import os
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from modalfem.errors import BackendUnavailableError, InputError, MeshError
+from modalfem.mesh.core import Mesh, check_simplices, signed_volumes
+from modalfem.mesh.io import SURFACE_SUFFIXES  # file suffixes read as surfaces by mesh.read and the CLI
+from modalfem.mesh.tet_quality import improve_quality, radius_ratio, surface_distances
+
+__all__ = ["SURFACE_SUFFIXES", "QUALITY_BOUND", "QualityWarning", "SurfaceReport", "Tetrahedralization", "load_surface",
+           "from_surface", "is_surface_file", "read_surface", "tetrahedralize"]
+
+#: default lower bound of the worst tetrahedron's radius ratio 3 r_in / R_circ after optimisation
+QUALITY_BOUND = 0.1
+#: default target element size as a fraction of the bounding-box diagonal (fTetWild's default)
+H_FRACTION = 0.05
+
+
+class QualityWarning(UserWarning):
+    """The tetrahedralised surface's worst element stays below the quality bound after optimisation."""
+
+
+@dataclass(frozen=True)
+class SurfaceReport:
+    """What became of a surface: cleaning, method, size, quality, volume and distance to the input.
+
+    Attributes:
+        source: file name or ``"arrays"``.
+        method: ``"gmsh"`` (volume inside the kept surface) or ``"ftetwild"``.
+        input_triangles: triangles in the input.
+        triangles_meshed: triangles handed to the mesher (after cleaning and decimation).
+        boundary_edges: edges of the cleaned input used by one triangle (holes).
+        nonmanifold_edges: edges used by three or more triangles.
+        flipped_edges: manifold edges whose two triangles disagree in orientation.
+        repairs: what cleaning, decimation and optimisation did, one phrase each.
+        h: target element size [m].
+        tets: tetrahedra of the result.
+        points: vertices of the result.
+        worst_quality: worst radius ratio after optimisation (1 regular, 0 flat).
+        worst_quality_before: worst radius ratio as the mesher left it.
+        quality_bound: the bound aimed at.
+        volume: volume of the tet mesh [m^3].
+        surface_volume: volume enclosed by the cleaned input [m^3] (None if it has holes or
+            non-manifold edges: then it encloses no well-defined volume).
+        volume_error: ``volume / surface_volume - 1`` (None when surface_volume is None).
+        hausdorff: sampled Hausdorff distance [m] between input surface and tet boundary.
+        distance_input_to_mesh: largest sampled distance [m] from the input to the tet boundary.
+        distance_mesh_to_input: largest sampled distance [m] from the tet boundary to the input.
+        diagonal: bounding-box diagonal of the input [m].
+        timings: wall seconds per stage.
+    """
+
+    source: str
+    method: str
+    input_triangles: int
+    triangles_meshed: int
+    boundary_edges: int
+    nonmanifold_edges: int
+    flipped_edges: int
+    repairs: tuple[str, ...]
+    h: float
+    tets: int
+    points: int
+    worst_quality: float
+    worst_quality_before: float
+    quality_bound: float
+    volume: float
+    surface_volume: float | None
+    volume_error: float | None
+    hausdorff: float
+    distance_input_to_mesh: float
+    distance_mesh_to_input: float
+    diagonal: float
+    timings: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        """JSON-ready dict (stored in modes.json as ``source.surface``)."""
+        d = asdict(self)
+        d["repairs"] = list(self.repairs)
+        return d
+
+    def lines(self) -> list[str]:
+        """The report as a few readable lines."""
+        defects = (f"{self.boundary_edges} boundary edges, {self.nonmanifold_edges} non-manifold edges, "
+                   f"{self.flipped_edges} flipped edges")
+        vol = (f"volume {self.volume:.6g} m^3 vs the surface's {self.surface_volume:.6g} m^3 "
+               f"({100 * self.volume_error:+.2f} %)" if self.surface_volume is not None
+               else f"volume {self.volume:.6g} m^3 (the input has holes: it encloses no volume to compare)")
+        ok = "above" if self.worst_quality >= self.quality_bound else "BELOW"
+        return [
+            f"surface {self.source}: {self.input_triangles} triangles ({defects})"
+            + (f"; {'; '.join(self.repairs)}" if self.repairs else ""),
+            f"solid: {self.method}, h {self.h:.4g} m -> {self.tets} tets, {self.points} points, worst quality "
+            f"{self.worst_quality:.3f} ({ok} the bound {self.quality_bound:g}; {self.worst_quality_before:.3f} "
+            f"before optimisation)",
+            f"{vol}; Hausdorff distance {self.hausdorff:.3g} m = {100 * self.hausdorff / self.diagonal:.2f} % of the "
+            f"diagonal (input->mesh {self.distance_input_to_mesh:.3g} m, mesh->input {self.distance_mesh_to_input:.3g} m)",
+        ]
+
+    def __str__(self) -> str:
+        return "\n".join(self.lines())
+
+
+@dataclass(frozen=True, eq=False)
+class Tetrahedralization:
+    """A solid tetrahedral mesh made from a surface, with its ``SurfaceReport``."""
+
+    mesh: Mesh
+    report: SurfaceReport
+
+
+def is_surface_file(path) -> bool:
+    """True when ``path``'s suffix is one of ``SURFACE_SUFFIXES`` (case-insensitive)."""
+    return isinstance(path, (str, os.PathLike)) and Path(path).suffix.lower() in SURFACE_SUFFIXES
+
+
+
+# ---------------------------------------------------------------------------------- reading
+def read_surface(path, *, unit_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Read a triangle surface from STL (ASCII or binary), OBJ, PLY (ASCII or binary) or OFF.
+
+    Quads and polygons are split into triangle fans; other cells (lines, points) are ignored.
+
+    Args:
+        path: surface file.
+        unit_scale: factor turning file coordinates into metres (1e-3 for a file in mm).
+
+    Returns:
+        (vertices (n, 3) [m], triangles (m, 3) int64).
+
+    Raises:
+        MeshError: missing, empty or unparsable file, or no triangles in it (one line).
+    """
+    from modalfem.mesh.generators import _positive
+
+    scale = _positive("unit_scale", unit_scale, unit="metres per file unit")
+    p = Path(path)
+    if not p.exists():
+        raise MeshError(f"surface file not found: {p}")
+    if not p.is_file():
+        raise MeshError(f"surface path is not a regular file: {p}")
+    if p.suffix.lower() not in SURFACE_SUFFIXES:
+        raise MeshError(f"{p} is not a surface file (known: {', '.join(SURFACE_SUFFIXES)})")
+    if p.stat().st_size == 0:
+        raise MeshError(f"empty mesh file {p}: it has 0 bytes")
+    import contextlib
+    import io
+
+    import meshio
+
+    sink = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m = meshio.read(p, file_format={".stl": "stl", ".obj": "obj", ".ply": "ply", ".off": "off"}[p.suffix.lower()])
+    except (Exception, SystemExit) as exc:
+        detail = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        fmt = p.suffix.lower()
+        raise MeshError(f"cannot read mesh file {p} as {fmt} ({fmt[1:]}): corrupt, truncated or not in that format "
+                        f"({detail})") from None
+    points = np.asarray(m.points, dtype=np.float64)
+    if points.ndim == 2 and points.shape[1] == 2:
+        points = np.column_stack([points, np.zeros(len(points))])
+    tris = []
+    for block in m.cells:
+        data = np.asarray(block.data, dtype=np.int64)
+        if block.type == "triangle":
+            tris.append(data)
+        elif block.type in ("quad", "polygon") or (block.type.startswith("polygon") and data.ndim == 2):
+            k = data.shape[1]
+            tris += [data[:, [0, i, i + 1]] for i in range(1, k - 1)]
+    if not tris or sum(len(t) for t in tris) == 0:
+        kinds = ", ".join(f"{b.type} x {len(b.data)}" for b in m.cells) or "no faces"
+        raise MeshError(f"{p} has no triangles to make a solid from ({len(points)} points, {kinds})")
+    return points * scale, np.vstack(tris)
+
+
+# ---------------------------------------------------------------------------------- cleaning
+def _clean(v: np.ndarray, f: np.ndarray, where: str):
+    """Merge coincident vertices, drop degenerate and duplicate triangles; (v, f, repairs, diagonal)."""
+    v, f = check_simplices(v, f, corners=3, noun=f"surface {where}", cell="triangle", cells_name="triangles")
+    repairs = []
+    diag = float(np.linalg.norm(v[np.unique(f)].max(axis=0) - v[np.unique(f)].min(axis=0)))
+    if diag == 0:
+        raise MeshError(f"surface {where} is degenerate: all its triangles collapse to one point")
+    key = np.round(v / (1e-10 * diag)).astype(np.int64)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    merged = len(v) - len(first)
+    v, f = v[first], inv.ravel()[f]
+    if merged:
+        repairs.append(f"merged {merged} coincident vertices")
+    p = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    good = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]) & (area > 1e-14 * diag**2)
+    if not good.all():
+        repairs.append(f"dropped {int((~good).sum())} degenerate triangles")
+    f = f[good]
+    if len(f) == 0:
+        raise MeshError(f"surface {where} is degenerate: all {len(good)} triangles have zero area")
+    _, keep = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    if len(keep) < len(f):
+        repairs.append(f"dropped {len(f) - len(keep)} duplicate triangles")
+    f = f[np.sort(keep)]
+    used = np.unique(f)
+    new = np.full(len(v), -1, dtype=np.int64)
+    new[used] = np.arange(len(used))
+    v, f = v[used], new[f]
+    spread = np.linalg.svd(v - v.mean(axis=0), compute_uv=False)
+    if spread[-1] <= 1e-6 * spread[0]:
+        raise MeshError(f"surface {where} is flat (all {len(v)} vertices lie in one plane): it encloses no volume")
+    return v, f, repairs, diag
+
+
+def _edge_stats(f: np.ndarray):
+    """(boundary edge count, non-manifold edge count, flipped edge count, boundary edges (b, 2))."""
+    directed = f[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
+    und = np.sort(directed, axis=1)
+    uniq, inv, counts = np.unique(und, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    forward = np.bincount(inv, weights=(directed[:, 0] < directed[:, 1]).astype(float), minlength=len(uniq))
+    flipped = int(np.sum((counts == 2) & (forward != 1)))
+    return int(np.sum(counts == 1)), int(np.sum(counts > 2)), flipped, uniq[counts == 1]
+
+
+def _open_fraction(v, f, boundary_edges) -> float:
+    """Sum of the vector areas of the boundary loops over the surface area (1 for a flat sheet)."""
+    if len(boundary_edges) == 0:
+        return 0.0
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(v)
+    e = boundary_edges
+    g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    _, label = connected_components(g, directed=False)
+    # vector area of each loop: 0.5 sum p_i x p_j over its edges, oriented by walking the loop
+    adj: dict[int, list[int]] = {}
+    for a, b in e.tolist():
+        adj.setdefault(a, []).append(b)
+        adj.setdefault(b, []).append(a)
+    seen: set[tuple[int, int]] = set()
+    loops = np.zeros((label.max() + 1, 3))
+    for a0, b0 in e.tolist():
+        if (a0, b0) in seen or (b0, a0) in seen:
+            continue
+        a, b = a0, b0
+        while (a, b) not in seen and (b, a) not in seen:
+            seen.add((a, b))
+            loops[label[a]] += 0.5 * np.cross(v[a], v[b])
+            nxt = [c for c in adj[b] if c != a and (b, c) not in seen and (c, b) not in seen]
+            if not nxt:
+                break
+            a, b = b, nxt[0]
+    p = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+    return float(np.linalg.norm(loops, axis=1).sum() / area)
+
+
+def _decimate(v, f, target: int):
+    import fast_simplification
+
+    vv, ff = fast_simplification.simplify(v, f.astype(np.int32), target_reduction=1.0 - target / len(f))
+    return np.asarray(vv, dtype=np.float64), np.asarray(ff, dtype=np.int64)
+
+
+# ---------------------------------------------------------------------------------- meshers
+def _gmsh_volume(v, f, h):
+    """gmsh: the volume inside the given (closed, manifold) triangles, interior size ``h`` [m]."""
+    from modalfem.mesh.generators import _gmsh_session
+
+    options = {"Mesh.MeshSizeMax": h, "Mesh.MeshSizeMin": 0.0, "Mesh.Optimize": 1, "Mesh.OptimizeNetgen": 1,
+               "Mesh.Algorithm3D": 1}
+    with _gmsh_session("surface volume", options) as gmsh:
+        s = gmsh.model.addDiscreteEntity(2)
+        gmsh.model.mesh.addNodes(2, s, np.arange(1, len(v) + 1), v.ravel())
+        gmsh.model.mesh.addElementsByType(s, 2, [], (f + 1).ravel())
+        loop = gmsh.model.geo.addSurfaceLoop([s])
+        gmsh.model.geo.addVolume([loop])
+        gmsh.model.geo.synchronize()
+        gmsh.model.mesh.generate(3)
+        tags, xyz, _ = gmsh.model.mesh.getNodes()
+        _, nodes = gmsh.model.mesh.getElementsByType(4)
+    if len(nodes) == 0:
+        raise MeshError("gmsh made no tetrahedra inside the surface")
+    tags = tags.astype(np.int64)
+    lookup = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
+    lookup[tags] = np.arange(len(tags))
+    return xyz.reshape(-1, 3), lookup[nodes.astype(np.int64)].reshape(-1, 4)
+
+
+def _tetwild_module():
+    """fTetWild's compiled wrapper from ``pytetwild``, without its package ``__init__`` (which imports
+    pyvista and VTK only for its PyVista helpers; modalfem needs the arrays-in, arrays-out call)."""
+    spec = importlib.util.find_spec("pytetwild")
+    if spec is None or not spec.submodule_search_locations:
+        raise BackendUnavailableError(
+            "this surface needs fTetWild (holes, non-manifold edges or self-intersections): pip install pytetwild")
+    folder = list(spec.submodule_search_locations)[0]
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        so = os.path.join(folder, "PyfTetWildWrapper" + suffix)
+        if os.path.exists(so):
+            s = importlib.util.spec_from_file_location("PyfTetWildWrapper", so)
+            module = importlib.util.module_from_spec(s)
+            s.loader.exec_module(module)
+            return module
+    raise BackendUnavailableError(f"pytetwild at {folder} has no compiled PyfTetWildWrapper: reinstall pytetwild")
+
+
+def _ftetwild(v, f, h, envelope):
+    wrapper = _tetwild_module()
+    points, cells = wrapper.tetrahedralize_mesh(
+        np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.uint32),
+        True, False, 0.05, float(h), float(envelope), 10.0, False, 0, 80, 6, True, False, False,
+        np.zeros((0, 3)), np.zeros((0, 4), dtype=np.int32), np.zeros(0))
+    return np.asarray(points, dtype=np.float64), np.asarray(cells, dtype=np.int64)
+
+
+# ---------------------------------------------------------------------------------- pipeline
+def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, method: str = "auto",
+                   quality_bound: float = QUALITY_BOUND, envelope: float = 2e-3, max_triangles: int = 20000,
+                   max_open_fraction: float = 0.3, progress: Callable[[str], None] | None = None) -> Tetrahedralization:
+    """Make a solid tetrahedral mesh from a surface and report how close and how good it is.
+
+    Args:
+        source: a surface file (.stl, .obj, .ply, .off) or ``(vertices (n, 3), triangles (m, 3))``.
+        h: target element size [m] (after ``unit_scale``); default 5 % of the bounding-box diagonal.
+        unit_scale: factor turning file or array coordinates into metres.
+        method: ``"auto"`` (gmsh for clean closed surfaces, else fTetWild), ``"gmsh"`` or ``"ftetwild"``.
+        quality_bound: worst radius ratio to reach by optimisation (0 < bound < 1).
+        envelope: fTetWild's envelope, the largest distance of the result's boundary from the input,
+            as a fraction of the bounding-box diagonal.
+        max_triangles: inputs with more triangles (and finer than ``h``) are decimated first.
+        max_open_fraction: refuse open surfaces whose boundary loops span more than this fraction
+            of their area (sheets and bowls, not solids with holes).
+        progress: called with one line per stage.
+
+    Returns:
+        ``Tetrahedralization`` (``mesh``: ``Mesh`` [m] with a ``"boundary"`` tag; ``report``: ``SurfaceReport``).
+
+    Raises:
+        MeshError: unreadable file, or a surface that cannot be made solid (one line saying why).
+        InputError: bad option values.
+        BackendUnavailableError: fTetWild needed but ``pytetwild`` not installed.
+
+    Warns:
+        QualityWarning: the worst tetrahedron stays below ``quality_bound``.
+    """
+    say = progress or (lambda msg: None)
+    if method not in ("auto", "gmsh", "ftetwild"):
+        raise InputError(f"method must be 'auto', 'gmsh' or 'ftetwild', got {method!r}")
+    if not (isinstance(quality_bound, (int, float)) and 0 < quality_bound < 1):
+        raise InputError(f"quality_bound must be a number in (0, 1), got {quality_bound!r}")
+    if not (isinstance(envelope, (int, float)) and 0 < envelope < 0.1):
+        raise InputError(f"envelope must be a fraction of the diagonal in (0, 0.1), got {envelope!r}")
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    if isinstance(source, (str, os.PathLike)):
+        where = str(source)
+        v, f = read_surface(source, unit_scale=unit_scale)
+    elif isinstance(source, (tuple, list)) and len(source) == 2:
+        from modalfem.mesh.generators import _positive
+
+        where = "arrays"
+        v = np.asarray(source[0], dtype=np.float64) * _positive("unit_scale", unit_scale, unit="metres per unit")
+        f = np.asarray(source[1])
+    else:
+        raise InputError(f"source must be a surface file path or (vertices, triangles), got {type(source).__name__}")
+    input_triangles = len(f) if np.ndim(f) == 2 else 0
+    v, f, repairs, diag = _clean(v, f, where)
+    boundary, nonmanifold, flipped, bedges = _edge_stats(f)
+    if h is None:
+        h = H_FRACTION * diag
+    else:
+        from modalfem.mesh.generators import _positive
+
+        h = _positive("h", h)
+    if boundary:
+        frac = _open_fraction(v, f, bedges)
+        if frac > max_open_fraction:
+            raise MeshError(
+                f"surface {where} cannot be made solid: it is open ({boundary} boundary edges) and its holes span "
+                f"{100 * frac:.0f} % of its area, so it is a sheet or a shell, not the skin of a solid "
+                f"(accepted up to {100 * max_open_fraction:.0f} %: close it, or give it a thickness)")
+    closed = boundary == 0 and nonmanifold == 0 and flipped == 0
+    surface_volume = None
+    if closed:
+        p = v[f]
+        surface_volume = abs(float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0))
+    timings["read+clean"] = time.perf_counter() - t
+    say(f"surface: {input_triangles} triangles, {boundary} boundary / {nonmanifold} non-manifold / {flipped} flipped "
+        f"edges, h {h:.3g} m")
+    # decimation: only inputs much finer than h
+    p = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
+    wanted = int(min(max_triangles, max(2000, 4.0 * area / (math.sqrt(3) / 4 * h * h))))
+    vm, fm = v, f
+    if len(f) > 1.5 * wanted:
+        t = time.perf_counter()
+        say(f"surface: decimating {len(f)} -> {wanted} triangles")
+        vm, fm = _decimate(v, f, wanted)
+        repairs.append(f"decimated {len(f)} -> {len(fm)} triangles")
+        timings["decimate"] = time.perf_counter() - t
+    result = None
+    notes = []
+    if method == "gmsh" or (method == "auto" and closed):
+        t = time.perf_counter()
+        say("surface: gmsh volume mesh inside the surface")
+        try:
+            result = ("gmsh", *_gmsh_volume(vm, fm, h))
+        except MeshError as exc:
+            if method == "gmsh":
+                raise MeshError(f"surface {where}: gmsh could not mesh its inside ({exc}); try method='ftetwild'") from None
+            notes.append("gmsh failed (self-intersecting surface?)")
+        timings["gmsh"] = time.perf_counter() - t
+        if result is not None:
+            raw = float(radius_ratio(result[1], result[2]).min())
+            if method == "auto" and raw < 0.25 * quality_bound:  # slivers on skinny input triangles
+                notes.append(f"gmsh's worst quality {raw:.3f} (on the input's skinny triangles): fTetWild used")
+                result = None
+            else:
+                result = _finish(result, quality_bound, say, timings)
+            if result is not None and method == "auto" and result[3]["worst_after"] < quality_bound:
+                notes.append(f"gmsh's worst quality {result[3]['worst_after']:.3f} < {quality_bound:g}")
+                result = None
+    if result is None:
+        t = time.perf_counter()
+        say(f"surface: fTetWild on {len(fm)} triangles (envelope {envelope:g} of the diagonal)")
+        result = ("ftetwild", *_ftetwild(vm, fm, h, envelope))
+        timings["ftetwild"] = time.perf_counter() - t
+        if len(result[2]) == 0:
+            raise MeshError(f"surface {where} cannot be made solid: fTetWild found no inside (it encloses no volume)")
+        result = _finish(result, quality_bound, say, timings)
+    name, points, cells, info = result
+    repairs += notes
+    if info["removed_slivers"] or info["moved_vertices"]:
+        repairs.append(f"optimised: {info['removed_slivers']} boundary slivers removed, "
+                       f"{info['moved_vertices']} interior vertices moved")
+    t = time.perf_counter()
+    say("surface: checking the solid against the input (volume, Hausdorff distance)")
+    mesh = Mesh(points, cells)
+    mesh = Mesh(mesh.points, mesh.cells, {"boundary": mesh.boundary_facets})
+    from modalfem.mesh.surface import boundary_surface
+
+    skin = boundary_surface(mesh)
+    d_in, d_out = surface_distances((v, f), (skin.vertices, skin.triangles))
+    timings["check"] = time.perf_counter() - t
+    report = SurfaceReport(
+        source=where, method=name, input_triangles=input_triangles, triangles_meshed=len(fm),
+        boundary_edges=boundary, nonmanifold_edges=nonmanifold, flipped_edges=flipped, repairs=tuple(repairs),
+        h=float(h), tets=mesh.cell_count, points=mesh.point_count, worst_quality=info["worst_after"],
+        worst_quality_before=info["worst_before"], quality_bound=float(quality_bound), volume=mesh.volume,
+        surface_volume=surface_volume,
+        volume_error=None if surface_volume is None else mesh.volume / surface_volume - 1.0,
+        hausdorff=max(d_in, d_out), distance_input_to_mesh=d_in, distance_mesh_to_input=d_out, diagonal=diag,
+        timings=timings)
+    if report.worst_quality < quality_bound:
+        warnings.warn(f"surface {where}: worst tetrahedron quality {report.worst_quality:.3f} stays below the bound "
+                      f"{quality_bound:g} after optimisation", QualityWarning, stacklevel=2)
+    return Tetrahedralization(mesh=mesh, report=report)
+
+
+def _finish(result, bound, say, timings):
+    """Orient the mesher's cells positively, drop flat ones, optimise; (name, points, cells, info)."""
+    name, points, cells = result
+    vol = signed_volumes(points, cells)
+    cells = np.where((vol < 0)[:, None], cells[:, [0, 2, 1, 3]], cells)
+    cells = cells[np.abs(vol) > 0]
+    t = time.perf_counter()
+    say(f"surface: optimising {len(cells)} tets (worst quality {radius_ratio(points, cells).min():.3f}, bound {bound:g})")
+    points, cells, info = improve_quality(points, cells, bound=bound)
+    timings[f"{name}.optimise"] = time.perf_counter() - t
+    return name, points, cells, info
+
+
+def from_surface(source, *, h: float | None = None, unit_scale: float = 1.0, method: str = "auto",
+                 quality_bound: float = QUALITY_BOUND, progress: Callable[[str], None] | None = None) -> Mesh:
+    """Solid tetrahedral ``Mesh`` [m] from a surface file or ``(vertices, triangles)`` arrays.
+
+    Same arguments as :func:`tetrahedralize` (``h`` [m]: target element size, default 5 % of the
+    bounding-box diagonal); use that function for the quality and distance report.
+
+    Raises:
+        MeshError: the surface cannot be read or made solid (one line saying why).
+    """
+    return tetrahedralize(source, h=h, unit_scale=unit_scale, method=method, quality_bound=quality_bound,
+                          progress=progress).mesh
+
+
+def load_surface(path, *, h: float | None = None, unit_scale: float = 1.0, progress=None,
+                 others: dict | None = None) -> tuple[Mesh, dict]:
+    """The CLI's mesh loading for a surface file: (mesh, source record with the report under "surface").
+
+    ``progress`` (the CLI's stage printer) gets the stages and, at the end, the report's lines
+    (through its ``done`` method when it has one). ``others``: generator options given on the
+    command line, refused here in one line.
+    """
+    for opt, value in (others or {}).items():
+        if value is not None:
+            raise InputError(f"--{opt} is a generator option; {str(path)!r} is a surface file (it takes --h, --unit-scale)")
+    result = tetrahedralize(path, h=h, unit_scale=unit_scale, progress=progress)
+    done = getattr(progress, "done", None)
+    for line in result.report.lines():
+        if done is not None:
+            done(line)
+        elif progress is not None:
+            progress(line)
+    source = {"file": str(path), "unit_scale": unit_scale, "h": h, "surface": result.report.as_dict()}
+    return result.mesh, source
