@@ -222,3 +222,12 @@ def test_page_inlines_everything_and_no_network(model, glb):
     scripts = re.findall(r"<script>(.*?)</script>", page, flags=re.S)
     assert len(scripts) == 3 and "var THREE=" in scripts[0] and "ModalRuntime" in scripts[1]
     assert all("</" not in s for s in scripts)
+
+
+def test_bundled_three_is_the_recorded_version_under_its_mit_licence():
+    from modalfem import web
+
+    head = web.asset("three.bundle.min.js")[:400]
+    assert f"npm three@{web.THREE_VERSION}" in head and f"three.js r{web.THREE_REVISION} " in head
+    assert f'"{web.THREE_REVISION}"' in web.asset("three.bundle.min.js")  # THREE.REVISION inside the bundle
+    assert web.asset("THREE_LICENSE").startswith("The MIT License")
