@@ -179,10 +179,12 @@ def read_surface(path: str | os.PathLike, *, unit_scale: float = 1.0) -> RenderS
 def orient_outward(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, int]:
     """Triangles oriented consistently across shared edges and outwards, piece by piece.
 
-    Two triangles sharing an edge (used by exactly two) agree when they run along it in opposite
-    directions. Each edge-connected piece is made to agree by a breadth-first walk, then flipped as a
-    whole when it encloses a negative volume (divergence theorem; for an open piece this is the
-    best available guess). Edges shared by more than two triangles do not link their triangles.
+    Two triangles sharing an edge (used by exactly two; vertices at equal coordinates count as one,
+    so files that repeat the vertices of every face are handled) agree when they run along it in
+    opposite directions. Each edge-connected piece is made to agree by a breadth-first walk; then a
+    closed piece (no edge used once) is flipped as a whole when it encloses a negative volume
+    (divergence theorem), an open one keeps the orientation most of its triangles had in the file.
+    Edges shared by more than two triangles do not link their triangles.
 
     Args:
         vertices: (nv, 3) [m].
@@ -196,9 +198,10 @@ def orient_outward(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndar
 
     t = np.asarray(triangles, dtype=np.int64)
     nt = len(t)
-    e = t[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)  # directed edges, 3 per triangle
+    _, weld = np.unique(np.asarray(vertices, dtype=np.float64), axis=0, return_inverse=True)
+    e = weld.reshape(-1)[t][:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)  # directed edges, 3 per triangle
     lo, hi = e.min(axis=1), e.max(axis=1)
-    key = lo * (int(t.max()) + 1) + hi
+    key = lo * (int(e.max()) + 1) + hi
     order = np.argsort(key, kind="stable")
     k = key[order]
     start = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
@@ -225,9 +228,13 @@ def orient_outward(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndar
     out = np.where(flip[:, None], t[:, ::-1], t)
     p = np.asarray(vertices, dtype=np.float64)[out]
     vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2]))
+    open_piece = np.zeros(pieces, dtype=bool)
+    open_piece[label[order[start[count == 1]] // 3]] = True  # an edge used once: a hole or an open sheet
     negative = np.bincount(label, weights=vol, minlength=pieces) < 0
-    out = np.where(negative[label][:, None], out[:, ::-1], out)
-    return out, int(np.sum(negative[label] != flip))
+    majority = np.bincount(label, weights=flip, minlength=pieces) > 0.5 * np.bincount(label, minlength=pieces)
+    reverse = np.where(open_piece, majority, negative)
+    out = np.where(reverse[label][:, None], out[:, ::-1], out)
+    return out, int(np.sum(reverse[label] != flip))
 
 
 @dataclass(frozen=True)

@@ -425,3 +425,23 @@ def test_surface_distances_match_the_box_analytically():
     outside = np.any(a > 0, axis=1)
     assert report.outside_count == int(outside.sum())
     np.testing.assert_allclose(report.outside_distance_mean, np.where(outside, exact, 0).mean(), rtol=1e-12)
+
+
+def test_orient_outward_with_repeated_vertices_and_an_open_sheet():
+    from modalfem.reduction.transfer import orient_outward
+
+    a = boundary_surface(box(size=(0.3, 0.2, 0.1), cells=(3, 2, 1)))
+    v = a.vertices[a.triangles].reshape(-1, 3)  # every face with its own three vertices (flat-shaded export)
+    t = np.arange(len(v)).reshape(-1, 3)
+    scrambled = t.copy()
+    flip = np.random.default_rng(4).random(len(t)) < 0.3
+    scrambled[flip] = scrambled[flip][:, ::-1]
+    out, flipped = orient_outward(v, scrambled)
+    np.testing.assert_array_equal(out, t)
+    assert flipped == int(flip.sum())
+    sheet = a.triangles[np.all(a.vertices[a.triangles][:, :, 2] == 0.0, axis=1)]  # the open z = 0 face
+    mixed = sheet.copy()
+    mixed[:2] = mixed[:2, ::-1]  # a minority reversed: the file's majority orientation is kept
+    out, flipped = orient_outward(a.vertices, mixed)
+    np.testing.assert_array_equal(out, sheet)
+    assert flipped == 2
