@@ -122,6 +122,6 @@ def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, it
                         V[o + j] += WJt[base + 3 * j] * d0 + WJt[base + 3 * j + 1] * d1 + WJt[base + 3 * j + 2] * d2
                 change = max(change, abs(d0) + abs(d1) + abs(d2))
             scale = max(scale, lam_n[c])
-        if change <= 1e-12 * scale:
+        if change <= 1e-10 * scale:
             break
     return sweeps

@@ -1,8 +1,9 @@
 """Points near a triangle surface: the closest triangle of each point within a margin (the collision module's
 BVH for candidates, its point-triangle kernel for the distances).
 
-The gap is signed by the closest triangle's normal (negative behind it: inside a closed outward surface),
-and the contact normal is that triangle's unit normal, so a point is pushed along the face it touches.
+The gap is the signed distance to the closest triangle's plane along its normal (negative behind it: inside a
+closed outward surface; never more than the distance to the triangle), and the contact normal is that
+triangle's unit normal, so a point is pushed along the face it touches.
 """
 
 from __future__ import annotations
@@ -65,8 +66,9 @@ class SurfaceProximity:
         ln = np.sqrt(np.einsum("ij,ij->i", nrm, nrm))
         nrm = nrm / np.where(ln > 0, ln, 1.0)[:, None]
         closest = w[:, 0:1] * a + w[:, 1:2] * b + w[:, 2:3] * c
-        side = np.einsum("ij,ij->i", points[qi] - closest, nrm)
-        gap = np.where(side < 0, -d, d)
+        # the distance along the triangle's normal (to its plane: the closest point lies in it), at most the
+        # distance d: a contact that may close ``gap`` along the normal never reaches the triangle's plane
+        gap = np.einsum("ij,ij->i", points[qi] - closest, nrm)
         keep = (d <= margin) & (ln > 0)
         qi, tri, w, gap, nrm, d = qi[keep], tri[keep], w[keep], gap[keep], nrm[keep], d[keep]
         # the closest triangle of each point (ties: the one the point is most in front of)
