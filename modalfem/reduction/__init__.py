@@ -4,8 +4,9 @@
 * ``modalfem.reduction.embed``: ``embed_points`` (barycentric coordinates of points in a tet mesh).
 * ``modalfem.reduction.compare``: frequency errors, MAC, mode matching.
 * ``modalfem.reduction.response``: modal impulse response with Rayleigh damping.
-* ``modalfem.reduction.transfer``: coarse physics, fine render surface (``render_surface_model``,
-  ``read_surface``, ``check_transfer``, ``refine_mesh``).
+* ``modalfem.reduction.transfer``: coarse physics, fine render surface (``render_surface_model``);
+  ``render_surface`` reads the surface (``read_surface``), ``transfer_check`` measures the transfer
+  against a finer solve (``check_transfer``, ``refine_mesh``).
 """
 
 from modalfem.reduction.compare import (
@@ -16,6 +17,7 @@ from modalfem.reduction.compare import (
     match_modes,
 )
 from modalfem.reduction.embed import Embedding, carry_modes, embed_points
+from modalfem.reduction.render_surface import RenderSurface, read_surface
 from modalfem.reduction.response import (
     RayleighDamping,
     impulse_response,
@@ -23,15 +25,11 @@ from modalfem.reduction.response import (
 )
 from modalfem.reduction.ritz import RitzModes, field_matrix, ritz_modes, solve_reduced
 from modalfem.reduction.transfer import (
-    RenderSurface,
-    TransferCheck,
     TransferReport,
-    check_transfer,
-    read_surface,
-    refine_mesh,
     render_surface_model,
     transfer_modes,
 )
+from modalfem.reduction.transfer_check import TransferCheck, check_transfer, refine_mesh
 
 __all__ = [
     "Embedding",

@@ -43,7 +43,7 @@ def read(args):
         return None
     if args.save is None:
         raise InputError("--render-surface needs --save MODEL (the model file that carries the surface)")
-    from modalfem.reduction.transfer import read_surface
+    from modalfem.reduction.render_surface import read_surface
 
     scale = args.unit_scale if args.render_unit_scale is None else args.render_unit_scale
     return read_surface(args.render_surface, unit_scale=scale)
@@ -61,7 +61,8 @@ def check(args, surface, mesh, say) -> None:
 
 def build(args, surface, res, mesh, material, fixed, provenance: dict, say):
     """``(model, info)``: the model on the fine surface and a JSON-ready record of the transfer (and check)."""
-    from modalfem.reduction.transfer import check_transfer, render_surface_model
+    from modalfem.reduction.transfer import render_surface_model
+    from modalfem.reduction.transfer_check import check_transfer
 
     say(f"render surface: {surface.vertex_count} vertices, {len(surface.triangles)} triangles")
     model, report = render_surface_model(res, mesh, material, surface, max_distance=args.max_transfer_distance,

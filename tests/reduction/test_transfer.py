@@ -12,22 +12,24 @@ import pytest
 import modalfem
 from modalfem import runtime as rt
 from modalfem.cli import main
-from modalfem.errors import InputError, MeshError
+from modalfem.errors import InputError
 from modalfem.material import STEEL
 from modalfem.mesh import box, rod
 from modalfem.mesh.surface import boundary_surface
 from modalfem.model import ModalModel
-from modalfem.reduction.transfer import (
+from modalfem.reduction.render_surface import (
     RenderSurface,
-    check_transfer,
     read_surface,
-    refine_mesh,
+)
+from modalfem.reduction.transfer import (
     render_surface_model,
+    surface_distances,
     transfer_modes,
 )
+from modalfem.reduction.transfer_check import check_transfer, refine_mesh
 
 EPS = np.finfo(float).eps
-BEAM = dict(size=(0.4, 0.05, 0.05), cells=(8, 1, 1))
+BEAM = {"size": (0.4, 0.05, 0.05), "cells": (8, 1, 1)}
 
 
 def refined_boundary(mesh, n: int):
@@ -83,7 +85,7 @@ def beam_modes():
 @pytest.mark.parametrize("degree", [1, 2])
 def test_refined_coarse_boundary_gets_the_coarse_field_exactly(beam_modes, degree):
     mesh, res = beam_modes[degree]
-    v, t, rec = refined_boundary(mesh, 3)
+    v, _, rec = refined_boundary(mesh, 3)
     shapes, report = transfer_modes(res, mesh, v)
     scale = np.abs(res.shapes).max()
     expected = np.stack([face_field(mesh, res.shapes, degree, mesh.boundary_facets[fi], lam) for fi, lam in rec])
@@ -135,7 +137,7 @@ def test_spinning_body_same_modal_response_on_the_fine_surface(beam_modes):
     amount times the growth of the modal response over the run (here < 10): tolerance 1e-12 of max |q|.
     """
     mesh, res = beam_modes[2]
-    v, t, rec = refined_boundary(mesh, 3)
+    v, t, _ = refined_boundary(mesh, 3)
     fine, _ = render_surface_model(res, mesh, STEEL, RenderSurface(v, t))
     coarse = ModalModel.from_modes(res, mesh, STEEL)
     i_c = int(np.argmin(np.linalg.norm(coarse.vertices - [0.4, 0.05, 0.05], axis=1)))
@@ -276,42 +278,9 @@ def test_refine_mesh_keeps_geometry_and_tags():
     assert len(r.boundary_facets) == 4 * len(m.boundary_facets)
 
 
-@pytest.mark.parametrize("ext", ["obj", "stl", "ply", "off"])
-def test_read_surface_formats_units_and_orientation(tmp_path, ext):
-    m = box(size=(0.3, 0.2, 0.1), cells=(2, 1, 1))
-    bs = boundary_surface(m)
-    path = tmp_path / f"s.{ext}"
-    meshio.write(path, meshio.Mesh(bs.vertices * 1000.0, [("triangle", bs.triangles[:, ::-1])]))  # mm, inward
-    s = read_surface(path, unit_scale=1e-3)
-    assert len(s.triangles) == len(bs.triangles) and s.source["flipped_triangles"] == len(bs.triangles)
-    p = s.vertices[s.triangles]
-    vol = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6
-    np.testing.assert_allclose(vol, 0.3 * 0.2 * 0.1, rtol=1e-6)
-
-
-def test_read_surface_refuses_what_is_not_a_triangle_surface(tmp_path):
-    quad = tmp_path / "q.obj"
-    quad.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n")
-    with pytest.raises(MeshError, match=r"no triangles \(quad x 1\)"):
-        read_surface(quad)
-    (tmp_path / "x.vtu").write_text("<VTKFile/>")
-    with pytest.raises(MeshError, match="unknown extension '.vtu'"):
-        read_surface(tmp_path / "x.vtu")
-    empty = tmp_path / "e.stl"
-    empty.write_text("solid e\nendsolid e\n")
-    with pytest.raises(MeshError, match="has no triangles|cannot be read"):
-        read_surface(empty)
-    with pytest.raises(MeshError, match="does not exist"):
-        read_surface(tmp_path / "missing.stl")
-    bad = tmp_path / "b.ply"
-    bad.write_bytes(b"ply\nformat nonsense\n\x00\x01")
-    with pytest.raises(MeshError, match="cannot be read"):
-        read_surface(bad)
-
-
 def test_far_surface_is_refused(beam_modes):
     mesh, res = beam_modes[1]
-    v, t, _ = refined_boundary(mesh, 2)
+    v, _, _ = refined_boundary(mesh, 2)
     with pytest.raises(InputError, match=r"from the coarse mesh's surface, more than the allowed 0\.025 m"):
         transfer_modes(res, mesh, v * 1000.0)  # millimetres read as metres
     shifted = v + [0.0, 0.0, 0.04]  # 4 cm: refused by default (half the 5 cm coarse edge), allowed with 5 cm
@@ -367,22 +336,6 @@ def test_cli_bad_render_surface_is_one_line(tmp_path, capsys, case):
     assert not (tmp_path / "m.npz").exists()
 
 
-def test_orient_outward_makes_every_piece_consistent_and_outward():
-    from modalfem.reduction.transfer import orient_outward
-
-    a = boundary_surface(box(size=(0.3, 0.2, 0.1), cells=(3, 2, 1)))
-    b = boundary_surface(box(size=(0.1, 0.1, 0.1), cells=(1, 1, 1), origin=(1.0, 0.0, 0.0)))
-    v = np.vstack([a.vertices, b.vertices])
-    t = np.vstack([a.triangles, b.triangles + len(a.vertices)])  # two pieces, both outward
-    scrambled = t.copy()
-    flip = np.random.default_rng(3).random(len(t)) < 0.4
-    scrambled[flip] = scrambled[flip][:, ::-1]
-    scrambled[len(a.triangles):] = scrambled[len(a.triangles):, ::-1]  # and the second piece mostly inward
-    out, flipped = orient_outward(v, scrambled)
-    np.testing.assert_array_equal(out, t)
-    assert flipped == int(np.sum(np.any(scrambled != t, axis=1)))
-
-
 def test_cli_check_against_a_reference_mesh_of_the_fine_surface(tmp_path, capsys):
     """Coarse rod file, render surface = the fine rod's boundary, reference = the fine rod's mesh."""
     from modalfem.mesh import write
@@ -411,8 +364,6 @@ def test_cli_check_against_a_reference_mesh_of_the_fine_surface(tmp_path, capsys
 
 def test_surface_distances_match_the_box_analytically():
     """Distance to the surface of the box [0, 0.4] x [0, 0.05]^2, inside and outside, in closed form."""
-    from modalfem.reduction.transfer import surface_distances
-
     mesh = box(**BEAM)
     half, c = np.array([0.2, 0.025, 0.025]), np.array([0.2, 0.025, 0.025])
     p = np.random.default_rng(8).uniform(-0.03, 0.43, size=(3000, 3)) * [1, 0.25, 0.25]
@@ -425,23 +376,3 @@ def test_surface_distances_match_the_box_analytically():
     outside = np.any(a > 0, axis=1)
     assert report.outside_count == int(outside.sum())
     np.testing.assert_allclose(report.outside_distance_mean, np.where(outside, exact, 0).mean(), rtol=1e-12)
-
-
-def test_orient_outward_with_repeated_vertices_and_an_open_sheet():
-    from modalfem.reduction.transfer import orient_outward
-
-    a = boundary_surface(box(size=(0.3, 0.2, 0.1), cells=(3, 2, 1)))
-    v = a.vertices[a.triangles].reshape(-1, 3)  # every face with its own three vertices (flat-shaded export)
-    t = np.arange(len(v)).reshape(-1, 3)
-    scrambled = t.copy()
-    flip = np.random.default_rng(4).random(len(t)) < 0.3
-    scrambled[flip] = scrambled[flip][:, ::-1]
-    out, flipped = orient_outward(v, scrambled)
-    np.testing.assert_array_equal(out, t)
-    assert flipped == int(flip.sum())
-    sheet = a.triangles[np.all(a.vertices[a.triangles][:, :, 2] == 0.0, axis=1)]  # the open z = 0 face
-    mixed = sheet.copy()
-    mixed[:2] = mixed[:2, ::-1]  # a minority reversed: the file's majority orientation is kept
-    out, flipped = orient_outward(a.vertices, mixed)
-    np.testing.assert_array_equal(out, sheet)
-    assert flipped == 2
