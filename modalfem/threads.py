@@ -175,6 +175,12 @@ def apply() -> None:
         _applied.n = n
 
 
+try:  # the importing thread gets the count at once; a bad MODALFEM_THREADS is reported by threads()
+    apply()
+except InputError:
+    pass
+
+
 def threading_layer() -> str:
     """The numba threading layer modalfem asked for (``"tbb"``, ``"omp"`` or ``"workqueue"``); numba's
     own answer (``numba.threading_layer()``) exists only after the first parallel launch."""

@@ -34,7 +34,7 @@ __all__ = ["SECTION", "command", "run_case"]
 SECTION = "## Cloth: drape and pile with collisions"
 GOAL_STEPS_PER_S = 10.0
 STAGES = ("implicit", "broad_phase", "repulsion", "ccd", "impact_zones", "smoothing")
-_ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+_ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "MODALFEM_THREADS")}
 #: the stage ablation on the goal's scene: (what changes, scene options); the first row is the goal's setting
 ABLATIONS = (
     ("every stage on (the goal's setting)", {}),
@@ -143,10 +143,11 @@ def _options(items: list[str]) -> dict:
     return out
 
 
-def _spawn(args: list[str], timeout: float) -> dict | None:
+def _spawn(args: list[str], timeout: float, *, threads: int = 1) -> dict | None:
+    """Run one case in a child process whose compiled kernels use ``threads`` threads (BLAS: one)."""
     with tempfile.TemporaryDirectory() as d:
         out = os.path.join(d, "r.json")
-        env = dict(os.environ, **_ONE_THREAD)
+        env = {**os.environ, **_ONE_THREAD, "MODALFEM_THREADS": str(threads)}
         cmd = [sys.executable, "-m", "modalfem.bench.cloth_bench", *args, "--json-out", out]
         try:
             p = subprocess.run(cmd, env=env, timeout=timeout, capture_output=True, text=True, check=False)
@@ -198,7 +199,7 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
     """The markdown section (``plot``: path of the per-step PNG relative to the markdown file, if any;
     ``ablation``: the stage ablation's runs, labelled, the first with every stage on)."""
     L = [SECTION, "", f"- Date: {date}", f"- Machine: {machine}", f"- Versions: {versions}", f"- Command: `{command}`",
-         ("- One thread per case (OMP/OpenBLAS/MKL_NUM_THREADS=1), one child process per case; all stages on "
+         ("- One thread per case (MODALFEM/OMP/OpenBLAS/MKL_NUM_THREADS=1; 2 threads: `modalfem bench threads`), one child process per case; all stages on "
           "(repulsion, CCD, impact zones, culling by normal cones and projected contours in the proximity "
           "search, smoothing with re-check). Scenes: `modalfem.cloth.scenes.drape` (1 m cloth onto a 0.3 m ball) and `pile` (1 m "
           "cloth dropped vertically onto the ground), dt = 10 ms."),

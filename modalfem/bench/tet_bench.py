@@ -38,7 +38,7 @@ VARIANTS = {
 }
 GOAL_STEPS_PER_S = 30.0
 DT = 1.0 / 30.0
-_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "MODALFEM_THREADS")
 
 
 def openblas_core() -> str | None:
@@ -103,8 +103,9 @@ def run_case_here(cells, variant: str, steps: int) -> dict:
     }
 
 
-def _run_case(cells, variant: str, steps: int, timeout: float) -> dict:
-    env = dict(os.environ, **{k: "1" for k in _THREADS})
+def _run_case(cells, variant: str, steps: int, timeout: float, *, threads: int = 1) -> dict:
+    """One size and variant in a child process whose compiled kernels use ``threads`` threads (BLAS: one)."""
+    env = {**os.environ, **{k: "1" for k in _THREADS}, "MODALFEM_THREADS": str(threads)}
     cmd = [sys.executable, "-m", "modalfem.bench.tet_bench", "--case", json.dumps([list(cells), variant, steps])]
     try:
         p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout, check=False)
@@ -127,7 +128,8 @@ def _section(rows: list[tuple], command: str, seconds: float) -> str:
                      for c, e in cores)
     head = (f"Command: `{command}` ({today}, {seconds:.0f} s). Machine: {_machine()}. "
             f"Python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}"
-            f"{'; ' + blas if blas else ''}; one thread per case (`OPENBLAS_NUM_THREADS=1`), each case a fresh "
+            f"{'; ' + blas if blas else ''}; one thread per case (`MODALFEM_THREADS=OPENBLAS_NUM_THREADS=1`; 2 threads: "
+            "`modalfem bench threads`), each case a fresh "
             "process.")
     scene = ("Scene: clamped soft bar (E = 1 MPa, nu = 0.3, rho = 1000 kg/m^3) sagging under gravity, "
              "dt = 1/30 s, `energy=\"stable\"`, backward Euler on the incremental potential with projected "

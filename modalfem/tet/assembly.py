@@ -1,8 +1,8 @@
 """Sparse assembly of 12x12 element blocks on a sparsity pattern computed once (CSR, node-major DOFs).
 
 The pattern holds every coupling of the mesh plus the full diagonal. ``assemble`` scatters element
-values to a precomputed CSR position per element entry (one ``np.bincount``, or for upper triangles one
-product with a precomputed sparse 0/1 scatter matrix; no COO -> CSR conversion per step); Dirichlet
+values to a precomputed CSR position per element entry (one ``np.bincount``, or for upper triangles a
+compiled, parallel gather over the positions; no COO -> CSR conversion per step); Dirichlet
 rows/columns are replaced by the identity through a mask on ``data``.
 """
 
@@ -40,14 +40,14 @@ class HessianPattern:
         iu = np.triu_indices(12)
         self.upper_index = np.ascontiguousarray(self.element_index.reshape(-1, 12, 12)[:, iu[0], iu[1]].T).ravel()
         self.transpose = np.searchsorted(keys, (keys % N) * np.int64(N) + keys // N)
-        # the same scatter as a sparse (nnz x 78 m) 0/1 matrix: one CSR product per step sums each position's
-        # contributions (a little faster than np.bincount with weights)
-        count = len(self.upper_index)
+        # the same scatter as a gather: the contributions of each position, in a fixed order, summed by one
+        # compiled pass over the positions (in parallel, no write conflicts; faster than np.bincount)
         order = np.argsort(self.upper_index, kind="stable")
-        scatter_ptr = np.searchsorted(self.upper_index[order], np.arange(self.nnz + 1))
-        self._scatter = sp.csr_matrix((np.ones(count), order.astype(np.int32), scatter_ptr.astype(np.int32)),
-                                      shape=(self.nnz, count))
+        self._gather_ptr = np.searchsorted(self.upper_index[order], np.arange(self.nnz + 1)).astype(np.int64)
+        self._gather_order = order.astype(np.int64)
         self.diag_index = inv[144 * len(cells):]
+        self._is_diag = np.zeros(self.nnz, dtype=bool)
+        self._is_diag[self.diag_index] = True
         self._dirichlet = None  # (fixed mask, zeroed positions, diagonal positions) of the last call
 
     def assemble(self, blocks: np.ndarray | None = None, diag: np.ndarray | None = None, *,
@@ -64,9 +64,13 @@ class HessianPattern:
         if blocks is None:
             data = np.zeros(self.nnz)
         elif upper:
-            half = self._scatter @ np.ravel(blocks)
-            data = half + half[self.transpose]
-            data[self.diag_index] -= half[self.diag_index]  # the diagonal was counted twice
+            from modalfem.tet import _kernels
+
+            half = np.empty(self.nnz)
+            _kernels.gather_sum(self._gather_ptr, self._gather_order, np.ascontiguousarray(blocks, dtype=float).ravel(),
+                                half)
+            data = np.empty(self.nnz)
+            _kernels.symmetrise(half, self.transpose, self._is_diag, data)  # the diagonal counted once
         else:
             data = np.bincount(self.element_index, weights=blocks.ravel(), minlength=self.nnz)
         if diag is not None:

@@ -45,10 +45,8 @@ PAIRS = ((1, 2), (0, 2), (0, 1))
 _I = np.array([p[0] for p in PAIRS])
 _J = np.array([p[1] for p in PAIRS])
 _EPS = 1e-12
-_CHUNK = 1024  # elements per chunk of element_hessians (its temporaries then fit in cache)
 #: (rows, columns) of the upper triangle of a 12x12 element Hessian: the order of ``upper=True`` values
 TRIU = np.triu_indices(12)
-_ROW_START = np.concatenate([[0], np.cumsum(np.arange(12, 0, -1))])  # first upper entry of each row
 
 
 @dataclass
@@ -296,10 +294,7 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
     flip at 0 and replaces the 3x3 block ``d2`` by its positive part (an eigen-decomposition only for
     the elements where ``d2`` is not already positive semi-definite).
 
-    Computed in chunks of elements with the element index last (long vector operations that stay in
-    cache, no batched small matrix products): only the 9x9 block of vertices 1..3 is formed by dot
-    products over the 9 modes (its upper triangle, 45 of them); the rows and columns of vertex 0
-    follow from translation invariance (``grad_0 = -(grad_1 + grad_2 + grad_3)``, so ``H 1 = 0``).
+    Computed per element by a compiled kernel, elements in parallel (``_hessians_upper``).
 
     Args:
         U, V: rotations of the rotation-variant SVD (m, 3, 3).
@@ -357,98 +352,25 @@ def element_forces_and_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, gr
 
 
 def _hessians_upper(Ut, Vt, d2, lam, gt, vol, d1=None, f=None) -> np.ndarray:
-    """Upper triangles (78, m) of the element Hessians from the (projected) eigensystem, in cache-sized
-    element chunks; with ``d1 = d psi / d sigma`` (m, 3) also the element forces into ``f`` (4, 3, m).
+    """Upper triangles (78, m) of the element Hessians from the (projected) eigensystem; with
+    ``d1 = d psi / d sigma`` (m, 3) also the element forces into ``f`` (4, 3, m).
 
-    Element index last throughout: ``Ut``, ``Vt`` (3, 3, m) are U and V, ``gt`` (4, 3, m) the shape
-    gradients (views are fine: everything used per chunk is first made contiguous here).
+    Element index last: ``Ut``, ``Vt`` (3, 3, m) are U and V, ``gt`` (4, 3, m) the shape gradients.
+    Per element (:func:`modalfem.tet._kernels.hessians_upper`, compiled, elements in parallel): the 9
+    eigen-modes of d^2 psi / d F^2 as 9-vectors over vertices 1..3 (U e_p e_q^T V^T through the
+    gradients), weighted by V0 d2 (the 3x3 block mixing the first three) and V0 lambda / 2 (twist and
+    flip, the 1/sqrt 2 of their modes squared); only the 9x9 block of vertices 1..3 is formed (its upper
+    triangle, 45 dot products over the modes); the rows of vertex 0 follow from translation invariance
+    (``grad_0 = -(grad_1 + grad_2 + grad_3)``, so ``H 1 = 0``).
     """
+    from modalfem.tet import _kernels
+
     m = Ut.shape[-1]
     H = np.empty((78, m))
-    Ut = np.ascontiguousarray(Ut)
-    Vt = np.ascontiguousarray(Vt)
-    gt = np.ascontiguousarray(gt[1:])  # (3 a, 3 k, m), vertices 1..3
-    # per-element factors, element index last and contiguous (a strided operand slows every use below):
-    # V0 d2 (3, 3, m); V0 lambda / 2 for the six pair modes (the 1/sqrt 2 of T and L squared); V0 d psi/d sigma
-    Dv = np.empty((3, 3, m))
-    np.multiply(np.moveaxis(d2, 0, -1), vol, out=Dv)
-    Lv = np.empty((6, m))
-    np.multiply(lam.T, 0.5 * vol, out=Lv)
-    w = None
-    if d1 is not None:
-        w = np.empty((3, m))
-        np.multiply(d1.T, vol, out=w)
-    # grad_a . v_q for a = 1..3 as long vector products (faster than a batched 3x3 matmul)
-    Gv = np.empty((3, 3, m))
-    tmp = np.empty(m)
-    for a in range(3):
-        for q in range(3):
-            o = Gv[a, q]
-            np.multiply(gt[a, 0], Vt[0, q], out=o)
-            for k in (1, 2):
-                np.multiply(gt[a, k], Vt[k, q], out=tmp)
-                o += tmp
-    ch = max(1, min(_CHUNK, m))
-    work = (np.empty((9, 3, 3, ch)), np.empty((9, 9, ch)), np.empty((9, 9, ch)), np.empty((2, 3, 3, ch)),
-            np.empty((9, ch)))
-    for lo in range(0, m, ch):
-        hi = min(lo + ch, m)
-        k = hi - lo
-        _hessian_chunk(Ut[:, :, lo:hi], Gv[:, :, lo:hi], Dv[:, :, lo:hi], Lv[:, lo:hi], H[:, lo:hi],
-                       [a[..., :k] for a in work], None if w is None else w[:, lo:hi],
-                       None if f is None else f[:, :, lo:hi])
+    forces = d1 is not None
+    _kernels.hessians_upper(np.ascontiguousarray(Ut, dtype=float), np.ascontiguousarray(Vt, dtype=float),
+                            np.ascontiguousarray(d2, dtype=float), np.ascontiguousarray(lam, dtype=float),
+                            np.ascontiguousarray(gt, dtype=float), np.ascontiguousarray(vol, dtype=float),
+                            np.ascontiguousarray(d1, dtype=float) if forces else np.zeros((0, 3)), H,
+                            f if forces else np.zeros((4, 3, 0)), forces)
     return H
-
-
-def _hessian_chunk(Ut, Gv, Dv, Lv, out, work, w=None, f=None) -> None:
-    """Projected-eigensystem Hessians of a chunk of k elements: upper triangles into ``out`` (78, k).
-
-    ``Ut`` (3 i, 3 p, k) is U, ``Gv`` (3 a, 3 q, k) holds grad_a . v_q for a = 1..3, ``Dv`` (3, 3, k) is
-    V0 d2, ``Lv`` (6, k) V0 lambda / 2 of the twist and flip modes; ``work`` scratch arrays; with ``w``
-    (3, k) = V0 d psi / d sigma also the forces ``f`` (4, 3, k) = V0 U diag(d psi / d sigma) V^T grad_a.
-    """
-    b, c, K, t, t9 = work
-    m = Ut.shape[-1]
-    # pattern e_p e_q^T in the SVD frame, U E V^T, maps to the 12-vector b[a, i] = U_ip (grad_a . v_q);
-    # formed for a = 1..3 only, modes first: b (9 modes, 9 = 3 a + i, k); the pair modes are
-    # u_i v_j^T -+ u_j v_i^T without their 1/sqrt 2 (folded into Lv)
-    G = Gv[:, :, None, :]  # (3 a, 3 q, 1, k)
-    U = Ut[None]  # (1, 3 i, 3 p, k)
-    for p in range(3):
-        np.multiply(G[:, p], U[:, :, p], out=b[p])
-    for kk, (i, j) in enumerate(PAIRS):
-        np.multiply(G[:, j], U[:, :, i], out=t[0])
-        np.multiply(G[:, i], U[:, :, j], out=t[1])
-        np.subtract(t[0], t[1], out=b[3 + kk])
-        np.add(t[0], t[1], out=b[6 + kk])
-    if f is not None:  # b[p] (a, i) = U_ip (grad_a . v_p): f_a = sum_p w_p b[p] for a = 1..3
-        fa = f[1:]
-        np.multiply(b[0], w[0], out=fa)
-        for p in (1, 2):
-            np.multiply(b[p], w[p], out=t[0])
-            fa += t[0]
-        np.add(fa[0], fa[1], out=f[0])
-        f[0] += fa[2]
-        np.negative(f[0], out=f[0])
-    b = b.reshape(9, 9, m)
-    for p in range(3):  # c = (modal eigenvalues, d2 block mixing the first 3 modes) b, times V0
-        np.multiply(b[0], Dv[p, 0], out=c[p])
-        for q in (1, 2):
-            np.multiply(b[q], Dv[p, q], out=t9)
-            c[p] += t9
-    np.multiply(b[3:], Lv[:, None, :], out=c[3:])
-    # block of vertices 1..3: K[3 (a - 1) + i, 3 (b - 1) + k]
-    for row in range(9):
-        np.einsum("km,ksm->sm", b[:, row], c[:, row:], out=K[row, row:])
-        K[row + 1:, row] = K[row, row + 1:]
-        out[_ROW_START[3 + row]:_ROW_START[4 + row]] = K[row, row:]
-    # sum over a of rows (a, i) = minus the rows of vertex 0
-    R = c[:3]  # c is no longer needed: reuse it
-    np.add(K[0:3], K[3:6], out=R)
-    R += K[6:9]
-    for i in range(3):
-        row = out[_ROW_START[i]:_ROW_START[i + 1]]  # H[i, i:] (vertex 0, component i)
-        R0 = R[i].reshape(3, 3, m)  # (b, k)
-        np.add(R0[0, i:], R0[1, i:], out=row[:3 - i])
-        row[:3 - i] += R0[2, i:]  # H[0i, 0k] = sum_{a, b} K[ai, bk]
-        np.negative(R[i], out=row[3 - i:])

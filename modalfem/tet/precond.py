@@ -82,8 +82,14 @@ class TwoLevel:
         if Ac_inv is None:
             return lambda r: inv * r
 
+        from modalfem.tet import _kernels
+
+        coarse_r = np.empty(Pt.shape[0])
+
         def apply(r: np.ndarray) -> np.ndarray:
-            out = P @ (Ac_inv @ (Pt @ r))
+            _kernels.csr_matvec(Pt.indptr, Pt.indices, Pt.data, r, coarse_r)
+            out = np.empty(P.shape[0])
+            _kernels.csr_matvec(P.indptr, P.indices, P.data, Ac_inv @ coarse_r, out)
             out += inv * r
             return out
 

@@ -9,6 +9,7 @@ import pytest
 
 from modalfem.tet import energies as en
 from modalfem.tet import kinematics as kin
+from modalfem.threads import thread_count
 
 CELLS = np.array([[0, 1, 2, 3]])
 TERMS = {
@@ -143,9 +144,9 @@ def test_barrier_goes_to_infinity_as_volume_vanishes():
     assert np.all(np.isinf(bad.psi))
 
 
-def test_chunked_and_upper_hessians_are_the_same_matrices(monkeypatch):
-    """Many elements in several chunks: the (m, 12, 12) blocks are symmetric, equal whatever the chunk
-    size, and the ``upper`` layout holds exactly their upper triangles."""
+def test_chunked_and_upper_hessians_are_the_same_matrices():
+    """Many elements: the (m, 12, 12) blocks are symmetric, the same on one thread and on all, the same as
+    one element at a time, and the ``upper`` layout holds exactly their upper triangles."""
     rng = np.random.default_rng(3)
     X, grad1, vol1 = _rest(3)
     m = 23
@@ -155,9 +156,9 @@ def test_chunked_and_upper_hessians_are_the_same_matrices(monkeypatch):
     U, s, V = kin.svd_rv(F)
     d = TERMS["stable"].derivs(s, 2)
     whole = en.element_hessians(U, V, d, grad, vol, project=False)
-    monkeypatch.setattr(en, "_CHUNK", 5)
-    chunked = en.element_hessians(U, V, d, grad, vol, project=False)
-    np.testing.assert_allclose(chunked, whole, rtol=0, atol=1e-13 * np.abs(whole).max())
+    with thread_count(1):
+        serial = en.element_hessians(U, V, d, grad, vol, project=False)
+    np.testing.assert_array_equal(serial, whole)
     np.testing.assert_allclose(whole, np.swapaxes(whole, 1, 2), atol=1e-13 * np.abs(whole).max())
     upper = en.element_hessians(U, V, d, grad, vol, project=True, upper=True)
     projected = en.element_hessians(U, V, d, grad, vol, project=True)
@@ -177,11 +178,10 @@ def _deformed(seed: int, rest_seed: int, m: int):
     return grad, vol, np.einsum("mai,maj->mij", x, grad)
 
 
-def test_forces_and_hessians_in_one_pass_match_the_separate_ones(monkeypatch):
+def test_forces_and_hessians_in_one_pass_match_the_separate_ones():
     grad, vol, F = _deformed(4, 4, 17)
     U, s, V = kin.svd_rv(F)
     d = TERMS["stable"].derivs(s, 2)
-    monkeypatch.setattr(en, "_CHUNK", 6)  # three chunks
     f, H = en.element_forces_and_hessians(U, V, d, grad, vol)
     P = en.first_piola(U, V, d.d1)
     f_ref = vol[:, None, None] * np.einsum("mij,maj->mai", P, grad)  # (m, 4, 3)
@@ -206,13 +206,12 @@ def test_stable_corotated_one_pass_derivatives_match_the_sum_of_terms():
     assert term.derivs(s, 0).d1 is None
 
 
-def test_element_last_layout_gives_the_same_forces_and_hessians(monkeypatch):
+def test_element_last_layout_gives_the_same_forces_and_hessians():
     """The solver passes U, V (3, 3, m) from ``svd_rv_t`` and gradients (4, 3, m): same results as (m, ...)."""
     grad, vol, F = _deformed(6, 5, 13)
     U, s, V = kin.svd_rv(F)
     Ut, st, Vt = kin.svd_rv_t(np.moveaxis(F, 0, -1))
     d = TERMS["stable"].derivs(s, 2)
-    monkeypatch.setattr(en, "_CHUNK", 4)  # uneven chunks
     f, H = en.element_forces_and_hessians(U, V, d, grad, vol)
     ft, Ht = en.element_forces_and_hessians(Ut, Vt, d, np.moveaxis(grad, 0, -1), vol, element_last=True)
     np.testing.assert_array_equal(st, s)

@@ -1,0 +1,175 @@
+"""``modalfem bench threads``: how the compiled kernels scale from 1 thread to 2 (or more).
+
+Two goal cases, each in fresh child processes with ``MODALFEM_THREADS`` = 1 and = N (BLAS on one thread):
+the 64x64 cloth pile with every collision stage (``modalfem bench cloth``'s case, its whole length) and
+the 10k-tet bar's full Newton step (``modalfem bench tet``'s ``newton+cg`` case). The thread counts run
+interleaved, ``1 N N 1`` per repeat, so a change of the machine's load hits both alike; each count's best
+(least loaded) run is reported, with the load average before and after every run.
+
+From the 1- and N-thread times the serial fraction s of Amdahl's law (``T_N = T_1 (s + (1 - s) / N)``,
+so ``s = (N T_N / T_1 - 1) / (N - 1)``) and the speed it implies on 16 cores, ``T_1 / (s + (1 - s) / 16)``.
+For the cloth the per-stage times at both counts show which stages scale.
+
+Usage: ``python -m modalfem bench threads [--out BENCHMARKS.md] [--repeats 2] [--threads N] [--quick]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import os
+import shlex
+import sys
+import time
+
+__all__ = ["SECTION", "amdahl", "command", "render"]
+
+SECTION = "## Threads: scaling of the cloth pile and the tet step"
+CLOTH_GOAL_1 = 10.0  # steps/s on one thread
+CLOTH_GOAL_RATIO = 1.7  # two threads against one
+TET_GOAL_2 = 30.0  # steps/s on two threads
+TET_CELLS = (28, 10, 6)  # 10,080 tets
+
+
+def amdahl(t1: float, tn: float, n: int) -> tuple[float, float]:
+    """Serial fraction ``s`` (clipped to [0, 1]) from the times on 1 and ``n`` threads, and the speed-up
+    it implies on 16 cores."""
+    s = (n * tn / t1 - 1.0) / (n - 1) if n > 1 else 1.0
+    s = min(max(s, 0.0), 1.0)
+    return s, 1.0 / (s + (1.0 - s) / 16.0)
+
+
+def _load() -> float:
+    try:
+        return os.getloadavg()[0]
+    except OSError:  # pragma: no cover - not Unix
+        return float("nan")
+
+
+def _cloth(steps: int | None, n: int, threads: int, timeout: float) -> dict:
+    from modalfem.bench import cloth_bench
+
+    args = ["--case", "pile", "--n", str(n)] + ([] if steps is None else ["--steps", str(steps)])
+    return cloth_bench._spawn(args, timeout, threads=threads) or {"error": "timeout"}
+
+
+def _tet(cells, steps: int, threads: int, timeout: float) -> dict:
+    from modalfem.bench import tet_bench
+
+    return tet_bench._run_case(cells, "newton+cg", steps, timeout, threads=threads)
+
+
+def _best(runs: list[dict]) -> dict | None:
+    ok = [r for r in runs if "ms_per_step" in r]
+    return min(ok, key=lambda r: r["ms_per_step"]) if ok else None
+
+
+def render(cloth: dict, tet: dict, n: int, *, command: str, date: str, machine: str, layer: str,
+           cloth_label: str, tet_label: str) -> str:
+    """The markdown section from ``{threads: [runs]}`` of each case (each run with ``load`` = (before,
+    after))."""
+    L = [SECTION, "", f"- Date: {date}", f"- Machine: {machine}", f"- Command: `{command}`",
+         (f"- numba threading layer `{layer}`; each run a fresh process with `MODALFEM_THREADS` = 1 or {n} and "
+          "BLAS on one thread; the counts interleaved (`1 N N 1` per repeat); each count's fastest run shown "
+          "(ms/step: the case's own measure, see its section); load = 1-minute load average before / after "
+          "that run (the machine is shared: a load above its core count slows the N-thread runs most)."),
+         ("- Serial fraction s from Amdahl's law on the 1- and N-thread times, `s = (N T_N / T_1 - 1) / (N - 1)`; "
+          "'at 16 cores' is the speed that s implies there, `T_1 / (s + (1 - s) / 16)` (an upper bound: memory "
+          "bandwidth and launch costs grow with the thread count)."), "",
+         "| case | threads | ms/step | steps/s | CPU ms/step | speed-up | serial fraction | at 16 cores | load |",
+         "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    verdicts = []
+    for label, runs in ((cloth_label, cloth), (tet_label, tet)):
+        one, many = _best(runs.get(1, [])), _best(runs.get(n, []))
+        for t, r in ((1, one), (n, many)):
+            if r is None:
+                errs = [x.get("error", "?") for x in runs.get(t, [])]
+                L.append(f"| {label} | {t} | {'; '.join(errs) or 'not run'} | | | | | | |")
+                continue
+            load = "{:.1f} / {:.1f}".format(*r["load"])
+            extra = "| | | |"
+            if t == n and one is not None:
+                s, sp16 = amdahl(one["ms_per_step"], r["ms_per_step"], n)
+                extra = (f"| {one['ms_per_step'] / r['ms_per_step']:.2f}x | {s:.2f} | "
+                         f"{sp16 * 1e3 / one['ms_per_step']:.1f} steps/s ({sp16:.1f}x) |")
+            L.append(f"| {label} | {t} | {r['ms_per_step']:.1f} | {1e3 / r['ms_per_step']:.2f} | "
+                     f"{r.get('cpu_ms_per_step', float('nan')):.1f} {extra} {load} |")
+        if label == cloth_label and one is not None:
+            ok1 = 1e3 / one["ms_per_step"] >= CLOTH_GOAL_1
+            verdicts.append(f"Cloth goal (>= {CLOTH_GOAL_1:g} steps/s on one thread): {1e3 / one['ms_per_step']:.2f} "
+                            f"steps/s, **{'met' if ok1 else 'not met'}**; intersections "
+                            f"{one.get('intersections')} (1 thread)"
+                            + (f", {many.get('intersections')} ({n} threads)" if many else "") + ".")
+            if many is not None:
+                ratio = one["ms_per_step"] / many["ms_per_step"]
+                verdicts.append(f"Cloth goal (>= {CLOTH_GOAL_RATIO:g}x on two threads): {ratio:.2f}x, "
+                                f"**{'met' if ratio >= CLOTH_GOAL_RATIO else 'not met'}**.")
+        if label == tet_label and many is not None:
+            sps = 1e3 / many["ms_per_step"]
+            verdicts.append(f"Tet goal (>= {TET_GOAL_2:g} steps/s on two threads): {sps:.1f} steps/s, "
+                            f"**{'met' if sps >= TET_GOAL_2 else 'not met'}**.")
+    one, many = _best(cloth.get(1, [])), _best(cloth.get(n, []))
+    if one is not None and many is not None and "shares" in one and "shares" in many:
+        L += ["", f"Cloth pile per stage (ms per step, fastest run of each count; stages as in the cloth section):",
+              "", f"| stage | 1 thread | {n} threads | speed-up |", "|---|---:|---:|---:|"]
+        for stage, share in one["shares"].items():
+            a, b = share * one["ms_per_step"], many["shares"][stage] * many["ms_per_step"]
+            L.append(f"| {stage} | {a:.1f} | {b:.1f} | {a / b if b > 0 else float('nan'):.2f}x |")
+        rest1 = one["ms_per_step"] * (1 - sum(one["shares"].values()))
+        restn = many["ms_per_step"] * (1 - sum(many["shares"].values()))
+        L.append(f"| other (Python, inputs, bookkeeping) | {rest1:.1f} | {restn:.1f} | "
+                 f"{rest1 / restn if restn > 0 else float('nan'):.2f}x |")
+    if verdicts:
+        L += [""] + verdicts
+    return "\n".join(L) + "\n"
+
+
+def command(argv: list[str]) -> int:
+    """``modalfem bench threads``: run both cases at 1 and N threads, print and write the section."""
+    ap = argparse.ArgumentParser(prog="modalfem bench threads")
+    ap.add_argument("--out", default="BENCHMARKS.md", help="markdown file whose threads section is replaced")
+    ap.add_argument("--threads", type=int, default=None, help="the N of the comparison (default: every core)")
+    ap.add_argument("--repeats", type=int, default=2, help="runs per thread count (default 2)")
+    ap.add_argument("--tet-steps", type=int, default=20, help="measured tet steps per run (default 20)")
+    ap.add_argument("--cloth-steps", type=int, default=None, help="cloth steps per run (default: the scene's 80)")
+    ap.add_argument("--timeout", type=float, default=1800.0, help="per run [s]")
+    ap.add_argument("--quick", action="store_true", help="tiny cases (smoke test)")
+    a = ap.parse_args(argv)
+    from modalfem.bench.cli import _machine, update_section
+    from modalfem.threads import _cores, threading_layer
+
+    n = a.threads or _cores()
+    if n < 2:
+        print("modalfem: error: bench threads needs at least 2 threads to compare (--threads N)", file=sys.stderr)
+        return 2
+    cloth_n, cells = (8, (4, 2, 2)) if a.quick else (64, TET_CELLS)
+    cloth_steps, tet_steps = (10, 3) if a.quick else (a.cloth_steps, a.tet_steps)
+    t0 = time.perf_counter()
+    print("[bench threads] warm-up (fills numba's disk cache, not timed) ...", file=sys.stderr, flush=True)
+    _cloth(5, 8, n, a.timeout)
+    _tet((4, 2, 2), 1, n, a.timeout)
+    cloth: dict = {1: [], n: []}
+    tet: dict = {1: [], n: []}
+    for rep in range(max(1, a.repeats)):
+        for t in (1, n, n, 1)[: 2 if a.quick else 4][:: 1 if rep % 2 == 0 else -1]:
+            for name, store, run in (("cloth pile", cloth, lambda t=t: _cloth(cloth_steps, cloth_n, t, a.timeout)),
+                                     ("tet newton+cg", tet, lambda t=t: _tet(cells, tet_steps, t, a.timeout))):
+                before = _load()
+                print(f"[bench threads] {name}, {t} thread(s), repeat {rep + 1} (load {before:.1f}) ...",
+                      file=sys.stderr, flush=True)
+                r = run()
+                r["load"] = (before, _load())
+                if "ms_per_step" in r:
+                    print(f"[bench threads]   {r['ms_per_step']:.1f} ms/step", file=sys.stderr, flush=True)
+                store[t].append(r)
+    cmd = "python -m modalfem bench threads" + ("" if not argv else " " + shlex.join(argv))
+    date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    tets = 6 * cells[0] * cells[1] * cells[2]
+    section = render(cloth, tet, n, command=cmd, date=date, machine=_machine(), layer=threading_layer(),
+                     cloth_label=f"cloth pile {cloth_n}x{cloth_n}, all stages",
+                     tet_label=f"tet bar {tets} tets, newton+cg")
+    print(section)
+    update_section(a.out, section)
+    print(f"bench threads: {time.perf_counter() - t0:.0f} s, section written to {a.out}", file=sys.stderr)
+    ok = all(_best(c.get(t, [])) is not None for c in (cloth, tet) for t in (1, n))
+    return 0 if ok else 1

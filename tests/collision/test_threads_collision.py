@@ -1,0 +1,82 @@
+"""The parallel collision kernels on 1 and 2 threads: the same pairs in the same order, the same times of
+impact and contact frames to the last bit; the parallel BVH traversal lists exactly the pairs of one
+serial depth-first walk, in its order."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import pytest
+from _meshes import stacked_sheets
+
+from modalfem.collision import _bvh_kernels, _distance_kernels
+from modalfem.collision._system import System
+from modalfem.collision.bvh import BroadPhaseBVH
+from modalfem.collision.ccd import ccd_pairs
+from modalfem.threads import thread_count
+
+pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
+
+
+def _sheets(seed: int = 4):
+    pts, tri = stacked_sheets(4, 16, gap=0.01, seed=seed)
+    rng = np.random.default_rng(seed)
+    x0 = pts + 0.004 * rng.standard_normal(pts.shape)
+    x1 = x0 + 0.01 * rng.standard_normal(pts.shape)
+    return pts, tri, x0, x1
+
+
+def _serial_walk(bvh: BroadPhaseBVH):
+    """One depth-first walk from the root (no split), then its leaves' triangle pairs."""
+    leaves = _bvh_kernels._walk(1, 1, -1, True, True, bvh.P, bvh.lo, bvh.hi, bvh.nonempty, bvh.P, bvh.lo, bvh.hi,
+                                bvh.nonempty, bvh.connected, bvh.cone_axis, bvh.cone_angle, bvh._adj, bvh._bnd_start,
+                                bvh._bnd_edge, bvh._bnd_id, int(bvh.contour_limit), bvh._x0, bvh._x1, False,
+                                bool(bvh.boundary_check), np.zeros(0, dtype=bool))
+    return _bvh_kernels._leaf_triangle_pairs(leaves, len(leaves), True, bvh.slot_tri, bvh._slo, bvh._shi,
+                                             bvh.slot_tri, bvh._slo, bvh._shi, False, np.zeros(0, dtype=bool))
+
+
+def test_traversal_and_queries_give_the_same_ordered_pairs_on_any_thread_count():
+    pts, tri, x0, x1 = _sheets()
+    bvh = BroadPhaseBVH(tri, pts, leaf_size=4)
+    bvh.refit(x0, x1, margin=2e-3)
+    out = {}
+    for t in (1, 2):
+        with thread_count(t):
+            out[t] = (bvh.self_pairs(culling=True), bvh.query(bvh.tri_lo[::3], bvh.tri_hi[::3]))
+    (p1, n1), (q1, r1) = out[1]
+    (p2, n2), (q2, r2) = out[2]
+    assert len(p1) > 5000 and len(q1) > 5000  # many chunks of tasks and of queries
+    np.testing.assert_array_equal(p1, p2)
+    np.testing.assert_array_equal(q1, q2)
+    np.testing.assert_array_equal(r1, r2)
+    assert n1 == n2
+    serial, tests = _serial_walk(bvh)
+    np.testing.assert_array_equal(p1, serial)
+    assert n1 == tests
+
+
+def test_pair_expansion_ccd_and_frames_are_the_same_on_one_and_two_threads():
+    pts, tri, x0, x1 = _sheets(7)
+    system = System(tri, ())
+    system.build_cloth_bvh(pts)
+    got = {}
+    for t in (1, 2):
+        with thread_count(t):
+            c = system.candidates(x0, x1, margin=5e-3, self_collision=True, culling=False)
+            hits = [ccd_pairs(kind, x0, x1, q, eta=1e-4) for kind, q in (("vf", c.vf), ("ee", c.ee))]
+            frames = [_distance_kernels.contact_frames(kind == "vf", x1, q, x0) for kind, q in
+                      (("vf", c.vf), ("ee", c.ee))]
+            got[t] = (c.vf, c.ee, hits, frames)
+    vf1, ee1, hits1, frames1 = got[1]
+    vf2, ee2, hits2, frames2 = got[2]
+    assert len(vf1) > 2000 and len(ee1) > 2000  # several chunks of triangle pairs, CCD queries and frames
+    assert sum(int(h.sum()) for h, _ in hits1) > 50
+    np.testing.assert_array_equal(vf1, vf2)
+    np.testing.assert_array_equal(ee1, ee2)
+    for (h1, t1), (h2, t2) in zip(hits1, hits2):
+        np.testing.assert_array_equal(h1, h2)
+        np.testing.assert_array_equal(t1, t2)
+    for f1, f2 in zip(frames1, frames2):
+        for a, b in zip(f1, f2):
+            np.testing.assert_array_equal(a, b)
