@@ -103,6 +103,20 @@ def test_mode_picker_changes_the_shape(page, page_errors, explorer, tmp_path):
     changed = np.abs(first - fifth).max(axis=2) > 0.05
     assert changed.mean() > 0.01, changed.mean()
     page.screenshot(path=str(tmp_path / "mode5.png"))
+    # the shape is deformed on the GPU (vertex shader, modes in float textures); the CPU path that
+    # bodies without modes use draws the same picture (exact normals there, linearised in the shader)
+    assert page.evaluate("window.modalfemViewer.bodies[0].gpu") is True
+    page.evaluate("explorerOff = () => { const b = window.modalfemViewer.bodies[0]; b.gpu = false; b.stale = true; }")
+    explorer.close()  # no more frames: both pictures show the same q
+    page.wait_for_timeout(300)
+    gpu = _canvas(page)
+    page.evaluate("explorerOff()")
+    page.wait_for_timeout(300)
+    cpu = _canvas(page)
+    assert np.abs(_body_mask(gpu) ^ _body_mask(cpu)).mean() < 0.002  # same silhouette
+    assert page.evaluate("[window.modalfemViewer.bodies[0].gpu, window.modalfemViewer.bodies[0].buffersDeformed]") == [
+        False, True]  # the second picture did come from the CPU path
+    assert np.abs(gpu - cpu).mean() < 0.01, np.abs(gpu - cpu).mean()
     assert page_errors == []
 
 

@@ -45,13 +45,28 @@ function toBody(M, p, isPoint) {  // inverse of a rigid 4x4 applied to a point o
 }
 
 // ---------------------------------------------------------------------------- shaders
+// A modal body is deformed here, on the GPU (as DyRT did): x = X + sum_i q_i phi_i and the
+// linearised normal n = n0 + sum_i q_i dn_i, with phi and dn in float textures (one row block per
+// mode) and q in a small texture updated per frame. Other bodies (and modal ones whose modes do not
+// fit a texture) come with positions and normals computed on the CPU (uModes = 0).
 const VS = `#version 300 es
 in vec3 aPos; in vec3 aNrm; in float aDisp;
 uniform mat4 uModel, uView, uProj; uniform float uDispScale;
+uniform highp sampler2D uShapes, uDNrm, uQ; uniform int uModes, uCount, uWidth;
 out vec3 vN; out vec3 vW; out float vD;
 void main() {
-  vec4 w = uModel * vec4(aPos, 1.0);
-  vW = w.xyz; vN = mat3(uModel) * aNrm; vD = aDisp * uDispScale;
+  vec3 p = aPos, n = aNrm;
+  for (int i = 0; i < uModes; i++) {
+    float qi = texelFetch(uQ, ivec2(i, 0), 0).r;
+    if (qi == 0.0) continue;
+    int k = i * uCount + gl_VertexID;
+    ivec2 t = ivec2(k % uWidth, k / uWidth);
+    p += qi * texelFetch(uShapes, t, 0).xyz;
+    n += qi * texelFetch(uDNrm, t, 0).xyz;
+  }
+  vec4 w = uModel * vec4(p, 1.0);
+  vW = w.xyz; vN = mat3(uModel) * n;
+  vD = (uModes > 0 ? length(p - aPos) : aDisp) * uDispScale;
   gl_Position = uProj * uView * w;
 }`;
 const FS = `#version 300 es
@@ -102,8 +117,89 @@ function makeBody(head, buf) {
   const ib = gl.createBuffer(); gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ib);
   gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, rtris, gl.STATIC_DRAW);
   gl.bindVertexArray(null);
+  b.gpu = r > 0 && modalTextures(b);
+  if (b.gpu) {  // rest positions and normals once; per frame only q
+    b.q.fill(0); cpuPositions(b); renderVertices(b);
+    b.restBuffers = [[b.bufPos, b.rpos.slice()], [b.bufNrm, b.nrm.slice()]];
+    b.buffersDeformed = true;
+  }
   b.stale = true;
   return b;
+}
+
+function texture(unit, internal, format, w, h, data) {
+  const t = gl.createTexture();
+  gl.activeTexture(gl.TEXTURE0 + unit); gl.bindTexture(gl.TEXTURE_2D, t);
+  for (const k of [gl.TEXTURE_MIN_FILTER, gl.TEXTURE_MAG_FILTER]) gl.texParameteri(gl.TEXTURE_2D, k, gl.NEAREST);
+  for (const k of [gl.TEXTURE_WRAP_S, gl.TEXTURE_WRAP_T]) gl.texParameteri(gl.TEXTURE_2D, k, gl.CLAMP_TO_EDGE);
+  gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+  gl.texImage2D(gl.TEXTURE_2D, 0, internal, w, h, 0, format, gl.FLOAT, data);
+  return t;
+}
+
+function modalTextures(b) {
+  // phi_i and dn_i at the render vertices, texel i * nr + j of a (width x height) RGB32F texture
+  const { r, nr, orig, shapes, nv, rest } = b, tris = b.rtris, max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+  const width = Math.min(max, 4096), height = Math.ceil(r * nr / width);
+  if (height > max || r > max) return false;
+  const phi = new Float32Array(3 * width * height), dn = new Float32Array(3 * width * height);
+  const x = new Float32Array(3 * nr);
+  for (let j = 0; j < nr; j++) for (let c = 0; c < 3; c++) x[3 * j + c] = rest[3 * orig[j] + c];
+  b.peak = new Float64Array(r);  // largest |phi_i| over the vertices: a bound for the colour scale
+  for (let i = 0; i < r; i++) {
+    const s = shapes.subarray(3 * nv * i, 3 * nv * (i + 1)), o = 3 * nr * i;
+    for (let j = 0; j < nr; j++) {
+      const v = 3 * orig[j];
+      phi[o + 3 * j] = s[v]; phi[o + 3 * j + 1] = s[v + 1]; phi[o + 3 * j + 2] = s[v + 2];
+      b.peak[i] = Math.max(b.peak[i], Math.hypot(s[v], s[v + 1], s[v + 2]));
+    }
+    for (let t = 0; t < tris.length; t += 3) {  // d/dq_i of cross(xb - xa, xc - xa), summed at the corners
+      const a = 3 * tris[t], bb = 3 * tris[t + 1], c = 3 * tris[t + 2];
+      const e1 = [x[bb] - x[a], x[bb + 1] - x[a + 1], x[bb + 2] - x[a + 2]];
+      const e2 = [x[c] - x[a], x[c + 1] - x[a + 1], x[c + 2] - x[a + 2]];
+      const d1 = [phi[o + bb] - phi[o + a], phi[o + bb + 1] - phi[o + a + 1], phi[o + bb + 2] - phi[o + a + 2]];
+      const d2 = [phi[o + c] - phi[o + a], phi[o + c + 1] - phi[o + a + 1], phi[o + c + 2] - phi[o + a + 2]];
+      const m = cross(d1, e2), n = cross(e1, d2);
+      for (const k of [a, bb, c]) for (let q = 0; q < 3; q++) dn[o + k + q] += m[q] + n[q];
+    }
+  }
+  b.texShapes = texture(0, gl.RGB32F, gl.RGB, width, height, phi);
+  b.texDNrm = texture(1, gl.RGB32F, gl.RGB, width, height, dn);
+  b.texQ = texture(2, gl.R32F, gl.RED, r, 1, new Float32Array(r));
+  b.texWidth = width; b.q32 = new Float32Array(r);
+  return gl.getError() === gl.NO_ERROR;
+}
+
+function cpuPositions(b) {  // cur = X + Phi q (modal) or the sent positions, at the surface vertices
+  const { nv, rest, cur } = b;
+  if (b.positions) { cur.set(b.positions); return; }
+  cur.set(rest);
+  for (let i = 0; i < b.r; i++) {
+    const qi = b.q[i]; if (qi === 0) continue;
+    const s = b.shapes.subarray(3 * nv * i, 3 * nv * (i + 1));
+    for (let k = 0; k < 3 * nv; k++) cur[k] += qi * s[k];
+  }
+}
+
+function renderVertices(b) {  // render-vertex positions, area-weighted normals and |u| from cur; the peak |u|
+  const { rest, cur, nrm, disp, orig, rpos, nr } = b, tris = b.rtris;
+  let peak = 0;
+  for (let j = 0; j < nr; j++) {
+    const i = 3 * orig[j];
+    rpos[3 * j] = cur[i]; rpos[3 * j + 1] = cur[i + 1]; rpos[3 * j + 2] = cur[i + 2];
+    // colour shows the modal deformation; a body without modes (sent positions) keeps its colour
+    disp[j] = b.positions ? 0 : Math.hypot(cur[i] - rest[i], cur[i + 1] - rest[i + 1], cur[i + 2] - rest[i + 2]);
+    peak = Math.max(peak, disp[j]);
+  }
+  nrm.fill(0);
+  for (let t = 0; t < tris.length; t += 3) {
+    const a = 3 * tris[t], bb = 3 * tris[t + 1], c = 3 * tris[t + 2];
+    const ux = rpos[bb] - rpos[a], uy = rpos[bb + 1] - rpos[a + 1], uz = rpos[bb + 2] - rpos[a + 2];
+    const vx = rpos[c] - rpos[a], vy = rpos[c + 1] - rpos[a + 1], vz = rpos[c + 2] - rpos[a + 2];
+    const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+    for (const k of [a, bb, c]) { nrm[k] += nx; nrm[k + 1] += ny; nrm[k + 2] += nz; }
+  }
+  return peak;
 }
 
 function splitCreases(rest, tris, nv) {
@@ -133,39 +229,30 @@ function splitCreases(rest, tris, nv) {
   return { orig: Uint32Array.from(orig), rtris };
 }
 
-function deform(b) {  // cur = X + Phi q (modal) or the sent positions; render vertices, normals, |u|
+function deform(b) {  // apply the newest frame: q to its texture (GPU path) or positions + normals (CPU)
   const t0 = performance.now();
-  const { nv, rest, cur, nrm, disp, orig, rpos, nr } = b, tris = b.rtris;
-  if (b.positions) cur.set(b.positions);
-  else {
-    cur.set(rest);
-    for (let i = 0; i < b.r; i++) {
-      const qi = b.q[i]; if (qi === 0) continue;
-      const s = b.shapes.subarray(3 * nv * i, 3 * nv * (i + 1));
-      for (let k = 0; k < 3 * nv; k++) cur[k] += qi * s[k];
+  let peak;
+  if (b.gpu && !b.positions) {
+    if (b.buffersDeformed) {  // at first, or after frames with positions: rest data for the shader
+      for (const [buffer, data] of b.restBuffers) { gl.bindBuffer(gl.ARRAY_BUFFER, buffer); gl.bufferSubData(gl.ARRAY_BUFFER, 0, data); }
+      b.buffersDeformed = false;
     }
-  }
-  let peak = 0;
-  for (let j = 0; j < nr; j++) {
-    const i = 3 * orig[j];
-    rpos[3 * j] = cur[i]; rpos[3 * j + 1] = cur[i + 1]; rpos[3 * j + 2] = cur[i + 2];
-    // colour shows the modal deformation; a body without modes (sent positions) keeps its colour
-    disp[j] = b.positions ? 0 : Math.hypot(cur[i] - rest[i], cur[i + 1] - rest[i + 1], cur[i + 2] - rest[i + 2]);
-    peak = Math.max(peak, disp[j]);
-  }
-  nrm.fill(0);
-  for (let t = 0; t < tris.length; t += 3) {
-    const a = 3 * tris[t], bb = 3 * tris[t + 1], c = 3 * tris[t + 2];
-    const ux = rpos[bb] - rpos[a], uy = rpos[bb + 1] - rpos[a + 1], uz = rpos[bb + 2] - rpos[a + 2];
-    const vx = rpos[c] - rpos[a], vy = rpos[c + 1] - rpos[a + 1], vz = rpos[c + 2] - rpos[a + 2];
-    const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
-    for (const k of [a, bb, c]) { nrm[k] += nx; nrm[k + 1] += ny; nrm[k + 2] += nz; }
+    for (let i = 0; i < b.r; i++) b.q32[i] = b.q[i];
+    gl.activeTexture(gl.TEXTURE2); gl.bindTexture(gl.TEXTURE_2D, b.texQ);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, b.r, 1, gl.RED, gl.FLOAT, b.q32);
+    peak = 0;
+    for (let i = 0; i < b.r; i++) peak += Math.abs(b.q[i]) * b.peak[i];
+    b.curStale = true;  // picking computes the surface on the CPU only when it needs it
+  } else {
+    cpuPositions(b);
+    peak = renderVertices(b);
+    b.buffersDeformed = true;
+    for (const [buffer, data] of [[b.bufPos, b.rpos], [b.bufNrm, b.nrm], [b.bufDisp, b.disp]]) {
+      gl.bindBuffer(gl.ARRAY_BUFFER, buffer); gl.bufferSubData(gl.ARRAY_BUFFER, 0, data);
+    }
   }
   // colour scale: the largest displacement of the last second or so (peak hold with a slow decay)
   b.dispRef = Math.max(peak, 0.97 * (b.dispRef || 0), 1e-4 * b.size);
-  for (const [buffer, data] of [[b.bufPos, rpos], [b.bufNrm, nrm], [b.bufDisp, disp]]) {
-    gl.bindBuffer(gl.ARRAY_BUFFER, buffer); gl.bufferSubData(gl.ARRAY_BUFFER, 0, data);
-  }
   b.stale = false;
   V.deforms++; V.deformMs += performance.now() - t0;
 }
@@ -199,6 +286,7 @@ function pick(px, py) {  // canvas pixel -> nearest hit {body, triangle, barycen
   const dir = norm([0, 1, 2].map((c) => f[c] + sx * right[c] + sy * up[c]));
   let best = null;
   for (const [bi, b] of V.bodies.entries()) {
+    if (b.curStale) { cpuPositions(b); b.curStale = false; }
     const M = quatMatrix(b.pose), o = toBody(M, e, true), d = toBody(M, dir, false), x = b.cur;
     for (let k = 0; k < b.nt; k++) {  // Moller-Trumbore
       const i0 = 3 * b.tris[3 * k], i1 = 3 * b.tris[3 * k + 1], i2 = 3 * b.tris[3 * k + 2];
@@ -341,6 +429,12 @@ function draw() {
     gl.uniformMatrix4fv(V.loc.uModel, false, quatMatrix(b.pose));
     gl.uniform3fv(V.loc.uColor, b.head.color);
     gl.uniform1f(V.loc.uDispScale, 1 / b.dispRef);
+    const gpu = b.gpu && !b.positions;
+    gl.uniform1i(V.loc.uModes, gpu ? b.r : 0);
+    gl.uniform1i(V.loc.uCount, b.nr); gl.uniform1i(V.loc.uWidth, gpu ? b.texWidth : 1);
+    for (const [unit, tex] of [[0, gpu ? b.texShapes : V.dummy3], [1, gpu ? b.texDNrm : V.dummy3], [2, gpu ? b.texQ : V.dummy1]]) {
+      gl.activeTexture(gl.TEXTURE0 + unit); gl.bindTexture(gl.TEXTURE_2D, tex);
+    }
     gl.bindVertexArray(b.vao);
     gl.drawElements(gl.TRIANGLES, 3 * b.nt, gl.UNSIGNED_INT, 0);
   }
@@ -359,7 +453,12 @@ async function main() {
   for (const [i, name] of ["aPos", "aNrm", "aDisp"].entries()) gl.bindAttribLocation(V.prog, i, name);
   gl.linkProgram(V.prog);
   V.loc = {};
-  for (const u of ["uModel", "uView", "uProj", "uEye", "uColor", "uDispScale"]) V.loc[u] = gl.getUniformLocation(V.prog, u);
+  for (const u of ["uModel", "uView", "uProj", "uEye", "uColor", "uDispScale", "uShapes", "uDNrm", "uQ", "uModes",
+    "uCount", "uWidth"]) V.loc[u] = gl.getUniformLocation(V.prog, u);
+  gl.useProgram(V.prog);
+  gl.uniform1i(V.loc.uShapes, 0); gl.uniform1i(V.loc.uDNrm, 1); gl.uniform1i(V.loc.uQ, 2);
+  V.dummy3 = texture(0, gl.RGB32F, gl.RGB, 1, 1, new Float32Array(3));  // bound for bodies drawn without modes
+  V.dummy1 = texture(2, gl.R32F, gl.RED, 1, 1, new Float32Array(1));
   for (const head of scene.bodies) {
     const buf = await (await fetch(`/body/${head.id}`)).arrayBuffer();
     V.bodies.push(makeBody(head, buf));
