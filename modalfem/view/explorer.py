@@ -79,6 +79,7 @@ class ModeExplorer:
         self.mode, self.amplitude, self.animate = int(mode) - 1, float(amplitude), bool(animate)
         self.q, self.qdot = np.zeros(r), np.zeros(r)
         self.sim_time, self.strikes, self._gain = 0.0, 0, 0.0
+        self._sent: np.ndarray | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -90,7 +91,8 @@ class ModeExplorer:
         hz = model.frequencies_hz
         self.viewer.add_select("mode", self.select_mode, options=[f"{i + 1}: {f:.6g} Hz" for i, f in enumerate(hz)],
                                value=self.mode, label="mode")
-        self.viewer.add_slider("amplitude", self.set_amplitude, minimum=0.0, maximum=0.2, value=self.amplitude,
+        self.viewer.add_slider("amplitude", self.set_amplitude, minimum=0.0, maximum=max(0.2, self.amplitude),
+                               value=self.amplitude,
                                step=0.005, label="amplitude (of size)")
         self.viewer.add_checkbox("animate", self.set_animate, value=self.animate, label="animate")
         self.viewer.add_button("rest", self.rest, label="stop ringing")
@@ -178,7 +180,10 @@ class ModeExplorer:
         with self._lock:
             self._integrator.step(self.q, self.qdot, None, dt, q_out=self.q, qdot_out=self.qdot)
             self.sim_time += dt
-        self.viewer.update(0, q=self.shown_q(wall_time), time_s=self.sim_time)
+        q = self.shown_q(wall_time)
+        if self._sent is None or not np.array_equal(q, self._sent):  # a still picture sends nothing
+            self.viewer.update(0, q=q, time_s=self.sim_time)
+            self._sent = q
 
     def _show_status(self) -> None:
         i = self.mode
