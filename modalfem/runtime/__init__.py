@@ -1,7 +1,7 @@
-"""Real-time modal runtime (numpy only): exact per-mode integration, rigid body, impulses, contact.
+"""Real-time modal runtime (numpy, numba): exact per-mode integration, rigid body, impulses, contact.
 
-Importing ``modalfem.runtime`` loads numpy and the standard library only (no scipy, scikit-fem,
-dolfinx or petsc4py; a test checks it). SI units throughout.
+Importing ``modalfem.runtime`` loads numpy, numba (the compiled contact kernels) and the standard library
+only (no scipy, scikit-fem, dolfinx or petsc4py; a test checks it). SI units throughout.
 
 API (stable)::
 
@@ -38,13 +38,15 @@ For sound: modal state ``state.q``/``state.qdot`` with ``body.omega`` [rad/s] an
 Pieces: ``integrator`` (exact oscillator steps, ``transition``), ``rotation`` (quaternions, free
 rigid rotation), ``body`` (``ModalBody``, ``SurfacePoint``, ``load``), ``state`` (``State``,
 ``Control``), ``solver`` (``ModalSolver``, ``Loads``), ``effects`` (``Gravity``, ``Wind``, ``PseudoForces``,
-``RotationCoupling``), ``contact`` (``Plane``, ``Ground``, ``Sphere``, ``Box``, ``Obstacles``,
-``Contacts``). Errors: ``SimulationError`` (dt <= 0, NaN impulse, point off the surface),
+``RotationCoupling``), ``obstacles`` (``Plane``, ``Ground``, ``Sphere``, ``Box``, ``Obstacles``), ``contact``
+(``Contacts``; compiled kernels in ``_contact_kernels``), ``pairs`` (contact between modal bodies).
+Errors: ``SimulationError`` (dt <= 0, NaN impulse, point off the surface),
 ``ModelFileError`` (bad or newer model file), ``InputError`` (bad effect parameters).
 """
 
 from modalfem.runtime.body import ModalBody, SurfacePoint, load
-from modalfem.runtime.contact import Box, Contacts, Ground, Obstacles, Plane, Sphere
+from modalfem.runtime.contact import Contacts
+from modalfem.runtime.obstacles import Box, Ground, Obstacles, Plane, Sphere
 from modalfem.runtime.effects import Gravity, PseudoForces, RotationCoupling, Wind
 from modalfem.runtime.integrator import ModalIntegrator, transition
 from modalfem.runtime.solver import Loads, ModalSolver

@@ -1,4 +1,4 @@
-"""Contact of the surface vertices with static obstacles: plane (ground), sphere, box.
+"""Contact of the surface vertices with static obstacles (plane / ground, sphere, box; ``runtime.obstacles``).
 
 ``Obstacles([...])`` is an opt-in effect; ``ModalSolver.collide`` turns it into ``Contacts`` (the
 vertices within a margin of an obstacle, with gap [m] and obstacle normal), and the step
@@ -15,16 +15,22 @@ distance v0^2 / (2 mu g)):
   a sub-step in which friction stops the sliding is shortened to the stopping instant;
 * the velocity of a contact vertex is that of the flexible body, ``v + w x r + R Phi_j qdot``
   (the modal part only with ``modal=True``), and its response to contact impulses is the flexible
-  one: the Delassus matrix of a contact pair (i, j) is the rigid ``I / m - [r_i]x Iw^-1 [r_j]x``
-  plus, with ``modal=True``, the modal ``R Phi_i Phi_j^T R^T`` (mass-normalised modes: unit modal
-  masses). The impulses then change v, L and qdot consistently with what the solve saw, so hits
-  make the body ring with energy taken from the impact, never from nowhere;
+  one. The solve is matrix-free sequential impulses in generalised velocity space V = (v, w, qdot)
+  (compiled, ``runtime._contact_kernels``): each contact's Jacobian rows ``J_i = [I, -[r_i]x, R Phi_i]``
+  (3 x (6 + r)) are formed once per solve, an impulse changes V by ``W J_i^T delta`` with
+  ``W = diag(I/m, Iw^-1, I_r)`` (mass-normalised modes), so a sweep costs O(6 + r) per contact and no
+  contacts x contacts matrix is formed. The impulses change v, L and qdot consistently with what the
+  solve saw, so hits make the body ring with energy taken from the impact, never from nowhere;
 * no contact solve adds kinetic energy: a Gauss-Seidel update towards a target <= 0 only removes
   energy, a bounce target is ``-e`` times the approach, and a solve that would still add some
   (restitution near 1 with mixed bouncing and resting contacts, truncated sweeps, friction) is
   scaled back to the largest multiple of its impulses that does not (``resolve_contacts``);
 * friction: the tangential impulse along the sliding velocity that stops it, accumulated per contact
   and clamped to the Coulomb disc ``|jt| <= friction * jn`` (sliding friction opposes sliding).
+
+Contact finding is compiled too and does not reconstruct the whole surface: the rigid positions
+``c + R X_j`` are tested against each obstacle with the margin grown by a bound of the deformation
+(``sqrt(3) sum_i |q_i| max |Phi_i|``), and only those candidates get their exact deformed positions.
 
 After the step, vertices left inside an obstacle (impact times are predicted without the rotation and
 the modes) are pushed out by translating the body along the obstacle normal, so no vertex ends
@@ -34,9 +40,8 @@ Energy guard: impact times are predicted without the rotation and the modes, and
 too slow to pay for its lift costs energy; both shrink with the step. With gravity as the only load,
 ``ModalSolver.step`` therefore redoes a contact step that ends with more kinetic + modal + gravitational
 energy than it began with (beyond 1e-10 of the step's energy scale) as two half steps, at most 10
-halvings deep (a tumbling flexible steel block with e = 1 gained up to 1.5e-4 of its energy in one
-10 ms step before; now <= 1e-8, rounding). With other loads (wind, point forces, pseudo-forces) the
-energy is not conserved by the loads themselves and no guard applies.
+halvings deep. With other loads (wind, point forces, pseudo-forces) the energy is not conserved by the
+loads themselves and no guard applies.
 
 Bounce of a flexible body. An impulse acts on the mass-normalised modes through the mode shapes
 alone: the instantaneous modal compliance at a vertex, ``|Phi_j^T n|^2`` [1/kg], does not depend on
@@ -54,135 +59,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modalfem.errors import InputError
+from modalfem.runtime.body import NEGLIGIBLE
 from modalfem.runtime.state import restore, snapshot
 
 __all__ = [
-    "Box",
     "Contacts",
-    "merge_contacts",
-    "Ground",
-    "Obstacles",
-    "Plane",
-    "Sphere",
-    "find_contacts",
     "MAX_EVENTS",
+    "find_contacts",
+    "merge_contacts",
     "normal_velocities",
     "push_out",
     "resolve_contacts",
     "step_with_contacts",
 ]
-
-
-def _vec(name, v, n=3) -> np.ndarray:
-    a = np.asarray(v, dtype=np.float64).reshape(-1)
-    if a.shape != (n,) or not np.all(np.isfinite(a)):
-        raise InputError(f"{name} must be a finite {n}-vector, got {v!r}")
-    return a
-
-
-class Plane:
-    """Half-space ``n . x >= offset`` is free; the body must stay on the side ``n`` points to.
-
-    Args:
-        normal: (3,) outward normal of the obstacle surface (normalised here).
-        point: (3,) a point of the plane [m].
-    """
-
-    def __init__(self, normal=(0.0, 0.0, 1.0), point=(0.0, 0.0, 0.0)) -> None:
-        n = _vec("plane normal", normal)
-        if not np.linalg.norm(n) > 0:
-            raise InputError("plane normal must be non-zero")
-        self.normal = n / np.linalg.norm(n)
-        self.offset = float(self.normal @ _vec("plane point", point))
-
-    def signed_distance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gap (n,) [m] (negative inside) and outward normal (n, 3) at points x (n, 3) [m]."""
-        return x @ self.normal - self.offset, np.broadcast_to(self.normal, x.shape)
-
-
-class Ground(Plane):
-    """Horizontal ground plane z = height [m] (normal +z)."""
-
-    def __init__(self, height: float = 0.0) -> None:
-        super().__init__((0.0, 0.0, 1.0), (0.0, 0.0, float(height)))
-
-
-class Sphere:
-    """Solid sphere obstacle: center (3,) [m], radius [m] > 0."""
-
-    def __init__(self, center, radius: float) -> None:
-        self.center = _vec("sphere center", center)
-        self.radius = float(radius)
-        if not self.radius > 0:
-            raise InputError(f"sphere radius must be > 0 [m], got {radius!r}")
-
-    def signed_distance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = x - self.center
-        r = np.sqrt(np.einsum("ij,ij->i", d, d))
-        n = d / np.where(r > 0, r, 1.0)[:, None]
-        n[r == 0] = (0.0, 0.0, 1.0)
-        return r - self.radius, n
-
-
-class Box:
-    """Solid box obstacle: center (3,) [m], half extents (3,) [m] > 0, rotation (3, 3) box -> world."""
-
-    def __init__(self, center, half_extents, rotation=None) -> None:
-        self.center = _vec("box center", center)
-        self.half = _vec("box half extents", half_extents)
-        if np.any(self.half <= 0):
-            raise InputError(f"box half extents must be > 0 [m], got {self.half.tolist()}")
-        self.rotation = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64).reshape(3, 3)
-
-    def signed_distance(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        p = (x - self.center) @ self.rotation  # box axes
-        q = np.abs(p) - self.half
-        sign = np.where(p < 0, -1.0, 1.0)
-        outside = np.maximum(q, 0.0)
-        dout = np.sqrt(np.einsum("ij,ij->i", outside, outside))
-        inside = dout == 0
-        gap = np.where(inside, q.max(axis=1), dout)
-        n_local = np.where(inside[:, None], 0.0, sign * outside / np.where(dout > 0, dout, 1.0)[:, None])
-        k = np.argmax(q, axis=1)
-        rows = np.flatnonzero(inside)
-        n_local[rows, k[rows]] = sign[rows, k[rows]]
-        return gap, n_local @ self.rotation.T
-
-
-class Obstacles:
-    """Opt-in contact effect: static obstacles touched by the surface vertices.
-
-    Args:
-        obstacles: list of ``Plane`` / ``Ground`` / ``Sphere`` / ``Box``.
-        restitution: coefficient of restitution e in [0, 1].
-        friction: Coulomb coefficient >= 0.
-        iterations: sequential-impulse sweeps over the simultaneous contacts.
-        margin: contacts are gathered within this distance [m] (plus what the body travels in dt).
-        bounce_threshold: impacts slower than this [m/s] do not bounce (resting contact).
-        modal: include the modes in the contact response (impacts excite vibration).
-    """
-
-    def __init__(self, obstacles, *, restitution: float = 0.3, friction: float = 0.5, iterations: int = 10,
-                 margin: float = 1e-3, bounce_threshold: float = 0.05, modal: bool = True) -> None:
-        self.obstacles = list(obstacles)
-        if not self.obstacles or not all(hasattr(o, "signed_distance") for o in self.obstacles):
-            raise InputError("Obstacles needs a non-empty list of Plane/Ground/Sphere/Box")
-        if not 0.0 <= restitution <= 1.0:
-            raise InputError(f"restitution must be in [0, 1], got {restitution!r}")
-        if not friction >= 0.0:
-            raise InputError(f"friction must be >= 0, got {friction!r}")
-        if int(iterations) < 1:
-            raise InputError(f"iterations must be >= 1, got {iterations!r}")
-        if not (np.isfinite(margin) and margin > 0.0):
-            raise InputError(f"margin must be finite and > 0 [m], got {margin!r}")
-        if not (np.isfinite(bounce_threshold) and bounce_threshold >= 0.0):
-            raise InputError(f"bounce_threshold must be finite and >= 0 [m/s], got {bounce_threshold!r}")
-        if not np.isfinite(friction):
-            raise InputError(f"friction must be finite, got {friction!r}")
-        self.restitution, self.friction = float(restitution), float(friction)
-        self.iterations, self.margin = int(iterations), float(margin)
-        self.bounce_threshold, self.modal = float(bounce_threshold), bool(modal)
 
 
 @dataclass
@@ -228,38 +117,106 @@ class Contacts:
                         impulses=c(self.impulses), obstacle=c(self.obstacle), tangential=c(self.tangential))
 
 
+# ---------------------------------------------------------------------------------------- step record
 def merge_contacts(into: Contacts, earlier: Contacts) -> None:
     """Fold the step record ``earlier`` (an earlier part of the same step) into ``into`` in place: one entry
     per (vertex, effect, obstacle), normal impulses [N s] summed, normal and gap of the later part."""
-    record: dict = {}
+    record: list = []
     for part in (earlier, into):
         if part.impulses is not None and part.obstacle is not None:
             _accumulate(record, part, part.gap)
     _write_record(into, record)
 
 
-def _accumulate(record: dict, c: Contacts, gap) -> None:
+def _accumulate(record: list, c: Contacts, gap) -> None:
     """Add the contacts of ``c`` that pushed (impulse > 0) to a step record (see ``_write_record``)."""
-    for i in np.flatnonzero(c.impulses > 0.0):
-        key = (int(c.vertex[i]), int(c.effect[i]), int(c.obstacle[i]))
-        prev = record.get(key)
-        record[key] = (c.normal[i], gap[i], (0.0 if prev is None else prev[2]) + float(c.impulses[i]))
+    sel = c.impulses > 0.0
+    if sel.any():
+        record.append((c.vertex[sel], c.effect[sel], c.obstacle[sel], c.normal[sel], np.asarray(gap)[sel],
+                       c.impulses[sel]))
 
 
-def _write_record(contacts: Contacts, record: dict) -> None:
-    """Set ``contacts`` to a step record {(vertex, effect, obstacle): (normal, gap, total impulse [N s])}."""
-    keys = list(record)
-    contacts.vertex = np.array([k[0] for k in keys], dtype=np.int64)
-    contacts.effect = np.array([k[1] for k in keys], dtype=np.int64)
-    contacts.obstacle = np.array([k[2] for k in keys], dtype=np.int64)
-    contacts.normal = np.array([record[k][0] for k in keys], dtype=np.float64).reshape(-1, 3)
-    contacts.gap = np.array([record[k][1] for k in keys], dtype=np.float64)
-    contacts.impulses = np.array([record[k][2] for k in keys], dtype=np.float64)
+def _write_record(contacts: Contacts, record: list) -> None:
+    """Set ``contacts`` to a step record: the parts (vertex, effect, obstacle, normal, gap, impulse) merged
+    to one entry per (vertex, effect, obstacle) in order of first appearance, impulses [N s] summed,
+    normal and gap of the last appearance."""
     contacts.tangential = None
+    if not record:
+        contacts.vertex = np.zeros(0, dtype=np.int64)
+        contacts.effect = np.zeros(0, dtype=np.int64)
+        contacts.obstacle = np.zeros(0, dtype=np.int64)
+        contacts.normal, contacts.gap, contacts.impulses = np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+        return
+    v, e, o, n, g, j = (np.concatenate([p[i] for p in record]) for i in range(6))
+    v, e, o = v.astype(np.int64), e.astype(np.int64), o.astype(np.int64)
+    key = (v * (int(e.max()) + 1) + e) * (int(o.max()) + 1) + o
+    if len(record) == 1 and len(np.unique(key)) == len(key):
+        first, inv = np.arange(len(key)), np.arange(len(key))
+    else:
+        _, first, inv = np.unique(key, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")  # groups by first appearance
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    slot = rank[inv.reshape(-1)]
+    last = np.empty(len(order), dtype=np.int64)
+    last[slot] = np.arange(len(key))  # later parts overwrite earlier ones
+    contacts.vertex, contacts.effect, contacts.obstacle = v[last], e[last], o[last]
+    contacts.normal, contacts.gap = n[last].reshape(-1, 3), g[last]
+    contacts.impulses = np.bincount(slot, weights=j, minlength=len(order))
 
 
-def _positions64(body, state) -> np.ndarray:
-    return body.positions(state, precise=True)
+# ---------------------------------------------------------------------------------------- geometry
+class _Plan:
+    """The obstacles of a list of ``Obstacles`` effects flattened for the kernels (one entry per obstacle)."""
+
+    def __init__(self, effects) -> None:
+        self.effects = tuple(effects)
+        self.kinds = np.concatenate([e.kinds for e in effects])
+        self.params = np.ascontiguousarray(np.concatenate([e.params for e in effects]))
+        counts = [len(e.kinds) for e in effects]
+        self.first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)  # per effect
+        self.effect = np.repeat(np.arange(len(effects)), counts)  # per obstacle
+        self.obstacle = np.concatenate([np.arange(c) for c in counts])
+        self.margin = np.repeat([e.margin for e in effects], counts).astype(np.float64)
+        self.restitution = np.array([e.restitution for e in effects])  # per effect
+        self.friction = np.array([e.friction for e in effects])
+        self.threshold = np.array([e.bounce_threshold for e in effects])
+        self.modal = np.array([e.modal for e in effects], dtype=bool)
+        self.iterations = max(e.iterations for e in effects)
+
+
+_PLANS: dict = {}
+
+
+def _plan(effects) -> _Plan:
+    key = tuple(id(e) for e in effects)
+    p = _PLANS.get(key)
+    if p is None or any(a is not b for a, b in zip(p.effects, effects)):
+        if len(_PLANS) > 64:
+            _PLANS.clear()
+        p = _PLANS[key] = _Plan(effects)
+    return p
+
+
+def _skip(body, q: np.ndarray) -> np.ndarray:
+    """Modes whose contribution is negligible (as in ``ModalBody.positions``)."""
+    return np.abs(q) * body._row_scale[:-1] < NEGLIGIBLE
+
+
+def deformation_bound(body, q: np.ndarray) -> float:
+    """An upper bound [m] of every vertex's deformation ``|Phi_j q|`` (plus rounding slack)."""
+    return float(np.sqrt(3.0) * (np.abs(q) @ body._row_scale[:-1])) * (1.0 + 1e-6) + 1e-12 * (1.0 + body.radius)
+
+
+def local_positions(body, q: np.ndarray, vertex: np.ndarray) -> np.ndarray:
+    """Deformed positions ``X_j + Phi_j q`` (k, 3) [m] of vertices in body axes (float64)."""
+    from modalfem.runtime import _contact_kernels as K
+    return K.local_positions(vertex, body.rest, body._modes3, q, _skip(body, q))
+
+
+def _world(body, state, vertex: np.ndarray, R: np.ndarray) -> np.ndarray:
+    from modalfem.runtime import _contact_kernels as K
+    return K.world_positions(local_positions(body, state.q, vertex), R, state.position)
 
 
 def find_contacts(solver, state, effects, dt=None, *, accel=None) -> Contacts:
@@ -273,86 +230,82 @@ def find_contacts(solver, state, effects, dt=None, *, accel=None) -> Contacts:
         accel: acceleration of the centre of mass from the loads (3,) [m/s^2] or None; widens the
             margin by |a| dt^2 (twice the distance it adds over dt).
     """
+    from modalfem.runtime import _contact_kernels as K
     body = solver.body
-    x = _positions64(body, state)
-    speed = float(np.linalg.norm(state.velocity) + np.linalg.norm(body.angular_velocity(state)) * body.radius)
+    plan = _plan(effects)
+    R = state.rotation()
     reach = 0.0
     if dt is not None:
+        w = R @ (body.inertia_inv @ (R.T @ state.angular_momentum))
+        speed = float(np.sqrt(state.velocity @ state.velocity) + np.sqrt(w @ w) * body.radius)
         reach = 2.0 * speed * float(dt)
         if accel is not None:
-            reach += float(np.linalg.norm(accel)) * float(dt) ** 2
-    vs, ns, gs, es, os_ = [], [], [], [], []
-    for ei, eff in enumerate(effects):
-        margin = eff.margin + reach
-        for oi, ob in enumerate(eff.obstacles):
-            gap, n = ob.signed_distance(x)
-            sel = np.flatnonzero(gap < margin)
-            vs.append(sel)
-            ns.append(np.asarray(n)[sel])
-            gs.append(gap[sel])
-            es.append(np.full(len(sel), ei))
-            os_.append(np.full(len(sel), oi))
-    return Contacts(np.concatenate(vs), np.concatenate(ns).reshape(-1, 3), np.concatenate(gs),
-                    np.concatenate(es), list(effects), obstacle=np.concatenate(os_))
+            reach += float(np.sqrt(accel @ accel)) * float(dt) ** 2
+    margin = plan.margin + reach
+    vs, og = K.candidates(plan.kinds, plan.params, body.rest, R, state.position, deformation_bound(body, state.q),
+                          margin)
+    gap, nrm = K.gaps_of(_world(body, state, vs, R), og, plan.kinds, plan.params)
+    sel = gap < margin[og]
+    og = og[sel]
+    return Contacts(vs[sel], nrm[sel], gap[sel], plan.effect[og], list(effects), obstacle=plan.obstacle[og])
 
 
-def _skew(r: np.ndarray) -> np.ndarray:
-    """Cross-product matrices (k, 3, 3) of vectors r (k, 3)."""
-    S = np.zeros(r.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -r[..., 2], r[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = r[..., 2], -r[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -r[..., 1], r[..., 0]
-    return S
+def _gaps(effects, contacts: Contacts, body, state):
+    """Gaps (k,) [m] and normals (k, 3) of the contact vertices at ``state`` against the obstacle each
+    contact belongs to."""
+    from modalfem.runtime import _contact_kernels as K
+    plan = _plan(effects)
+    x = _world(body, state, contacts.vertex, state.rotation())
+    return K.gaps_of(x, plan.first[contacts.effect] + contacts.obstacle, plan.kinds, plan.params)
 
 
-def _jacobian(solver, state, contacts: Contacts):
-    """Contact-space operators of the flexible body: (Jac (3k, 6 + nm), JW (3k, 6 + nm), A (3k, 3k),
-    V (6 + nm,), R, nm); see ``resolve_contacts``."""
+def _system(solver, state, contacts: Contacts):
+    """Contact rows of one body: (J, WJ (k, 3, m), V (m,), R, Iw_inv, nm), m = 6 + nm."""
+    from modalfem.runtime import _contact_kernels as K
     body = solver.body
     k = contacts.count
     R = state.rotation()
     Iw_inv = R @ body.inertia_inv @ R.T
-    j = contacts.vertex
-    phi = body.vertex_shapes(j)  # (k, 3, r) body axes
-    r = (body.rest[j] + np.einsum("kcr,r->kc", phi, state.q)) @ R.T  # (k, 3) world, from the centre of mass
-    modal = np.array([contacts.effects[e].modal for e in contacts.effect], dtype=bool)
+    plan = _plan(contacts.effects)
+    modal = plan.modal[contacts.effect]
     nm = body.mode_count if modal.any() else 0
-    Jac = np.zeros((k, 3, 6 + nm))
-    Jac[:, :, 0:3] = np.eye(3)
-    Jac[:, :, 3:6] = -_skew(r)  # w x r = -[r]x w
-    if nm:
-        Jac[modal, :, 6:] = np.einsum("ab,kbr->kar", R, phi[modal])  # R Phi_j: modal velocity of the vertex
-    Jac = Jac.reshape(3 * k, 6 + nm)
-    JW = Jac.copy()  # J W with W = diag(I/m, Iw^-1, I_r)
-    JW[:, 0:3] /= body.mass
-    JW[:, 3:6] = Jac[:, 3:6] @ Iw_inv
-    A = JW @ Jac.T  # (3k, 3k)
+    m = 6 + nm
+    J = np.empty((k, 3, m))
+    WJ = np.empty((k, 3, m))
+    K.rows(contacts.vertex, local_positions(body, state.q, contacts.vertex), modal, body._modes3, R, body.mass,
+           Iw_inv, m, J, WJ, np.arange(k))
     V = np.concatenate([state.velocity, Iw_inv @ state.angular_momentum, state.qdot[:nm]])
-    return Jac, JW, A, V, R, nm
+    return J, WJ, V, R, Iw_inv, nm
+
+
+_ONE = np.zeros(1, dtype=np.int64)
 
 
 def normal_velocities(solver, state, contacts: Contacts) -> np.ndarray:
     """Normal velocities (k,) [m/s] of the contact vertices (flexible: with the modal part where the
     contact's effect is ``modal``); negative = approaching the obstacle."""
-    if contacts.count == 0:
+    from modalfem.runtime import _contact_kernels as K
+    k = contacts.count
+    if k == 0:
         return np.zeros(0)
-    Jac, _, _, V, _, _ = _jacobian(solver, state, contacts)
-    return np.einsum("ka,ka->k", contacts.normal, (Jac @ V).reshape(-1, 3))
+    J, _, V, _, _, nm = _system(solver, state, contacts)
+    zeros = np.zeros(k, dtype=np.int64)
+    u = K.contact_velocities(zeros, zeros - 1, J, J, V, _ONE, np.array([6 + nm]))
+    return np.einsum("ka,ka->k", contacts.normal, u)
 
 
 def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None, sustained: bool = False) -> None:
     """Sequential impulses over all contacts (in place on ``state``); see the module docstring.
 
-    Works in contact space. The generalised velocities are V = (v, w, qdot) [m/s, rad/s,
-    sqrt(kg) m/s] with the kinetic energy 0.5 V^T W^-1 V, W = diag(I/m, Iw^-1, I_r) (mass-normalised
-    modes). The world velocity of contact vertex j is ``u_j = v + w x r_j + R Phi_j qdot`` = J_j V
-    (the modal column only for ``modal`` obstacles) and the response to contact impulses lambda
-    (3k,) [N s] is u = u0 + A lambda with the Delassus matrix A = J W J^T (3k, 3k): the rigid
-    compliance ``I/m - [r_i]x Iw^-1 [r_j]x`` plus the modal one ``R Phi_i Phi_j^T R^T`` per contact
-    pair. The impulses change V by W J^T lambda, i.e. v, L and qdot consistently with the
-    velocities the solve saw. The kinetic energy changes by ``lambda . u0 + 0.5 lambda . A lambda``;
-    should an unconverged or frictional solve make that positive, lambda is scaled down to the
-    largest multiple that does not add energy, so no contact solve adds energy.
+    Works in generalised velocity space. V = (v, w, qdot) [m/s, rad/s, sqrt(kg) m/s] with the kinetic
+    energy 0.5 V^T W^-1 V, W = diag(I/m, Iw^-1, I_r) (mass-normalised modes). The world velocity of
+    contact vertex j is ``u_j = v + w x r_j + R Phi_j qdot`` = J_j V (the modal columns only for
+    ``modal`` obstacles); an impulse lambda_j (3,) [N s] changes V by ``W J_j^T lambda_j``, i.e. v, L and
+    qdot consistently with the velocities the solve saw (the contacts couple through V: the Delassus
+    operator ``J W J^T`` is never formed). The kinetic energy changes by
+    ``dV^T W^-1 V0 + 0.5 dV^T W^-1 dV``; should an unconverged or frictional solve make that positive,
+    the impulses are scaled down to the largest multiple that does not add energy, so no contact solve
+    adds energy.
 
     Two kinds of solve:
 
@@ -376,83 +329,52 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None
         accel: (3,) [m/s^2] load acceleration of the centre of mass (sustained solves).
         sustained: the solve kind (see above).
     """
+    from modalfem.runtime import _contact_kernels as K
     k = contacts.count
     contacts.impulses = np.zeros(k)
     contacts.tangential = np.zeros((k, 3))
     if k == 0:
         return
     body = solver.body
-    Jac, JW, A, V, R, nm = _jacobian(solver, state, contacts)
-    u = Jac @ V
-    u_now = u.copy()  # the actual velocities: the energy check uses them
-    n = np.ascontiguousarray(contacts.normal)
-    u3 = u.reshape(k, 3)
+    J, WJ, V, R, Iw_inv, nm = _system(solver, state, contacts)
+    plan = _plan(contacts.effects)
+    n = np.ascontiguousarray(contacts.normal, dtype=np.float64)
     gap = contacts.gap
-    effs = [contacts.effects[i] for i in contacts.effect]
-    e = np.array([f.restitution for f in effs])
-    mu = np.array([f.friction for f in effs])
-    thr = np.array([f.bounce_threshold for f in effs])
-    iters = max(f.iterations for f in effs)
+    mu = plan.friction[contacts.effect]
+    zeros = np.zeros(k, dtype=np.int64)
+    msz = np.array([6 + nm])
+    shift = np.zeros((k, 3))
     if sustained:
         a = np.zeros(3) if accel is None else np.asarray(accel, dtype=np.float64)
-        u3 += 0.5 * dt * a  # predicted end-of-step velocities without contact (u3 is a view of u)
-        an = n @ a
-        target = 0.25 * dt * an - 2.0 * gap / dt
+        shift[:] = 0.5 * dt * a  # predicted end-of-step velocities without contact
+        target = 0.25 * dt * (n @ a) - 2.0 * gap / dt
     else:
-        vn0 = np.einsum("ka,ka->k", n, u3)
+        u = K.contact_velocities(zeros, zeros - 1, J, J, V, _ONE, msz)
+        vn0 = np.einsum("ka,ka->k", n, u)
+        e = plan.restitution[contacts.effect]
+        thr = plan.threshold[contacts.effect]
         target = np.where(gap > 0, -gap / dt, 0.0)
         bounce = (vn0 < -thr) & (e > 0)
         target = np.where(bounce, np.maximum(target, -e * vn0), target)
-    u0 = u.copy()
-    blocks = A.reshape(3 * k, k, 3)
-    Akk = A.reshape(k, 3, k, 3)[np.arange(k), :, np.arange(k), :]  # (k, 3, 3) diagonal blocks
-    Wn = np.einsum("ka,kab,kb->k", n, Akk, n)
-    lam_n = np.zeros(k)
-    lam = np.zeros((k, 3))  # total contact impulse per contact (world)
+    V0 = V.copy()
+    lam = np.zeros((k, 3))
     jt = np.zeros((k, 3))
-    for _ in range(iters):
-        change = 0.0
-        for i in range(k):
-            ni = n[i]
-            vn = ni @ u3[i]
-            new = lam_n[i] + (target[i] - vn) / Wn[i]
-            new = max(0.0, new)
-            d = new - lam_n[i]
-            delta = d * ni
-            lam_n[i] = new
-            if mu[i] > 0.0:
-                ui = u3[i] + Akk[i] @ delta
-                ut = ui - ni * (ni @ ui)
-                speed = np.sqrt(ut @ ut)
-                cand = jt[i]
-                if speed > 0.0:  # impulse along -ut stopping the sliding (scalar effective mass)
-                    t = ut / speed
-                    cand = cand - (speed / (t @ Akk[i] @ t)) * t
-                lim = mu[i] * new
-                norm = np.sqrt(cand @ cand)
-                if norm > lim:
-                    cand *= lim / norm
-                delta = delta + (cand - jt[i])
-                jt[i] = cand
-            if delta.any():
-                lam[i] += delta
-                u += blocks[:, i, :] @ delta
-                change = max(change, float(np.abs(delta).max()))
-        if change <= 1e-12 * float(np.abs(lam).max()):  # converged: a sweep changed nothing that matters
-            break
-    flat = lam.reshape(-1)
-    work = float(flat @ u_now)  # lambda . u [J], u the actual velocities at this instant
-    quad = float(flat @ (u - u0))  # lambda . A lambda [J] (u - u0 = A lambda)
+    lam_n = np.zeros(k)
+    K.solve(zeros, zeros - 1, J, WJ, J, WJ, V, _ONE, msz, n, np.ascontiguousarray(target), mu, shift,
+            plan.iterations, lam, jt, lam_n)
+    dV = V - V0
+    Iw = R @ body.inertia @ R.T
+    dv, dw, dq = dV[0:3], dV[3:6], dV[6:]
+    # energy change of V0 -> V0 + s dV: s work + 0.5 s^2 quad (work = lambda . u_now, quad = lambda . A lambda)
+    work = float(body.mass * (dv @ state.velocity) + dw @ state.angular_momentum + dq @ state.qdot[:nm])
+    quad = float(body.mass * (dv @ dv) + dw @ (Iw @ dw) + dq @ dq)
     if work + 0.5 * quad > 1e-12 * quad:  # would add energy: keep the largest share that does not
-        # lambda -> s lambda changes the energy by s work + 0.5 s^2 quad: zero at s = -2 work / quad
         scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
-        lam *= scale
+        dV *= scale
         lam_n *= scale
         jt *= scale
-        flat = lam.reshape(-1)
-    dV = JW.T @ flat
     state.velocity += dV[0:3]
-    state.angular_momentum += R @ (body.inertia @ (R.T @ dV[3:6]))
+    state.angular_momentum += Iw @ dV[3:6]
     if nm:  # the same impulses move the modes: qdot += sum_i phi_i^T R^T lambda_i
         state.qdot += dV[6:]
     contacts.impulses = lam_n
@@ -504,21 +426,6 @@ def _crossings(gap, vn, an, thr, horizon):
     return t_fast, j, t_slow
 
 
-def _gaps(effects, contacts: Contacts, x: np.ndarray):
-    """Gaps (k,) [m] and normals (k, 3) of the contact vertices at positions x (nv, 3) [m] against the
-    obstacle each contact belongs to."""
-    gap = np.empty(contacts.count)
-    nrm = np.empty((contacts.count, 3))
-    for ei, eff in enumerate(effects):
-        for oi, ob in enumerate(eff.obstacles):
-            sel = np.flatnonzero((contacts.effect == ei) & (contacts.obstacle == oi))
-            if sel.size:
-                g, nn = ob.signed_distance(x[contacts.vertex[sel]])
-                gap[sel] = g
-                nrm[sel] = nn
-    return gap, nrm
-
-
 def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> None:
     """Advance ``state`` in place by dt [s] with contact (what ``ModalSolver.step`` calls).
 
@@ -547,7 +454,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
     body = solver.body
     effects = contacts.effects
     accel = np.zeros(3) if loads is None else loads.force / body.mass
-    record: dict = {}
+    record: list = []
 
     def keep(c: Contacts, gap) -> None:
         _accumulate(record, c, gap)
@@ -558,8 +465,9 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         if c.count == 0:
             solver.advance_free(state, loads, t_left)
             break
-        slop = np.array([0.1 * effects[i].margin for i in c.effect])
-        thr = np.array([effects[i].bounce_threshold for i in c.effect])
+        plan = _plan(effects)
+        slop = 0.1 * plan.margin[plan.first[c.effect] + c.obstacle]
+        thr = plan.threshold[c.effect]
         vn = normal_velocities(solver, state, c)
         # touching: at the ground to rounding (1e-9 of the margin), or the vertex a flight stopped at
         touching = ((c.gap <= 1e-8 * slop) | (c.vertex == event_vertex)) & (vn < 0.0)
@@ -586,7 +494,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         saved = snapshot(state)
         v_start = state.velocity.copy()
         solver.advance_free(state, loads, 0.5 * span)
-        gap_mid, n_mid = _gaps(effects, c, _positions64(body, state))
+        gap_mid, n_mid = _gaps(effects, c, body, state)
         mid = Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, obstacle=c.obstacle)
         resolve_contacts(solver, state, mid, span, accel=accel, sustained=True)
         stop = _stop_fraction(body, mid, v_start, state.velocity, accel, span)
@@ -613,7 +521,7 @@ def _fly(solver, state, loads, c: Contacts, h: float, slop: np.ndarray, tries: i
     t, stopper = h, -1
     for _ in range(tries):
         solver.advance_free(state, loads, t)
-        gap, _ = _gaps(c.effects, c, _positions64(solver.body, state))
+        gap, _ = _gaps(c.effects, c, solver.body, state)
         excess = gap + slop
         if excess.min() >= 0.0:
             return t, stopper
@@ -638,7 +546,7 @@ def _stop_fraction(body, mid: Contacts, v_start, v_after, accel, span):
     """
     if mid.count == 0 or not np.any(mid.impulses > 0.0):
         return None
-    mu = np.array([mid.effects[i].friction for i in mid.effect])
+    mu = _plan(mid.effects).friction[mid.effect]
     cone = float(mu @ mid.impulses)
     if cone <= 0.0:
         return None
@@ -669,28 +577,34 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     its potential energy in the load field by ``-m accel . d`` [J]; with ``accel`` (3,) [m/s^2] given,
     that gain is taken from the kinetic energy (all velocities scaled by one factor), so the
     correction creates no energy (if the kinetic energy is smaller than the gain, the body stops).
+    Only the vertices that may be inside (rigid position within the deformation bound) are evaluated.
     """
-    x = None
+    from modalfem.runtime import _contact_kernels as K
+    body = solver.body
+    plan = _plan(contacts.effects)
+    R = state.rotation()
+    bound = deformation_bound(body, state.q)
     total = np.zeros(3)
+    zero = np.zeros(1)
     for _ in range(passes):
         moved = False
-        for eff in contacts.effects:
-            for ob in eff.obstacles:
-                if x is None:
-                    x = _positions64(solver.body, state)
-                gap, nrm = ob.signed_distance(x)
-                i = int(np.argmin(gap))
-                if gap[i] < 0.0:
-                    shift = -gap[i] * np.asarray(nrm[i]) * (1.0 + 1e-9)
-                    state.position += shift
-                    total += shift
-                    x += shift
-                    moved = True
+        for o in range(len(plan.kinds)):
+            kinds, params = plan.kinds[o:o + 1], plan.params[o:o + 1]
+            vs, _ = K.candidates(kinds, params, body.rest, R, state.position, bound, zero)
+            if not len(vs):
+                continue
+            x = K.world_positions(local_positions(body, state.q, vs), R, state.position)
+            gap, nrm = K.signed_distances(kinds[0], params[0], x)
+            i = int(np.argmin(gap))
+            if gap[i] < 0.0:
+                shift = -gap[i] * nrm[i] * (1.0 + 1e-9)
+                state.position += shift
+                total += shift
+                moved = True
         if not moved:
             break
     if accel is None or not total.any():
         return
-    body = solver.body
     gain = -body.mass * float(np.asarray(accel, dtype=np.float64) @ total)  # [J]
     if gain <= 0.0:
         return
