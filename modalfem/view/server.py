@@ -19,7 +19,19 @@ triangle meshes with WebGL2 (``modalfem/view/static``, no JavaScript dependencie
 The controls are declared in Python (``add_slider``, ``add_select``, ``add_checkbox``,
 ``add_button``) and built by the page; ``Viewer(on_play=..., on_pause=..., on_step=..., on_reset=...)``
 adds the transport buttons of a running simulation. ``modalfem view`` (``modalfem.view.explorer``)
-is one user; a world runner can be another: add its bodies, call ``update`` after each step.
+is one user; a world runner can be another: add its bodies, call ``update`` after each step::
+
+    viewer = Viewer(on_play=run.play, on_pause=run.pause, on_step=run.step, on_reset=run.reset)
+    bell = viewer.add_body(model.vertices - model.center_of_mass, model.triangles, shapes=model.shapes)
+    cloth = viewer.add_body(scene.x, scene.model.mesh.triangles, color=(0.3, 0.5, 0.9))  # a ClothScene
+    with viewer:                                   # print(viewer.url)
+        while running:
+            ...                                    # one step of the world
+            viewer.update(bell, q=state.q, position=state.position, orientation=state.orientation,
+                          time_s=state.time)
+            viewer.update(cloth, positions=scene.x)
+
+Callbacks run on the server's threads: a runner hands them to its own loop (a flag, a queue).
 """
 
 from __future__ import annotations
