@@ -5,7 +5,8 @@ changing) in headless Chromium (Debian's ``/usr/bin/chromium`` driven by Playwri
 WebGL through SwiftShader: the page's drawing runs on the CPU, so the figures are lower bounds for a
 machine with a GPU). Side by side in one run, per size:
 
-* ``q``: ``Viewer`` frames carry the r modal coordinates; the page computes ``X + Phi q`` itself;
+* ``q``: ``Viewer`` frames carry the r modal coordinates; the page computes ``X + Phi q`` itself, in
+  its vertex shader (modes in float textures; with SwiftShader that shader also runs on the CPU);
 * ``positions``: the server computes ``X + Phi q`` (numpy) and frames carry the nv x 3 float32
   positions (base64 in the event stream), as a body without modes would;
 * ``viser`` (the peer, when ``import viser`` works): the server computes the positions and sets
@@ -164,9 +165,11 @@ def render(cases: list[dict], *, command: str, date: str, machine: str, load: tu
         L.append(f"| {c['nv']} | {c['kind']} | {c['bytes']} | {_f(c['server_ms'], '.2f')} | {_f(c['received'], '.1f')} "
                  f"| {_f(c['deform_ms'], '.2f')} | {c['fps']:.1f} | {ratio} |")
     skipped = [c for c in cases if c.get("skipped")]
-    L += ["", "`q`: the page deforms the surface itself from the r modal coordinates (what `modalfem view` "
-          "sends); `positions`: the server sends float32 positions (what a body without modes needs); `viser`: "
-          "the peer library, positions set on its mesh handle."]
+    L += ["", "`q`: the page deforms the surface itself from the r modal coordinates, in its vertex shader (what "
+          "`modalfem view` sends); `positions`: the server sends float32 positions and the page computes normals "
+          "(what a body without modes needs); `viser`: the peer library, positions set on its mesh handle. "
+          "page ms/update is the page's JavaScript time to apply one frame (for `q`: the upload of r numbers; "
+          "the shader's work shows in the fps)."]
     if skipped:
         L.append(skipped[0]["skipped"])
     return "\n".join(L) + "\n"

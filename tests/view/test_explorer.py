@@ -129,3 +129,16 @@ def test_bad_options_are_one_line(view_model):
                       ({"amplitude": -1}, "amplitude"), ({"impulse": 0.0}, "impulse")):
         with pytest.raises(InputError, match=words):
             ModeExplorer(view_model, **kw)
+
+
+def test_a_still_picture_sends_no_frames_and_a_change_does(view_model):
+    ex = _explorer(view_model, animate=False, amplitude=0.3)
+    assert next(c for c in ex.viewer._controls if c["name"] == "amplitude")["max"] == 0.3  # --amplitude above 0.2
+    ex.tick(1 / 60, 0.0)
+    seq = ex.viewer._seq
+    ex.tick(1 / 60, 0.1)
+    assert ex.viewer._seq == seq  # same q: nothing published
+    ex.select_mode(2)
+    seq = ex.viewer._seq
+    ex.tick(1 / 60, 0.2)
+    assert ex.viewer._seq == seq + 1 and ex.viewer._frame()[1]["bodies"][0]["q"][2] != 0
