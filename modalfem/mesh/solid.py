@@ -40,8 +40,9 @@ from typing import Callable
 import numpy as np
 
 from modalfem.errors import BackendUnavailableError, InputError, MeshError
-from modalfem.mesh.core import Mesh, check_simplices, signed_volumes
+from modalfem.mesh.core import Mesh, signed_volumes
 from modalfem.mesh.io import SURFACE_SUFFIXES  # file suffixes read as surfaces by mesh.read and the CLI
+from modalfem.mesh.surface_read import clean_surface, decimate, edge_stats, open_fraction, read_surface
 from modalfem.mesh.tet_quality import improve_quality, radius_ratio, surface_distances
 
 __all__ = ["SURFACE_SUFFIXES", "QUALITY_BOUND", "QualityWarning", "SurfaceReport", "Tetrahedralization", "load_surface",
@@ -152,154 +153,6 @@ def is_surface_file(path) -> bool:
 
 
 
-# ---------------------------------------------------------------------------------- reading
-def read_surface(path, *, unit_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Read a triangle surface from STL (ASCII or binary), OBJ, PLY (ASCII or binary) or OFF.
-
-    Quads and polygons are split into triangle fans; other cells (lines, points) are ignored.
-
-    Args:
-        path: surface file.
-        unit_scale: factor turning file coordinates into metres (1e-3 for a file in mm).
-
-    Returns:
-        (vertices (n, 3) [m], triangles (m, 3) int64).
-
-    Raises:
-        MeshError: missing, empty or unparsable file, or no triangles in it (one line).
-    """
-    from modalfem.mesh.generators import _positive
-
-    scale = _positive("unit_scale", unit_scale, unit="metres per file unit")
-    p = Path(path)
-    if not p.exists():
-        raise MeshError(f"surface file not found: {p}")
-    if not p.is_file():
-        raise MeshError(f"surface path is not a regular file: {p}")
-    if p.suffix.lower() not in SURFACE_SUFFIXES:
-        raise MeshError(f"{p} is not a surface file (known: {', '.join(SURFACE_SUFFIXES)})")
-    if p.stat().st_size == 0:
-        raise MeshError(f"empty mesh file {p}: it has 0 bytes")
-    import contextlib
-    import io
-
-    import meshio
-
-    sink = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink), warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            m = meshio.read(p, file_format={".stl": "stl", ".obj": "obj", ".ply": "ply", ".off": "off"}[p.suffix.lower()])
-    except (Exception, SystemExit) as exc:
-        detail = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        fmt = p.suffix.lower()
-        raise MeshError(f"cannot read mesh file {p} as {fmt} ({fmt[1:]}): corrupt, truncated or not in that format "
-                        f"({detail})") from None
-    points = np.asarray(m.points, dtype=np.float64)
-    if points.ndim == 2 and points.shape[1] == 2:
-        points = np.column_stack([points, np.zeros(len(points))])
-    tris = []
-    for block in m.cells:
-        data = np.asarray(block.data, dtype=np.int64)
-        if block.type == "triangle":
-            tris.append(data)
-        elif block.type in ("quad", "polygon") or (block.type.startswith("polygon") and data.ndim == 2):
-            k = data.shape[1]
-            tris += [data[:, [0, i, i + 1]] for i in range(1, k - 1)]
-    if not tris or sum(len(t) for t in tris) == 0:
-        kinds = ", ".join(f"{b.type} x {len(b.data)}" for b in m.cells) or "no faces"
-        raise MeshError(f"{p} has no triangles to make a solid from ({len(points)} points, {kinds})")
-    return points * scale, np.vstack(tris)
-
-
-# ---------------------------------------------------------------------------------- cleaning
-def _clean(v: np.ndarray, f: np.ndarray, where: str):
-    """Merge coincident vertices, drop degenerate and duplicate triangles; (v, f, repairs, diagonal)."""
-    v, f = check_simplices(v, f, corners=3, noun=f"surface {where}", cell="triangle", cells_name="triangles")
-    repairs = []
-    diag = float(np.linalg.norm(v[np.unique(f)].max(axis=0) - v[np.unique(f)].min(axis=0)))
-    if diag == 0:
-        raise MeshError(f"surface {where} is degenerate: all its triangles collapse to one point")
-    key = np.round(v / (1e-10 * diag)).astype(np.int64)
-    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    merged = len(v) - len(first)
-    v, f = v[first], inv.ravel()[f]
-    if merged:
-        repairs.append(f"merged {merged} coincident vertices")
-    p = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    good = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]) & (area > 1e-14 * diag**2)
-    if not good.all():
-        repairs.append(f"dropped {int((~good).sum())} degenerate triangles")
-    f = f[good]
-    if len(f) == 0:
-        raise MeshError(f"surface {where} is degenerate: all {len(good)} triangles have zero area")
-    _, keep = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
-    if len(keep) < len(f):
-        repairs.append(f"dropped {len(f) - len(keep)} duplicate triangles")
-    f = f[np.sort(keep)]
-    used = np.unique(f)
-    new = np.full(len(v), -1, dtype=np.int64)
-    new[used] = np.arange(len(used))
-    v, f = v[used], new[f]
-    spread = np.linalg.svd(v - v.mean(axis=0), compute_uv=False)
-    if spread[-1] <= 1e-6 * spread[0]:
-        raise MeshError(f"surface {where} is flat (all {len(v)} vertices lie in one plane): it encloses no volume")
-    return v, f, repairs, diag
-
-
-def _edge_stats(f: np.ndarray):
-    """(boundary edge count, non-manifold edge count, flipped edge count, boundary edges (b, 2))."""
-    directed = f[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
-    und = np.sort(directed, axis=1)
-    uniq, inv, counts = np.unique(und, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    forward = np.bincount(inv, weights=(directed[:, 0] < directed[:, 1]).astype(float), minlength=len(uniq))
-    flipped = int(np.sum((counts == 2) & (forward != 1)))
-    return int(np.sum(counts == 1)), int(np.sum(counts > 2)), flipped, uniq[counts == 1]
-
-
-def _open_fraction(v, f, boundary_edges) -> float:
-    """Sum of the vector areas of the boundary loops over the surface area (1 for a flat sheet)."""
-    if len(boundary_edges) == 0:
-        return 0.0
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    n = len(v)
-    e = boundary_edges
-    g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    _, label = connected_components(g, directed=False)
-    # vector area of each loop: 0.5 sum p_i x p_j over its edges, oriented by walking the loop
-    adj: dict[int, list[int]] = {}
-    for a, b in e.tolist():
-        adj.setdefault(a, []).append(b)
-        adj.setdefault(b, []).append(a)
-    seen: set[tuple[int, int]] = set()
-    loops = np.zeros((label.max() + 1, 3))
-    for a0, b0 in e.tolist():
-        if (a0, b0) in seen or (b0, a0) in seen:
-            continue
-        a, b = a0, b0
-        while (a, b) not in seen and (b, a) not in seen:
-            seen.add((a, b))
-            loops[label[a]] += 0.5 * np.cross(v[a], v[b])
-            nxt = [c for c in adj[b] if c != a and (b, c) not in seen and (c, b) not in seen]
-            if not nxt:
-                break
-            a, b = b, nxt[0]
-    p = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
-    return float(np.linalg.norm(loops, axis=1).sum() / area)
-
-
-def _decimate(v, f, target: int):
-    import fast_simplification
-
-    vv, ff = fast_simplification.simplify(v, f.astype(np.int32), target_reduction=1.0 - target / len(f))
-    return np.asarray(vv, dtype=np.float64), np.asarray(ff, dtype=np.int64)
-
-
 # ---------------------------------------------------------------------------------- meshers
 def _gmsh_volume(v, f, h):
     """gmsh: the volume inside the given (closed, manifold) triangles, interior size ``h`` [m]."""
@@ -343,13 +196,46 @@ def _tetwild_module():
     raise BackendUnavailableError(f"pytetwild at {folder} has no compiled PyfTetWildWrapper: reinstall pytetwild")
 
 
-def _ftetwild(v, f, h, envelope):
+def _ftetwild_here(v, f, h, envelope):
+    """fTetWild in this process (it holds the GIL for its whole run)."""
     wrapper = _tetwild_module()
     points, cells = wrapper.tetrahedralize_mesh(
         np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.uint32),
         True, False, 0.05, float(h), float(envelope), 10.0, False, 0, 80, 6, True, False, False,
         np.zeros((0, 3)), np.zeros((0, 4), dtype=np.int32), np.zeros(0))
     return np.asarray(points, dtype=np.float64), np.asarray(cells, dtype=np.int64)
+
+
+def _ftetwild_worker(folder: str) -> None:
+    """Child-process entry: ``folder/in.npz`` -> ``folder/out.npz``."""
+    data = np.load(os.path.join(folder, "in.npz"))
+    points, cells = _ftetwild_here(data["v"], data["f"], float(data["h"]), float(data["envelope"]))
+    np.savez(os.path.join(folder, "out.npz"), points=points, cells=cells)
+
+
+def _ftetwild(v, f, h, envelope):
+    """fTetWild in a child process: it holds the GIL for its whole run, which would freeze the
+    caller's progress display and its Ctrl-C/SIGTERM handling; the child is killed on either."""
+    import subprocess
+    import sys
+    import tempfile
+
+    _tetwild_module()  # a missing pytetwild is reported here, in one line
+    with tempfile.TemporaryDirectory(prefix="modalfem-ftetwild-") as folder:
+        np.savez(os.path.join(folder, "in.npz"), v=v, f=f, h=h, envelope=envelope)
+        code = f"from modalfem.mesh.solid import _ftetwild_worker; _ftetwild_worker({folder!r})"
+        child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            _, err = child.communicate()
+        except BaseException:
+            child.kill()
+            child.wait()
+            raise
+        if child.returncode != 0:
+            lines = err.decode("utf-8", "replace").strip().splitlines()
+            raise MeshError(f"fTetWild failed (exit code {child.returncode}): {lines[-1] if lines else 'no message'}")
+        out = np.load(os.path.join(folder, "out.npz"))
+        return np.asarray(out["points"], dtype=np.float64), np.asarray(out["cells"], dtype=np.int64)
 
 
 # ---------------------------------------------------------------------------------- pipeline
@@ -403,8 +289,8 @@ def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, m
     else:
         raise InputError(f"source must be a surface file path or (vertices, triangles), got {type(source).__name__}")
     input_triangles = len(f) if np.ndim(f) == 2 else 0
-    v, f, repairs, diag = _clean(v, f, where)
-    boundary, nonmanifold, flipped, bedges = _edge_stats(f)
+    v, f, repairs, diag = clean_surface(v, f, where)
+    boundary, nonmanifold, flipped, bedges = edge_stats(f)
     if h is None:
         h = H_FRACTION * diag
     else:
@@ -412,7 +298,7 @@ def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, m
 
         h = _positive("h", h)
     if boundary:
-        frac = _open_fraction(v, f, bedges)
+        frac = open_fraction(v, f, bedges)
         if frac > max_open_fraction:
             raise MeshError(
                 f"surface {where} cannot be made solid: it is open ({boundary} boundary edges) and its holes span "
@@ -434,7 +320,7 @@ def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, m
     if len(f) > 1.5 * wanted:
         t = time.perf_counter()
         say(f"surface: decimating {len(f)} -> {wanted} triangles")
-        vm, fm = _decimate(v, f, wanted)
+        vm, fm = decimate(v, f, wanted)
         repairs.append(f"decimated {len(f)} -> {len(fm)} triangles")
         timings["decimate"] = time.perf_counter() - t
     result = None
