@@ -11,13 +11,15 @@ every value is computed by one thread in a fixed order, so results are bit-ident
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
 from modalfem.threads import apply as _apply_threads
 from modalfem.threads import chunk_bounds, chunk_count
 
-__all__ = ["csr_matvec", "gather_sum", "hessians_upper", "symmetrise"]
+__all__ = ["csr_matvec", "gather_sum", "hessians_upper", "svd_rv", "symmetrise", "unsigned"]
 
 _apply_threads()
 
@@ -113,9 +115,16 @@ def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, b, c, K, Gv, R) -> N
             pos += 1
 
 
+def unsigned(index: np.ndarray) -> np.ndarray:
+    """The same non-negative indices viewed as unsigned integers: numba then skips the negative-index
+    wrap-around test of every array access through them (a CSR product ~30 % faster)."""
+    return index.view(np.uint32 if index.dtype.itemsize == 4 else np.uint64)
+
+
 @numba.njit(cache=True, parallel=True)
 def csr_matvec(indptr, indices, data, x, y) -> None:
-    """``y = A x`` for the CSR matrix ``(indptr, indices, data)``; rows in parallel chunks."""
+    """``y = A x`` for the CSR matrix ``(indptr, indices, data)`` (``indices`` best ``unsigned``); rows in
+    parallel chunks."""
     n = len(indptr) - 1
     chunks = chunk_count(n, ROW_CHUNK)
     for ch in numba.prange(chunks):
@@ -150,3 +159,98 @@ def symmetrise(half, transpose, is_diag, out) -> None:
         start, stop = chunk_bounds(n, chunks, ch)
         for p in range(start, stop):
             out[p] = half[p] if is_diag[p] else half[p] + half[transpose[p]]
+
+
+@numba.njit(cache=True, parallel=True)
+def svd_rv(Ft, V0t, warm: bool, U, s, V) -> None:
+    """Rotation-variant SVD of every element (:func:`modalfem.tet.kinematics.svd_rv_t`), elements in
+    parallel chunks: ``Ft`` (3, 3, m), warm start ``V0t`` (3, 3, m) if ``warm``; outputs ``U`` (3, 3, m),
+    ``s`` (m, 3), ``V`` (3, 3, m)."""
+    m = Ft.shape[2]
+    chunks = chunk_count(m, ELEMENT_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        AV = np.empty((6, 3))
+        for e in range(start, stop):
+            _svd_element(e, Ft, V0t, warm, U, s, V, AV)
+
+
+@numba.njit(cache=True)
+def _svd_element(e, Ft, V0t, warm, U, s, V, AV) -> None:
+    """One-sided Jacobi on the columns of ``F V0``, rows 0..2 of ``AV`` (A = F V) and 3..5 (V)."""
+    for i in range(3):
+        for j in range(3):
+            if warm:
+                AV[3 + i, j] = V0t[i, j, e]
+            else:
+                AV[3 + i, j] = 1.0 if i == j else 0.0
+    for i in range(3):
+        for j in range(3):
+            if warm:
+                AV[i, j] = Ft[i, 0, e] * AV[3, j] + Ft[i, 1, e] * AV[4, j] + Ft[i, 2, e] * AV[5, j]
+            else:
+                AV[i, j] = Ft[i, j, e]
+    for _ in range(12):
+        done = True
+        for k in range(3):
+            p, q = (0, 0, 1)[k], (1, 2, 2)[k]
+            al = AV[0, p] * AV[0, p] + AV[1, p] * AV[1, p] + AV[2, p] * AV[2, p]
+            be = AV[0, q] * AV[0, q] + AV[1, q] * AV[1, q] + AV[2, q] * AV[2, q]
+            ga = AV[0, p] * AV[0, q] + AV[1, p] * AV[1, q] + AV[2, p] * AV[2, q]
+            if not abs(ga) > 1e-15 * math.sqrt(al * be):
+                continue
+            done = False
+            # t = tan of the rotation angle = sign(z) / (|z| + sqrt(1 + z^2)), z = (be - al) / (2 ga)
+            tau, g2 = be - al, 2.0 * ga
+            t = math.copysign(1.0, tau) * g2 / (abs(tau) + math.hypot(tau, g2))
+            c = 1.0 / math.sqrt(1.0 + t * t)
+            for r in range(6):
+                mp, mq = AV[r, p], AV[r, q]
+                AV[r, p] = c * (mp - t * mq)
+                AV[r, q] = c * (mq + t * mp)
+        if done:
+            break
+    n0 = math.sqrt(AV[0, 0] ** 2 + AV[1, 0] ** 2 + AV[2, 0] ** 2)
+    n1 = math.sqrt(AV[0, 1] ** 2 + AV[1, 1] ** 2 + AV[2, 1] ** 2)
+    n2 = math.sqrt(AV[0, 2] ** 2 + AV[1, 2] ** 2 + AV[2, 2] ** 2)
+    for k in range(3):  # sorting network: column norms descending
+        p, q = (0, 1, 0)[k], (1, 2, 1)[k]
+        np_, nq = (n0, n1, n0)[k], (n1, n2, n1)[k]
+        if nq > np_:
+            for r in range(6):
+                AV[r, p], AV[r, q] = AV[r, q], AV[r, p]
+            if k == 1:
+                n1, n2 = n2, n1
+            else:
+                n0, n1 = n1, n0
+    det = (AV[3, 0] * (AV[4, 1] * AV[5, 2] - AV[5, 1] * AV[4, 2]) + AV[4, 0] * (AV[5, 1] * AV[3, 2] - AV[3, 1] * AV[5, 2])
+           + AV[5, 0] * (AV[3, 1] * AV[4, 2] - AV[4, 1] * AV[3, 2]))
+    if det < 0:
+        for r in range(6):
+            AV[r, 2] = -AV[r, 2]
+    for i in range(3):
+        for j in range(3):
+            V[i, j, e] = AV[3 + i, j]
+    if n0 <= 1e-300:
+        u00, u01, u02 = 1.0, 0.0, 0.0
+    else:
+        u00, u01, u02 = AV[0, 0] / n0, AV[1, 0] / n0, AV[2, 0] / n0
+    d = u00 * AV[0, 1] + u01 * AV[1, 1] + u02 * AV[2, 1]
+    w0, w1, w2 = AV[0, 1] - u00 * d, AV[1, 1] - u01 * d, AV[2, 1] - u02 * d
+    s1 = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if s1 > 1e-14 * max(n0, 1e-300):
+        w0, w1, w2 = w0 / s1, w1 / s1, w2 / s1
+    else:  # a unit vector orthogonal to u0: u0 x e, e the axis of u0's smallest component
+        a0, a1, a2 = abs(u00), abs(u01), abs(u02)
+        ax = 0 if (a0 <= a1 and a0 <= a2) else (1 if a1 <= a2 else 2)
+        e0, e1, e2 = (1.0 if ax == 0 else 0.0), (1.0 if ax == 1 else 0.0), (1.0 if ax == 2 else 0.0)
+        w0, w1, w2 = u01 * e2 - u02 * e1, u02 * e0 - u00 * e2, u00 * e1 - u01 * e0
+        wn = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        w0, w1, w2 = w0 / wn, w1 / wn, w2 / wn
+    u20, u21, u22 = u01 * w2 - u02 * w1, u02 * w0 - u00 * w2, u00 * w1 - u01 * w0
+    U[0, 0, e], U[1, 0, e], U[2, 0, e] = u00, u01, u02
+    U[0, 1, e], U[1, 1, e], U[2, 1, e] = w0, w1, w2
+    U[0, 2, e], U[1, 2, e], U[2, 2, e] = u20, u21, u22
+    s[e, 0] = n0
+    s[e, 1] = w0 * AV[0, 1] + w1 * AV[1, 1] + w2 * AV[2, 1]
+    s[e, 2] = u20 * AV[0, 2] + u21 * AV[1, 2] + u22 * AV[2, 2]

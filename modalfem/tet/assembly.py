@@ -44,7 +44,7 @@ class HessianPattern:
         # compiled pass over the positions (in parallel, no write conflicts; faster than np.bincount)
         order = np.argsort(self.upper_index, kind="stable")
         self._gather_ptr = np.searchsorted(self.upper_index[order], np.arange(self.nnz + 1)).astype(np.int64)
-        self._gather_order = order.astype(np.int64)
+        self._gather_order = order.astype(np.uint64)  # unsigned: no wrap-around test per access in numba
         self.diag_index = inv[144 * len(cells):]
         self._is_diag = np.zeros(self.nnz, dtype=bool)
         self._is_diag[self.diag_index] = True

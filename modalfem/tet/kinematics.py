@@ -98,32 +98,16 @@ def area_weighted_normals(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return 0.5 * np.cross(f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0])
 
 
-def _unit_normal_to(u: np.ndarray) -> np.ndarray:
-    """A unit vector orthogonal to each unit column of ``u`` (3, k)."""
-    e = np.zeros_like(u)
-    e[np.argmin(np.abs(u), axis=0), np.arange(u.shape[1])] = 1.0
-    w = np.cross(u, e, axis=0)
-    return w / np.linalg.norm(w, axis=0)
-
-
-def _cross(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """Cross products of the columns of ``a`` and ``b`` (3, m) into ``out`` (3, m) (no temporaries of
-    ``np.cross``'s axis moves)."""
-    for i, j, k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
-        np.multiply(a[j], b[k], out=out[i])
-        out[i] -= a[k] * b[j]
-    return out
-
-
 def svd_rv(F: np.ndarray, V0: np.ndarray | None = None, *, element_last: bool = False
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rotation-variant SVD ``F = U diag(s) V^T`` with ``det U = det V = +1``.
 
     A reflection is moved onto the smallest singular value, so an inverted element has ``s[2] < 0``
     (and ``s[0] >= s[1] >= |s[2]|``): the energies then see the inversion and push back.
-    Computed for all elements at once by one-sided (Hestenes) Jacobi rotations on the columns of F
-    (structure-of-arrays, a few sweeps to full precision), which is several times faster than a loop
-    of LAPACK calls for 3x3 matrices and well defined for repeated or zero singular values.
+    Computed per element by one-sided (Hestenes) Jacobi rotations on the columns of F (a few sweeps to
+    full precision; compiled, elements in parallel: ``modalfem.tet._kernels.svd_rv``), which is several
+    times faster than a loop of LAPACK calls for 3x3 matrices and well defined for repeated or zero
+    singular values.
 
     Args:
         F: deformation gradients (m, 3, 3).
@@ -145,94 +129,14 @@ def svd_rv_t(Ft: np.ndarray, V0t: np.ndarray | None = None) -> tuple[np.ndarray,
     ``deformation_gradient_t``), optional warm start ``V0t`` (3, 3, m); returns ``U`` (3, 3, m), ``s``
     (m, 3), ``V`` (3, 3, m) (what ``element_forces_and_hessians(..., element_last=True)`` takes).
     """
-    Ft = np.asarray(Ft, dtype=float)  # (3, 3, m): Ft[i, j] = F_ij
+    from modalfem.tet import _kernels
+
+    Ft = np.ascontiguousarray(Ft, dtype=float)  # (3, 3, m): Ft[i, j] = F_ij
     m = Ft.shape[-1]
-    # A = F V (rows 0..2) and V (rows 3..5) in one array: a rotation of columns p, q updates both at once
-    AV = np.empty((6, 3, m))
-    A, V = AV[:3], AV[3:]
-    if V0t is None:
-        A[...] = Ft
-        V[...] = 0.0
-        V[0, 0] = V[1, 1] = V[2, 2] = 1.0
-    else:
-        V[...] = V0t
-        Ft = np.ascontiguousarray(Ft)
-        # F V0 as long vector products (faster than a batched 3x3 matmul)
-        tmp = np.empty(m)
-        for i in range(3):
-            for j in range(3):
-                np.multiply(Ft[i, 0], V[0, j], out=A[i, j])
-                for k in (1, 2):
-                    np.multiply(Ft[i, k], V[k, j], out=tmp)
-                    A[i, j] += tmp
-    for _ in range(12):
-        done = True
-        for p, q in ((0, 1), (0, 2), (1, 2)):
-            ap, aq = A[:, p], A[:, q]
-            al = np.einsum("im,im->m", ap, ap)
-            be = np.einsum("im,im->m", aq, aq)
-            ga = np.einsum("im,im->m", ap, aq)
-            rot = np.abs(ga) > 1e-15 * np.sqrt(al * be)
-            if not rot.any():
-                continue
-            done = False
-            # t = tan of the rotation angle = sign(z) / (|z| + sqrt(1 + z^2)), z = (be - al) / (2 ga),
-            # written without forming z (no overflow when ga is tiny); when few elements rotate (the last
-            # sweeps) only those are updated
-            sel = np.flatnonzero(rot) if np.count_nonzero(rot) < rot.size // 4 else None
-            if sel is not None:
-                al, be, ga, rot = al[sel], be[sel], ga[sel], True
-            tau, g2 = be - al, 2.0 * np.where(rot, ga, 1.0)
-            r = np.sqrt(tau * tau + g2 * g2)  # hypot(tau, g2) (np.hypot is ~6x slower) ...
-            if not r.min() > 1e-140 or not r.max() < 1e140:  # ... unless the squares under/overflow
-                r = np.hypot(tau, g2)
-            t = np.where(rot, np.copysign(1.0, tau) * g2 / (np.abs(tau) + r), 0.0)
-            c = 1.0 / np.sqrt(1.0 + t * t)
-            # (mp, mq) <- c (mp - t mq, mq + t mp): in place, and without the products by c once every
-            # angle is below ~1e-8 (c == 1 exactly: the last sweeps)
-            mp, mq = (AV[:, p], AV[:, q]) if sel is None else (AV[:, p, sel], AV[:, q, sel])
-            tq = t * mq
-            tp = t * mp
-            mp -= tq
-            mq += tp
-            if c.min() < 1.0:
-                mp *= c
-                mq *= c
-            if sel is not None:
-                AV[:, p, sel], AV[:, q, sel] = mp, mq
-        if done:
-            break
-    n = np.sqrt(np.einsum("ijm,ijm->jm", A, A))
-    for p, q in ((0, 1), (1, 2), (0, 1)):  # sorting network: column norms descending
-        sw = np.flatnonzero(n[q] > n[p])
-        if len(sw):
-            AV[:, p, sw], AV[:, q, sw] = AV[:, q, sw], AV[:, p, sw]
-            n[p, sw], n[q, sw] = n[q, sw], n[p, sw]
-    U = np.empty((3, 3, m))  # columns u0, u1, u2
-    u0, u1, u2 = U[:, 0], U[:, 1], U[:, 2]
-    flip = np.einsum("im,im->m", V[:, 0], _cross(V[:, 1], V[:, 2], u2)) < 0
-    if flip.any():
-        AV[:, 2, flip] *= -1.0
-    bad0 = n[0] <= 1e-300
-    np.divide(A[:, 0], np.maximum(n[0], 1e-300), out=u0)
-    if bad0.any():
-        u0[:, bad0] = 0.0
-        u0[0, bad0] = 1.0
-    np.multiply(u0, np.einsum("im,im->m", u0, A[:, 1]), out=u1)
-    np.subtract(A[:, 1], u1, out=u1)  # w = A_1 - u0 (u0 . A_1)
-    s1 = np.sqrt(np.einsum("im,im->m", u1, u1))
-    ok1 = s1 > 1e-14 * np.maximum(n[0], 1e-300)
-    if ok1.all():
-        u1 /= s1
-    else:
-        u1[:, ok1] /= s1[ok1]
-        u1[:, ~ok1] = _unit_normal_to(u0[:, ~ok1])
-    _cross(u0, u1, u2)
-    s = np.empty((m, 3))
-    s[:, 0] = n[0]
-    s[:, 1] = np.einsum("im,im->m", u1, A[:, 1])
-    s[:, 2] = np.einsum("im,im->m", u2, A[:, 2])
-    return U, s, np.ascontiguousarray(V)
+    U, V, s = np.empty((3, 3, m)), np.empty((3, 3, m)), np.empty((m, 3))
+    warm = V0t is not None
+    _kernels.svd_rv(Ft, np.ascontiguousarray(V0t, dtype=float) if warm else Ft, warm, U, s, V)
+    return U, s, V
 
 
 def polar(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -85,11 +85,12 @@ class TwoLevel:
         from modalfem.tet import _kernels
 
         coarse_r = np.empty(Pt.shape[0])
+        P_indices, Pt_indices = _kernels.unsigned(P.indices), _kernels.unsigned(Pt.indices)
 
         def apply(r: np.ndarray) -> np.ndarray:
-            _kernels.csr_matvec(Pt.indptr, Pt.indices, Pt.data, r, coarse_r)
+            _kernels.csr_matvec(Pt.indptr, Pt_indices, Pt.data, r, coarse_r)
             out = np.empty(P.shape[0])
-            _kernels.csr_matvec(P.indptr, P.indices, P.data, Ac_inv @ coarse_r, out)
+            _kernels.csr_matvec(P.indptr, P_indices, P.data, Ac_inv @ coarse_r, out)
             out += inv * r
             return out
 

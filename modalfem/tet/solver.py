@@ -109,7 +109,7 @@ def _matvec(A, x: np.ndarray, out: np.ndarray) -> np.ndarray:
     """``out = A x`` for a scipy CSR ``A`` (compiled, rows in parallel); returns ``out``."""
     from modalfem.tet import _kernels
 
-    _kernels.csr_matvec(A.indptr, A.indices, A.data, x, out)
+    _kernels.csr_matvec(A.indptr, _kernels.unsigned(A.indices), A.data, x, out)
     return out
 
 
