@@ -67,8 +67,10 @@ def _preload_tbb() -> bool:
             except OSError:
                 continue
     try:
-        from numba.np.ufunc import tbbpool  # noqa: F401
-    except (ImportError, OSError):
+        from numba.np.ufunc import parallel, tbbpool  # noqa: F401
+
+        parallel._check_tbb_version_compatible()  # numba needs TBB 2021.6 or later
+    except (ImportError, OSError, AttributeError):
         return False
     return True
 
