@@ -22,7 +22,7 @@ def add_arguments(parser) -> None:
                    help="triangle surface (.obj, .stl, .ply, .off) the model file carries instead of the "
                         "coarse boundary: modes interpolated in the coarse elements, mass properties and "
                         "rotation coupling from the volume mesh")
-    r.add_argument("--render-unit-scale", type=float, default=None,
+    r.add_argument("--render-unit-scale", type=float, default=None, metavar="FACTOR",
                    help="factor turning the surface file's coordinates into metres (default: --unit-scale)")
     r.add_argument("--max-transfer-distance", type=float, default=None, metavar="METRES",
                    help="refuse surface vertices farther than this from the coarse mesh's surface [m] "
@@ -46,6 +46,10 @@ def read(args):
     from modalfem.reduction.render_surface import read_surface
 
     scale = args.unit_scale if args.render_unit_scale is None else args.render_unit_scale
+    if not (scale > 0 and scale < float("inf")):
+        raise InputError(f"--render-unit-scale must be a finite factor > 0 (file units to metres), got {scale!r}")
+    if args.max_transfer_distance is not None and not (0 < args.max_transfer_distance < float("inf")):
+        raise InputError(f"--max-transfer-distance must be a finite length > 0 [m], got {args.max_transfer_distance!r}")
     return read_surface(args.render_surface, unit_scale=scale)
 
 

@@ -312,7 +312,7 @@ def test_cli_render_surface_end_to_end(tmp_path, capsys):
     assert "render surface:" in out and "min MAC" in out and "none outside" in out
 
 
-@pytest.mark.parametrize("case", ["far", "quad", "no-save", "check-alone"])
+@pytest.mark.parametrize("case", ["far", "quad", "no-save", "check-alone", "negative-distance", "zero-scale"])
 def test_cli_bad_render_surface_is_one_line(tmp_path, capsys, case):
     v, t, _ = refined_boundary(box(**BEAM), 2)
     obj = tmp_path / "s.obj"
@@ -327,11 +327,17 @@ def test_cli_bad_render_surface_is_one_line(tmp_path, capsys, case):
         args += ["--save", str(tmp_path / "m.npz")]
     if case == "check-alone":
         args += ["--check-transfer"]
+    if case == "negative-distance":
+        args += ["--max-transfer-distance", "-1"]
+    if case == "zero-scale":
+        args += ["--render-unit-scale", "0"]
     rc = main(args)
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and err[0].startswith("modalfem: error: ")
     want = {"far": "from the coarse mesh's surface", "quad": "no triangles (quad x 1)",
-            "no-save": "--render-surface needs --save", "check-alone": "--check-transfer needs --render-surface"}[case]
+            "no-save": "--render-surface needs --save", "check-alone": "--check-transfer needs --render-surface",
+            "negative-distance": "--max-transfer-distance must be a finite length > 0",
+            "zero-scale": "--render-unit-scale must be a finite factor > 0"}[case]
     assert want in err[0]
     assert not (tmp_path / "m.npz").exists()
 
