@@ -52,6 +52,11 @@ class TransferReport:
         outside_distance_mean: mean distance of all fine vertices to the coarse mesh [m] (0 inside).
         allowed_distance: the refusal threshold used [m].
         coarse_edge: median coarse boundary edge length [m] (the default threshold is half of it).
+        extrapolation_max: the most negative barycentric coordinate of an outside vertex in its
+            element, negated [-] (0 when none is outside): how far outside, in units of that
+            element's height. A P2 shape function there reaches l (2 l - 1) = e (2 e + 1) with
+            e = ``extrapolation_max``, which bounds how much the continuation can amplify errors of
+            the coarse nodal values (a sliver at the boundary shows up as a large value).
     """
 
     vertex_count: int
@@ -63,6 +68,7 @@ class TransferReport:
     outside_distance_mean: float
     allowed_distance: float
     coarse_edge: float
+    extrapolation_max: float = 0.0
 
     def as_dict(self) -> dict:
         """JSON-ready dict (lengths in m) with the extrapolation rule stated."""
@@ -75,7 +81,8 @@ class TransferReport:
         return (f"{self.vertex_count} vertices, P{self.degree}; distance to the coarse boundary max "
                 f"{self.distance_max:.3g} m, mean {self.distance_mean:.3g} m (coarse edge {self.coarse_edge:.3g} m); "
                 + (f"{self.outside_count} outside (up to {self.outside_distance_max:.3g} m, mean over all "
-                   f"{self.outside_distance_mean:.3g} m), continued from the nearest element"
+                   f"{self.outside_distance_mean:.3g} m), continued from the nearest element (barycentric down to "
+                   f"{-self.extrapolation_max:.3g})"
                    if self.outside_count else "none outside"))
 
 
@@ -175,6 +182,7 @@ def transfer_modes(result, mesh, vertices: np.ndarray, *, max_distance: float | 
         vertex_count=len(q), degree=degree, distance_max=float(dist.max()), distance_mean=float(dist.mean()),
         outside_count=int(emb.outside.sum()),
         outside_distance_max=float(emb.distance.max()), outside_distance_mean=float(emb.distance.mean()),
+        extrapolation_max=float(max(0.0, -emb.bary[emb.outside].min())) if emb.outside.any() else 0.0,
         allowed_distance=allowed, coarse_edge=edge)
     return shapes, report
 

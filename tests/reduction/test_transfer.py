@@ -382,3 +382,27 @@ def test_surface_distances_match_the_box_analytically():
     outside = np.any(a > 0, axis=1)
     assert report.outside_count == int(outside.sum())
     np.testing.assert_allclose(report.outside_distance_mean, np.where(outside, exact, 0).mean(), rtol=1e-12)
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_outside_vertices_continue_the_nearest_elements_polynomial(degree):
+    """The stated extrapolation rule: outside the coarse mesh, the nearest tetrahedron's polynomial is
+    continued, so a field of the element's degree (affine at P1, quadratic at P2) comes out exact."""
+    from types import SimpleNamespace
+
+    mesh = box(size=(0.4, 0.05, 0.05), cells=(4, 2, 2))
+    rng = np.random.default_rng(11)
+    A, b = rng.normal(size=(3, 3)), rng.normal(size=3)
+
+    def field(p):  # (n, 3) -> (n, 3): affine, plus a quadratic part at P2
+        u = p @ A.T + b
+        return u + (np.column_stack([p[:, 1] * p[:, 2], p[:, 0] ** 2, p[:, 0] * p[:, 1]]) if degree == 2 else 0)
+
+    nodes = mesh.dof_points(degree)
+    result = SimpleNamespace(shapes=field(nodes).reshape(-1, 1), degree=degree)
+    surface = boundary_surface(mesh).vertices
+    normal_out = np.where(np.isclose(surface, [0, 0, 0]), -1.0, np.where(np.isclose(surface, [0.4, 0.05, 0.05]), 1.0, 0))
+    p = surface + 0.01 * normal_out  # 1 cm outside every face, edge and corner (threshold 0.05 m)
+    shapes, report = transfer_modes(result, mesh, p, max_distance=0.05)
+    assert report.outside_count == len(p) and report.extrapolation_max > 0.1
+    np.testing.assert_allclose(shapes.reshape(-1, 3), field(p), rtol=0, atol=1e-12)
