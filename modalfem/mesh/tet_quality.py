@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["improve_quality", "radius_ratio", "surface_distances"]
+__all__ = ["distance_to_surface", "improve_quality", "radius_ratio", "sampled_distances", "surface_distances"]
 
 _FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 
@@ -192,6 +192,18 @@ def distance_to_surface(query: np.ndarray, vertices: np.ndarray, triangles: np.n
     return out
 
 
+def sampled_distances(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], *,
+                      samples: int = 5000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Distances [m] of sample points of surface ``a`` to surface ``b`` and of ``b``'s samples to ``a``.
+
+    Samples: every vertex plus ``samples`` area-uniform random points per surface (seeded).
+    """
+    rng = np.random.default_rng(seed)
+    (va, ta), (vb, tb) = a, b
+    return (distance_to_surface(_sample(va, ta, samples, rng), vb, tb),
+            distance_to_surface(_sample(vb, tb, samples, rng), va, ta))
+
+
 def surface_distances(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], *,
                       samples: int = 5000, seed: int = 0) -> tuple[float, float]:
     """Sampled one-sided distances [m] between triangle surfaces ``a`` and ``b`` ((vertices, triangles) each).
@@ -202,8 +214,5 @@ def surface_distances(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.
         area-uniform random points per surface (seeded), so the true value exceeds the sampled one
         by at most the gap between neighbouring samples.
     """
-    rng = np.random.default_rng(seed)
-    (va, ta), (vb, tb) = a, b
-    d_ab = distance_to_surface(_sample(va, ta, samples, rng), vb, tb).max()
-    d_ba = distance_to_surface(_sample(vb, tb, samples, rng), va, ta).max()
-    return float(d_ab), float(d_ba)
+    d_ab, d_ba = sampled_distances(a, b, samples=samples, seed=seed)
+    return float(d_ab.max()), float(d_ba.max())
