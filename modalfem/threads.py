@@ -23,10 +23,11 @@ and to the one calling ``set_threads``; a kernel called from another Python thre
 (every core) unless that thread calls ``set_threads`` (or ``apply()``) first.
 
 BLAS: the kernels never call BLAS inside a parallel loop, so numba's and OpenBLAS's thread pools do not
-nest; they run one after the other. OpenBLAS keeps its own count (``OPENBLAS_NUM_THREADS``), and the eigen
-solve holds it at one thread while MKL PARDISO factorises (:mod:`modalfem.eigen.blas_threads`);
-``MODALFEM_THREADS`` does not change either. On a machine shared with other busy processes, fewer threads
-than cores can be faster (a thread waiting for a core holds every chunk behind it).
+nest. A cloth, collision or tet step holds OpenBLAS at one thread while it runs (``serial_blas``: its BLAS
+calls are tiny, and threaded they cost ~10x more), and so does the eigen solve while MKL PARDISO
+factorises (:mod:`modalfem.eigen.blas_threads`); elsewhere OpenBLAS keeps its own count
+(``OPENBLAS_NUM_THREADS``), which ``MODALFEM_THREADS`` does not change. On a machine shared with other
+busy processes, fewer threads than cores can be faster (a thread waiting for a core holds every chunk behind it).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ import numba
 
 from modalfem.errors import InputError
 
-__all__ = ["set_threads", "thread_count", "threading_layer", "threads"]
+__all__ = ["serial_blas", "set_threads", "thread_count", "threading_layer", "threads"]
 
 #: most chunks a parallel loop is split into: enough for load balance on 16-32 cores, independent of the
 #: thread count so that results are (bit-)identical for every count
@@ -181,6 +182,25 @@ try:  # the importing thread gets the count at once; a bad MODALFEM_THREADS is r
     apply()
 except InputError:
     pass
+
+
+def serial_blas(fn):
+    """Decorator: run ``fn`` with OpenBLAS held at one thread (:mod:`modalfem.eigen.blas_threads`).
+
+    The steps of cloth, collision and tet bodies make many tiny BLAS calls (a (4096, 3) matrix times a
+    3-vector, dot products of a few thousand entries); with OpenBLAS on two threads such a call cost
+    10x more CPU (45 against 5 us, measured here) and the 64x64 pile's step ~14 % more. Their parallel
+    work is in the numba kernels instead."""
+    import functools
+
+    from modalfem.eigen.blas_threads import one_openblas_thread
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with one_openblas_thread():
+            return fn(*args, **kwargs)
+
+    return wrapper
 
 
 def threading_layer() -> str:

@@ -39,6 +39,7 @@ import scipy.sparse.linalg as spla
 
 from modalfem.cloth.model import ClothModel
 from modalfem.errors import InputError, SimulationError, SolverError
+from modalfem.threads import serial_blas
 
 #: relative residual of the smoothing solve: it only shapes the collision response (which goes through
 #: the collision pipeline again), so a looser tolerance than the implicit step's is enough; the
@@ -308,6 +309,7 @@ class ImplicitEuler:
                           self._levels)
         return y, it, time.perf_counter() - t0
 
+    @serial_blas
     def step_velocity(self, x, v, forces, dt: float, *, fixed=None, fixed_velocity=None, damping_blocks=None,
                       contacts=None):
         """Velocities at the end of a backward Euler step, before collisions.
@@ -375,6 +377,7 @@ class ImplicitEuler:
             raise SimulationError("cloth velocities became NaN/inf in the implicit step (time step too large?)")
         return v_new, LinearSolveInfo(self.linear_solver, it, t_asm, t_sol, imp)
 
+    @serial_blas
     def smooth(self, dv: np.ndarray, dt: float, *, strength: float, fixed=None) -> np.ndarray:
         """Smoothed velocity change: solve ``(M + dt * strength * K) dv_s = M dv`` with ``dv_s[fixed] = 0``.
 

@@ -18,6 +18,7 @@ from modalfem.collision.repulsion import (
 )
 from modalfem.collision.zones import UnionFind, rigid_zone_velocities
 from modalfem.errors import SimulationError
+from modalfem.threads import serial_blas
 
 __all__ = ["PIPELINE_DEPTH", "analytic_hits", "ccd_hits", "resolve"]
 
@@ -153,6 +154,7 @@ def _step_cache(system, cfg, X0, dt, t) -> dict:
     return system.step_cache
 
 
+@serial_blas
 def resolve(system, cfg, x0, v, masses, dt, t):
     """Run stages (a)-(c); see ``CollisionPipeline.resolve``."""
     from modalfem.collision.pipeline import CollisionStats

@@ -34,6 +34,7 @@ from modalfem.tet.energies import (
 from modalfem.tet.kinematics import deformation_gradient_t, scatter_vertices, svd_rv_t
 from modalfem.tet.model import TetModel
 from modalfem.tet.precond import TwoLevel
+from modalfem.threads import serial_blas
 
 __all__ = ["LINEAR_SOLVERS", "StepInfo", "TetControl", "TetSolver", "TetState"]
 
@@ -360,6 +361,7 @@ class TetSolver:
              ) -> StepInfo:
         """Advance ``state_in`` by ``dt`` [s] into ``state_out`` (may be the same object).
 
+    @serial_blas
         Raises:
             SimulationError: dt <= 0 or not finite, non-finite state or control, a barrier step starting
                 with a non-positive element volume, or a non-finite result.
