@@ -2,7 +2,8 @@
 // Protocol: GET /scene (JSON), GET /body/<i> (binary: rest float32 (nv,3), triangles uint32 (nt,3),
 // shapes float32 (r, 3 nv)), GET /events (Server-Sent Events: one JSON frame per message),
 // POST /input (JSON: strike / control / button). A modal body's frame carries q; the page deforms
-// x = X + Phi q itself. Other bodies' frames carry positions (base64 float32).
+// x = X + Phi q itself (vertex shader). Other bodies' frames carry positions (base64 float32).
+// window.modalfemViewer exposes the page's state (frames, bodies, strikes, sounds) to tests.
 "use strict";
 
 const V = window.modalfemViewer = {
@@ -15,7 +16,7 @@ const canvas = document.getElementById("canvas");
 const gl = canvas.getContext("webgl2", { antialias: true, preserveDrawingBuffer: true });
 const statusEl = document.getElementById("status");
 const messageEl = document.getElementById("message");
-let statusText = "", audio = null, lastSoundId = null, dirty = true;
+let statusText = "", audio = null, lastSoundId = null;
 
 // ---------------------------------------------------------------------------- small 4x4 math (column-major)
 function perspective(fovy, aspect, near, far) {
@@ -411,7 +412,6 @@ function onFrame(f) {
     if (lastSoundId === null) lastSoundId = f.sound.id;  // a clip from before this page loaded: not replayed
     else if (f.sound.id !== lastSoundId) { lastSoundId = f.sound.id; playSound(f.sound); }
   } else if (lastSoundId === null) lastSoundId = 0;
-  dirty = true;
 }
 
 let fpsCount = 0, fpsT0 = performance.now();
