@@ -9,6 +9,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from modalfem.threads import chunk_bounds, chunk_count
+
 __all__ = ["dihedral", "membrane_energy", "membrane_gradient", "membrane_hessian", "scatter_outer", "scatter_rows"]
 
 _SQRT_EPS = 1e-12
@@ -195,16 +197,26 @@ def scatter_outer(data, maps, w, g):
                         data[p, r, c] += t * g[e, 3 * b + c]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def dihedral(x, hinges, theta, g):
     """Signed dihedral angles ``theta`` (h,) [rad] and their gradients ``g`` (h, 4, 3) [rad/m] at the
-    hinges (h, 4) (``modalfem.cloth.energies.dihedral_angles``), filled in place."""
+    hinges (h, 4) (``modalfem.cloth.energies.dihedral_angles``), filled in place; chunks of hinges in
+    parallel (each hinge alone)."""
+    count = hinges.shape[0]
+    chunks = chunk_count(count, 256)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(count, chunks, ch)
+        _dihedral_range(x, hinges, theta, g, start, stop)
+
+
+@numba.njit(cache=True)
+def _dihedral_range(x, hinges, theta, g, start, stop):
     e = np.empty(3)
     da = np.empty(3)
     db = np.empty(3)
     n1 = np.empty(3)
     n2 = np.empty(3)
-    for h in range(hinges.shape[0]):
+    for h in range(start, stop):
         i0, i1, ia, ib = hinges[h, 0], hinges[h, 1], hinges[h, 2], hinges[h, 3]
         for k in range(3):
             e[k] = x[i1, k] - x[i0, k]

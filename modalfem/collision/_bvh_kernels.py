@@ -331,7 +331,7 @@ def _unit_cross(a0, a1, a2, b0, b1, b2, f: float) -> tuple:
     return c0, c1, c2, True
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def refit(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, margin: float, static_margin: float, P: int,
           slot_tri: np.ndarray, nonempty: np.ndarray):
     """Boxes and normal cones of a tree (see ``BroadPhaseBVH.refit``); ``static_margin`` NaN: none.
@@ -344,7 +344,7 @@ def refit(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, margin: float, static
     m, L = len(tri), slot_tri.shape[1]
     tri_lo, tri_hi = np.empty((m, 3)), np.empty((m, 3))
     use_static = not math.isnan(static_margin)
-    for f in range(m):
+    for f in numba.prange(m):  # triangles, then leaves in parallel (each writes only its own entries)
         i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
         for c in range(3):
             l0, h0 = min(x0[i, c], x0[j, c], x0[k, c]), max(x0[i, c], x0[j, c], x0[k, c])
@@ -356,57 +356,13 @@ def refit(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, margin: float, static
     lo, hi = np.full((2 * P, 3), np.inf), np.full((2 * P, 3), -np.inf)
     slo, shi = np.full((3, P, L), np.inf), np.full((3, P, L), -np.inf)
     cone_axis, cone_angle = np.zeros((2 * P, 3)), np.full(2 * P, math.pi)
-    units = np.empty((L, 3, 3))
-    for leaf in range(P):
-        node = P + leaf
-        s0 = s1 = s2 = 0.0
-        bad = False
-        count = 0
-        for r in range(L):
-            f = slot_tri[leaf, r]
-            if f < 0:
-                continue
-            for c in range(3):
-                slo[c, leaf, r], shi[c, leaf, r] = tri_lo[f, c], tri_hi[f, c]
-                lo[node, c] = min(lo[node, c], tri_lo[f, c])
-                hi[node, c] = max(hi[node, c], tri_hi[f, c])
-            # normal control vectors (Bernstein form of the swept normal), unit length
-            i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
-            a0, a1, a2 = x0[j, 0] - x0[i, 0], x0[j, 1] - x0[i, 1], x0[j, 2] - x0[i, 2]
-            b0, b1, b2 = x0[k, 0] - x0[i, 0], x0[k, 1] - x0[i, 1], x0[k, 2] - x0[i, 2]
-            p0, p1, p2 = x1[j, 0] - x1[i, 0], x1[j, 1] - x1[i, 1], x1[j, 2] - x1[i, 2]
-            q0, q1, q2 = x1[k, 0] - x1[i, 0], x1[k, 1] - x1[i, 1], x1[k, 2] - x1[i, 2]
-            u0, u1, u2, z0 = _unit_cross(a0, a1, a2, b0, b1, b2, 1.0)
-            # the middle control vector 0.5 (a x q + p x b)
-            m0 = 0.5 * ((a1 * q2 - a2 * q1) + (p1 * b2 - p2 * b1))
-            m1 = 0.5 * ((a2 * q0 - a0 * q2) + (p2 * b0 - p0 * b2))
-            m2 = 0.5 * ((a0 * q1 - a1 * q0) + (p0 * b1 - p1 * b0))
-            mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
-            z1 = not mn > 0
-            if mn > 0:
-                m0, m1, m2 = m0 / mn, m1 / mn, m2 / mn
-            w0, w1, w2, z2 = _unit_cross(p0, p1, p2, q0, q1, q2, 1.0)
-            bad = bad or z0 or z1 or z2
-            units[count, 0, 0], units[count, 0, 1], units[count, 0, 2] = u0, u1, u2
-            units[count, 1, 0], units[count, 1, 1], units[count, 1, 2] = m0, m1, m2
-            units[count, 2, 0], units[count, 2, 1], units[count, 2, 2] = w0, w1, w2
-            s0 += u0 + m0 + w0
-            s1 += u1 + m1 + w1
-            s2 += u2 + m2 + w2
-            count += 1
-        if count == 0:
-            continue
-        an = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-        if bad or not an > 0:
-            continue  # axis 0, angle pi
-        s0, s1, s2 = s0 / an, s1 / an, s2 / an
-        ang = 0.0
-        for t in range(count):
-            for v in range(3):
-                d = units[t, v, 0] * s0 + units[t, v, 1] * s1 + units[t, v, 2] * s2
-                ang = max(ang, math.acos(min(max(d, -1.0), 1.0)))
-        cone_axis[node, 0], cone_axis[node, 1], cone_axis[node, 2] = s0, s1, s2
-        cone_angle[node] = ang
+    chunks = chunk_count(P, 64)
+    for ch in numba.prange(chunks):
+        units = np.empty((L, 3, 3))
+        start, stop = chunk_bounds(P, chunks, ch)
+        for leaf in range(start, stop):
+            _refit_leaf(leaf, P, L, tri, x0, x1, slot_tri, tri_lo, tri_hi, lo, hi, slo, shi, cone_axis, cone_angle,
+                        units)
     for a in range(P - 1, 0, -1):
         l, r = 2 * a, 2 * a + 1
         for c in range(3):
@@ -429,6 +385,60 @@ def refit(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, margin: float, static
                 ang = max(ang, math.acos(min(max(d, -1.0), 1.0)) + cone_angle[child])
         cone_angle[a] = ang
     return tri_lo, tri_hi, lo, hi, slo, shi, cone_axis, cone_angle
+
+
+@numba.njit(cache=True)
+def _refit_leaf(leaf, P, L, tri, x0, x1, slot_tri, tri_lo, tri_hi, lo, hi, slo, shi, cone_axis, cone_angle, units):
+    """Slot boxes, box and normal cone of one leaf (see :func:`refit`); ``units`` (L, 3, 3) scratch."""
+    node = P + leaf
+    s0 = s1 = s2 = 0.0
+    bad = False
+    count = 0
+    for r in range(L):
+        f = slot_tri[leaf, r]
+        if f < 0:
+            continue
+        for c in range(3):
+            slo[c, leaf, r], shi[c, leaf, r] = tri_lo[f, c], tri_hi[f, c]
+            lo[node, c] = min(lo[node, c], tri_lo[f, c])
+            hi[node, c] = max(hi[node, c], tri_hi[f, c])
+        # normal control vectors (Bernstein form of the swept normal), unit length
+        i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
+        a0, a1, a2 = x0[j, 0] - x0[i, 0], x0[j, 1] - x0[i, 1], x0[j, 2] - x0[i, 2]
+        b0, b1, b2 = x0[k, 0] - x0[i, 0], x0[k, 1] - x0[i, 1], x0[k, 2] - x0[i, 2]
+        p0, p1, p2 = x1[j, 0] - x1[i, 0], x1[j, 1] - x1[i, 1], x1[j, 2] - x1[i, 2]
+        q0, q1, q2 = x1[k, 0] - x1[i, 0], x1[k, 1] - x1[i, 1], x1[k, 2] - x1[i, 2]
+        u0, u1, u2, z0 = _unit_cross(a0, a1, a2, b0, b1, b2, 1.0)
+        # the middle control vector 0.5 (a x q + p x b)
+        m0 = 0.5 * ((a1 * q2 - a2 * q1) + (p1 * b2 - p2 * b1))
+        m1 = 0.5 * ((a2 * q0 - a0 * q2) + (p2 * b0 - p0 * b2))
+        m2 = 0.5 * ((a0 * q1 - a1 * q0) + (p0 * b1 - p1 * b0))
+        mn = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+        z1 = not mn > 0
+        if mn > 0:
+            m0, m1, m2 = m0 / mn, m1 / mn, m2 / mn
+        w0, w1, w2, z2 = _unit_cross(p0, p1, p2, q0, q1, q2, 1.0)
+        bad = bad or z0 or z1 or z2
+        units[count, 0, 0], units[count, 0, 1], units[count, 0, 2] = u0, u1, u2
+        units[count, 1, 0], units[count, 1, 1], units[count, 1, 2] = m0, m1, m2
+        units[count, 2, 0], units[count, 2, 1], units[count, 2, 2] = w0, w1, w2
+        s0 += u0 + m0 + w0
+        s1 += u1 + m1 + w1
+        s2 += u2 + m2 + w2
+        count += 1
+    if count == 0:
+        return
+    an = math.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    if bad or not an > 0:
+        return  # axis 0, angle pi
+    s0, s1, s2 = s0 / an, s1 / an, s2 / an
+    ang = 0.0
+    for t in range(count):
+        for v in range(3):
+            d = units[t, v, 0] * s0 + units[t, v, 1] * s1 + units[t, v, 2] * s2
+            ang = max(ang, math.acos(min(max(d, -1.0), 1.0)))
+    cone_axis[node, 0], cone_axis[node, 1], cone_axis[node, 2] = s0, s1, s2
+    cone_angle[node] = ang
 
 
 @numba.njit(cache=True)
