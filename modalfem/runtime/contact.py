@@ -259,8 +259,9 @@ def _gaps(effects, contacts: Contacts, body, state):
     return K.gaps_of(x, plan.first[contacts.effect] + contacts.obstacle, plan.kinds, plan.params)
 
 
-def _system(solver, state, contacts: Contacts):
-    """Contact rows of one body: (J, WJ (k, 3, m), V (m,), R, Iw_inv, nm), m = 6 + nm."""
+def _system(solver, state, contacts: Contacts, slow: float | None = None):
+    """Contact rows of one body: (J, WJ (k, 3, m), V (m,), R, Iw_inv, nm), m = 6 + nm; with ``slow`` [s] only
+    the modes with ``omega slow <= 1`` (the modes are sorted by frequency: a prefix)."""
     from modalfem.runtime import _contact_kernels as K
     body = solver.body
     k = contacts.count
@@ -269,6 +270,8 @@ def _system(solver, state, contacts: Contacts):
     plan = _plan(contacts.effects)
     modal = plan.modal[contacts.effect]
     nm = body.mode_count if modal.any() else 0
+    if slow is not None and nm:
+        nm = int(np.searchsorted(body.omega, 1.0 / slow, side="right"))
     m = 6 + nm
     J = np.empty((k, 3, m))
     WJ = np.empty((k, 3, m))
@@ -336,7 +339,7 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None
     if k == 0:
         return
     body = solver.body
-    J, WJ, V, R, Iw_inv, nm = _system(solver, state, contacts)
+    J, WJ, V, R, Iw_inv, nm = _system(solver, state, contacts, dt if sustained else None)
     plan = _plan(contacts.effects)
     n = np.ascontiguousarray(contacts.normal, dtype=np.float64)
     gap = contacts.gap
@@ -376,7 +379,7 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None
     state.velocity += dV[0:3]
     state.angular_momentum += Iw @ dV[3:6]
     if nm:  # the same impulses move the modes: qdot += sum_i phi_i^T R^T lambda_i
-        state.qdot += dV[6:]
+        state.qdot[:nm] += dV[6:]
     contacts.impulses = lam_n
     contacts.tangential = jt
 
@@ -578,14 +581,17 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     that gain is taken from the kinetic energy (all velocities scaled by one factor), so the
     correction creates no energy (if the kinetic energy is smaller than the gain, the body stops).
     Only the vertices that may be inside (rigid position within the deformation bound) are evaluated.
+    The deformation is summed in float64 here; a float32 body's ``positions(precise=True)`` rounds it to
+    float32 (~6e-8 of it), so a vertex is pushed to at least that rounding slack above the obstacle.
     """
     from modalfem.runtime import _contact_kernels as K
     body = solver.body
     plan = _plan(contacts.effects)
     R = state.rotation()
     bound = deformation_bound(body, state.q)
+    slack = 4.0 * (body.mode_count + 2) * float(np.finfo(body.shapes_t.dtype).eps) * bound
     total = np.zeros(3)
-    zero = np.zeros(1)
+    zero = np.zeros(1) + slack
     for _ in range(passes):
         moved = False
         for o in range(len(plan.kinds)):
@@ -596,8 +602,8 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
             x = K.world_positions(local_positions(body, state.q, vs), R, state.position)
             gap, nrm = K.signed_distances(kinds[0], params[0], x)
             i = int(np.argmin(gap))
-            if gap[i] < 0.0:
-                shift = -gap[i] * nrm[i] * (1.0 + 1e-9)
+            if gap[i] < slack:
+                shift = (slack - gap[i]) * nrm[i] * (1.0 + 1e-9)
                 state.position += shift
                 total += shift
                 moved = True
