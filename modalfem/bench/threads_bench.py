@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import json
 import os
 import shlex
+import subprocess
 import sys
 import time
 
-__all__ = ["SECTION", "amdahl", "command", "render"]
+__all__ = ["SECTION", "amdahl", "command", "profile_share", "render"]
 
 SECTION = "## Threads: scaling of the cloth pile and the tet step"
 CLOTH_GOAL_1 = 10.0  # steps/s on one thread
@@ -57,6 +59,76 @@ def _tet(cells, steps: int, threads: int, timeout: float) -> dict:
     from modalfem.bench import tet_bench
 
     return tet_bench._run_case(cells, "newton+cg", steps, timeout, threads=threads)
+
+
+#: kernels whose work runs in parallel chunks although they are not ``parallel=True`` themselves (``pcg``
+#: calls the parallel passes; its coarse-level solve, O(192^2) per iteration, is serial)
+_PARALLEL_CALLERS = {("modalfem.cloth._kernels", "pcg")}
+
+
+def _is_parallel(filename: str, name: str) -> bool:
+    """The profile entry ``filename:name`` is a compiled kernel with ``parallel=True`` (or in
+    ``_PARALLEL_CALLERS``)."""
+    import importlib
+
+    norm = filename.replace(os.sep, "/")
+    if "/modalfem/" not in norm or not norm.endswith(".py"):
+        return False
+    module = "modalfem." + norm.rsplit("/modalfem/", 1)[1][:-3].replace("/", ".")
+    if (module, name) in _PARALLEL_CALLERS:
+        return True
+    try:
+        fn = getattr(importlib.import_module(module), name, None)
+    except ImportError:
+        return False
+    return bool(getattr(fn, "targetoptions", {}).get("parallel"))
+
+
+def profile_share(case: str, steps: int | None) -> dict:
+    """One-thread CPU profile of a case's steps (set-up outside; ``time.process_time`` as the profiler's
+    clock, so waiting for a core on a loaded machine does not count): CPU seconds in parallel kernels and
+    in everything, and the kernels' own times. In this process; call it in a child with
+    ``MODALFEM_THREADS=1``. ``steps`` None: the pile's 80 steps, 20 tet steps."""
+    import cProfile
+    import pstats
+
+    from modalfem.bench import cloth_bench, tet_bench
+
+    if case == "cloth":
+        from modalfem.cloth import scenes
+
+        cloth_bench.run_case("pile", 8, 3)  # compile outside the profile
+        setup = scenes.pile(64)
+        count = setup.steps if steps is None else steps
+
+        def run():
+            for _ in range(count):
+                setup.scene.step(setup.dt)
+    else:
+        from modalfem.material import Material
+        from modalfem.mesh import box
+        from modalfem.tet.effects import Gravity, Pins
+        from modalfem.tet.model import tet_model
+        from modalfem.tet.solver import TetSolver, TetState
+
+        tet_bench.run_case_here((4, 2, 2), "newton+cg", 1)
+        mesh = box(size=tuple(0.05 * c for c in TET_CELLS), cells=TET_CELLS)
+        model = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
+        solver = TetSolver(model, effects=[Gravity(), Pins(mesh.tag_points("x0"))])
+        state = TetState.at_rest(model)
+        count = steps or 20
+
+        def run():
+            for _ in range(count):
+                solver.step(state, state, tet_bench.DT)
+    prof = cProfile.Profile(time.process_time)
+    prof.enable()
+    run()
+    prof.disable()
+    stats = pstats.Stats(prof).stats
+    total = sum(v[2] for v in stats.values())
+    kernels = {f"{os.path.basename(f)}:{name}": v[2] for (f, _, name), v in stats.items() if _is_parallel(f, name)}
+    return {"total_s": total, "parallel_s": sum(kernels.values()), "kernels": kernels}
 
 
 def _best(runs: list[dict]) -> dict | None:
@@ -124,6 +196,43 @@ def render(cloth: dict, tet: dict, n: int, *, command: str, date: str, machine: 
     return "\n".join(L) + "\n"
 
 
+def _profile_child(case: str, steps: int | None, timeout: float) -> dict | None:
+    env = {**os.environ, "MODALFEM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+           "MKL_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "modalfem.bench.threads_bench", "--profile", case,
+           "--steps", str(steps or 0)]
+    try:
+        p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        return None
+    if p.returncode != 0:
+        print(f"  profile {case} failed: {(p.stderr.strip().splitlines() or ['?'])[-1]}", file=sys.stderr)
+        return None
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def profile_lines(profiles: dict) -> list[str]:
+    """Markdown lines of the one-thread CPU profiles: the parallel share, the Amdahl bounds it implies
+    and the largest kernels."""
+    if not profiles:
+        return []
+    L = ["", ("One-thread CPU profiles (a child per case, `cProfile` with `time.process_time` as its clock: "
+              "not inflated by waiting for a core). Parallel share p = CPU time in the parallel kernels / all "
+              "CPU time of the run; Amdahl's bound from it, `1 / ((1 - p) + p / N)`, is what N free cores "
+              "could give at most:"), "",
+         "| case | CPU s | in parallel kernels | bound on 2 cores | bound on 16 cores | largest kernels (CPU s) |",
+         "|---|---:|---:|---:|---:|---|"]
+    for label, pr in profiles.items():
+        if not pr:
+            L.append(f"| {label} | failed | | | | |")
+            continue
+        p = pr["parallel_s"] / pr["total_s"]
+        top = sorted(pr["kernels"].items(), key=lambda kv: -kv[1])[:6]
+        L.append(f"| {label} | {pr['total_s']:.1f} | {100 * p:.0f} % | {1 / ((1 - p) + p / 2):.2f}x | "
+                 f"{1 / ((1 - p) + p / 16):.2f}x | " + ", ".join(f"{k} {v:.2f}" for k, v in top) + " |")
+    return L
+
+
 def command(argv: list[str]) -> int:
     """``modalfem bench threads``: run both cases at 1 and N threads, print and write the section."""
     ap = argparse.ArgumentParser(prog="modalfem bench threads")
@@ -134,6 +243,7 @@ def command(argv: list[str]) -> int:
     ap.add_argument("--cloth-steps", type=int, default=None, help="cloth steps per run (default: the scene's 80)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="per run [s]")
     ap.add_argument("--quick", action="store_true", help="tiny cases (smoke test)")
+    ap.add_argument("--no-profile", action="store_true", help="skip the one-thread CPU profiles")
     a = ap.parse_args(argv)
     from modalfem.bench.cli import _machine, update_section
     from modalfem.threads import _cores, threading_layer
@@ -162,14 +272,33 @@ def command(argv: list[str]) -> int:
                 if "ms_per_step" in r:
                     print(f"[bench threads]   {r['ms_per_step']:.1f} ms/step", file=sys.stderr, flush=True)
                 store[t].append(r)
+    profiles = {}
+    if not (a.quick or a.no_profile):
+        for case, label, steps in (("cloth", "cloth pile 64x64", cloth_steps), ("tet", "tet bar, newton+cg", tet_steps)):
+            print(f"[bench threads] one-thread CPU profile: {label} ...", file=sys.stderr, flush=True)
+            profiles[label] = _profile_child(case, steps, a.timeout)
     cmd = "python -m modalfem bench threads" + ("" if not argv else " " + shlex.join(argv))
     date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     tets = 6 * cells[0] * cells[1] * cells[2]
     section = render(cloth, tet, n, command=cmd, date=date, machine=_machine(), layer=threading_layer(),
                      cloth_label=f"cloth pile {cloth_n}x{cloth_n}, all stages",
                      tet_label=f"tet bar {tets} tets, newton+cg")
+    section = section + "\n".join(profile_lines(profiles)) + ("\n" if profiles else "")
     print(section)
     update_section(a.out, section)
     print(f"bench threads: {time.perf_counter() - t0:.0f} s, section written to {a.out}", file=sys.stderr)
     ok = all(_best(c.get(t, [])) is not None for c in (cloth, tet) for t in (1, n))
     return 0 if ok else 1
+
+
+def _main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="python -m modalfem.bench.threads_bench")
+    ap.add_argument("--profile", choices=("cloth", "tet"), required=True)
+    ap.add_argument("--steps", type=int, default=0, help="0: the case's default")
+    a = ap.parse_args(argv)
+    print(json.dumps(profile_share(a.profile, a.steps or None)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

@@ -34,3 +34,25 @@ def test_section_reports_both_counts_the_stages_and_the_goals():
     assert "one thread): 9.09 steps/s, **not met**" in text
     assert "two threads): 1.57x, **not met**" in text
     assert "Tet goal (>= 30 steps/s on two threads): 31.2 steps/s, **met**" in text
+
+
+def test_parallel_kernels_are_recognised_in_a_profile():
+    from modalfem.bench.threads_bench import _is_parallel
+    from modalfem.collision import _bvh_kernels
+    from modalfem.tet import _kernels
+
+    assert _is_parallel(_kernels.__file__, "hessians_upper") and _is_parallel(_bvh_kernels.__file__, "traverse")
+    assert _is_parallel(_kernels.__file__.replace("tet", "cloth"), "pcg")  # calls the parallel CG passes
+    assert not _is_parallel(_bvh_kernels.__file__, "refit_triangles")  # compiled, serial
+    assert not _is_parallel(_kernels.__file__, "unsigned")  # plain Python
+    assert not _is_parallel("/usr/lib/python3/dist-packages/numpy/core/numeric.py", "array_equal")
+
+
+def test_profile_lines_give_the_amdahl_bounds_of_the_parallel_share():
+    from modalfem.bench.threads_bench import profile_lines
+
+    text = "\n".join(profile_lines({"pile": {"total_s": 10.0, "parallel_s": 6.0, "kernels": {"a.py:k": 6.0}},
+                                    "bar": None}))
+    # p = 0.6: 1 / (0.4 + 0.3) = 1.43 on 2 cores, 1 / (0.4 + 0.0375) = 2.29 on 16
+    assert "| pile | 10.0 | 60 % | 1.43x | 2.29x | a.py:k 6.00 |" in text
+    assert "| bar | failed |" in text
