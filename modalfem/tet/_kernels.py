@@ -19,7 +19,7 @@ import numpy as np
 from modalfem.threads import apply as _apply_threads
 from modalfem.threads import chunk_bounds, chunk_count
 
-__all__ = ["csr_matvec", "gather_sum", "hessians_upper", "svd_rv", "symmetrise", "unsigned"]
+__all__ = ["csr_matvec", "gather_sum", "hessians_upper", "svd_of_positions", "svd_rv", "symmetrise", "unsigned"]
 
 _apply_threads()
 
@@ -171,13 +171,41 @@ def svd_rv(Ft, V0t, warm: bool, U, s, V) -> None:
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(m, chunks, ch)
         AV = np.empty((6, 3))
+        F = np.empty((3, 3))
         for e in range(start, stop):
-            _svd_element(e, Ft, V0t, warm, U, s, V, AV)
+            for i in range(3):
+                for j in range(3):
+                    F[i, j] = Ft[i, j, e]
+            _svd_element(e, F, V0t, warm, U, s, V, AV)
+
+
+@numba.njit(cache=True, parallel=True)
+def svd_of_positions(x, cells, grad_t, V0t, warm: bool, U, s, V) -> None:
+    """:func:`svd_rv` of the deformation gradients ``F = sum_a x_a grad_a^T`` of positions ``x`` (n, 3) [m],
+    ``cells`` (m, 4), shape gradients ``grad_t`` (4, 3, m) [1/m] (the sums in the order of
+    :func:`modalfem.tet.kinematics.deformation_gradient_t`: the same F), formed per element inside."""
+    m = cells.shape[0]
+    chunks = chunk_count(m, ELEMENT_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        AV = np.empty((6, 3))
+        F = np.empty((3, 3))
+        for e in range(start, stop):
+            c0, c1, c2, c3 = cells[e, 0], cells[e, 1], cells[e, 2], cells[e, 3]
+            for i in range(3):
+                for j in range(3):
+                    t = x[c0, i] * grad_t[0, j, e]
+                    t += x[c1, i] * grad_t[1, j, e]
+                    t += x[c2, i] * grad_t[2, j, e]
+                    t += x[c3, i] * grad_t[3, j, e]
+                    F[i, j] = t
+            _svd_element(e, F, V0t, warm, U, s, V, AV)
 
 
 @numba.njit(cache=True)
-def _svd_element(e, Ft, V0t, warm, U, s, V, AV) -> None:
-    """One-sided Jacobi on the columns of ``F V0``, rows 0..2 of ``AV`` (A = F V) and 3..5 (V)."""
+def _svd_element(e, F, V0t, warm, U, s, V, AV) -> None:
+    """One-sided Jacobi on the columns of ``F V0`` (``F`` 3x3), rows 0..2 of ``AV`` (A = F V) and 3..5
+    (V); results into element ``e`` of ``U``, ``s``, ``V``."""
     for i in range(3):
         for j in range(3):
             if warm:
@@ -187,9 +215,9 @@ def _svd_element(e, Ft, V0t, warm, U, s, V, AV) -> None:
     for i in range(3):
         for j in range(3):
             if warm:
-                AV[i, j] = Ft[i, 0, e] * AV[3, j] + Ft[i, 1, e] * AV[4, j] + Ft[i, 2, e] * AV[5, j]
+                AV[i, j] = F[i, 0] * AV[3, j] + F[i, 1] * AV[4, j] + F[i, 2] * AV[5, j]
             else:
-                AV[i, j] = Ft[i, j, e]
+                AV[i, j] = F[i, j]
     for _ in range(12):
         done = True
         for k in range(3):

@@ -22,6 +22,7 @@ __all__ = [
     "scatter_vertices",
     "shape_gradients",
     "svd_rv",
+    "svd_rv_of_positions",
     "svd_rv_t",
 ]
 
@@ -136,6 +137,22 @@ def svd_rv_t(Ft: np.ndarray, V0t: np.ndarray | None = None) -> tuple[np.ndarray,
     U, V, s = np.empty((3, 3, m)), np.empty((3, 3, m)), np.empty((m, 3))
     warm = V0t is not None
     _kernels.svd_rv(Ft, np.ascontiguousarray(V0t, dtype=float) if warm else Ft, warm, U, s, V)
+    return U, s, V
+
+
+def svd_rv_of_positions(x: np.ndarray, cells: np.ndarray, grad_t: np.ndarray, V0t: np.ndarray | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``svd_rv_t(deformation_gradient_t(x, cells, grad_t), V0t)`` in one compiled pass (the same numbers;
+    F formed per element, elements in parallel): positions ``x`` (n, 3) [m], ``cells`` (m, 4), ``grad_t``
+    (4, 3, m) [1/m]; returns ``U`` (3, 3, m), ``s`` (m, 3), ``V`` (3, 3, m)."""
+    from modalfem.tet import _kernels
+
+    m = len(cells)
+    U, V, s = np.empty((3, 3, m)), np.empty((3, 3, m)), np.empty((m, 3))
+    warm = V0t is not None
+    _kernels.svd_of_positions(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(cells),
+                              np.ascontiguousarray(grad_t, dtype=float),
+                              np.ascontiguousarray(V0t, dtype=float) if warm else U, warm, U, s, V)
     return U, s, V
 
 

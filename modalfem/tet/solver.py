@@ -31,7 +31,7 @@ from modalfem.tet.energies import (
     element_hessians,
     first_piola,
 )
-from modalfem.tet.kinematics import deformation_gradient_t, scatter_vertices, svd_rv_t
+from modalfem.tet.kinematics import scatter_vertices, svd_rv_of_positions
 from modalfem.tet.model import TetModel
 from modalfem.tet.precond import TwoLevel
 from modalfem.threads import serial_blas
@@ -254,7 +254,7 @@ class TetSolver:
         if cache is not None and np.array_equal(cache[0], x):
             U, s, V = cache[1]
         else:  # rotations with the element index last, (3, 3, m)
-            U, s, V = svd_rv_t(deformation_gradient_t(x, m.cells, self._grad_t), self._V)
+            U, s, V = svd_rv_of_positions(x, m.cells, self._grad_t, self._V)
             self._V = V  # warm start of the next SVD (a cache; results do not depend on it beyond roundoff)
             self._svd_cache = (np.array(x, dtype=float), (U, s, V))
         d = self.element_terms[0].derivs(s, order)

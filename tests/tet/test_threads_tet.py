@@ -38,3 +38,22 @@ def test_newton_steps_are_bit_identical_on_one_and_two_threads():
     np.testing.assert_array_equal(s1.v, s2.v)
     sag = model.rest_points[:, 2] - s1.x[:, 2]
     assert sag.max() > 1e-3  # the bar sagged under gravity: the steps did work
+
+
+def test_svd_of_positions_is_the_svd_of_the_deformation_gradients():
+    from modalfem.tet import kinematics as kin
+
+    mesh = box(size=(0.8, 0.3, 0.2), cells=(16, 6, 4))
+    model = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
+    rng = np.random.default_rng(2)
+    x = model.rest_points + 0.02 * rng.standard_normal(model.rest_points.shape)
+    x[:40] = x[40]  # some degenerate (collapsed) elements too
+    gt = np.ascontiguousarray(np.moveaxis(model.grad, 0, -1))
+    F = kin.deformation_gradient_t(x, model.cells, gt)
+    for V0 in (None, kin.svd_rv_t(F)[2]):
+        ref = kin.svd_rv_t(F, V0)
+        for t in (1, 2):
+            with thread_count(t):
+                got = kin.svd_rv_of_positions(x, model.cells, gt, V0)
+            for a, b in zip(got, ref):
+                np.testing.assert_array_equal(a, b)
