@@ -30,6 +30,7 @@ class HessianPattern:
         keys, inv = np.unique(rows * np.int64(N) + cols, return_inverse=True)
         inv = inv.ravel()
         self.shape = (N, N)
+        self.keys = keys
         self.nnz = len(keys)
         self.indices = (keys % N).astype(np.int32)
         self.rows = (keys // N).astype(np.int64)
@@ -76,6 +77,15 @@ class HessianPattern:
         if diag is not None:
             data[self.diag_index] += diag
         return data
+
+    def positions(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """CSR positions of entries ``(rows, cols)`` (DOF indices); every entry must be in the pattern (two DOFs
+        of one tetrahedron, or a diagonal one)."""
+        key = np.asarray(rows, dtype=np.int64) * np.int64(self.shape[0]) + np.asarray(cols, dtype=np.int64)
+        pos = np.searchsorted(self.keys, key)
+        if len(key) and (pos.max() >= self.nnz or np.any(self.keys[np.minimum(pos, self.nnz - 1)] != key)):
+            raise ValueError("Hessian entries outside the sparsity pattern (DOFs of no common tetrahedron)")
+        return pos
 
     def apply_dirichlet(self, data: np.ndarray, fixed: np.ndarray, *, copy: bool = True) -> np.ndarray:
         """``data`` with rows and columns of DOFs ``fixed`` (3n,) bool replaced by the identity: a copy, or

@@ -315,6 +315,10 @@ class TetSolver:
         if D is not None:
             g += Dw / h
         data = self.pattern.assemble(He, diag, upper=True)
+        for t in self.vertex_terms:  # a term's couplings between DOFs of one tetrahedron (contact normals)
+            entries = t.hessian_entries(x, m.masses) if hasattr(t, "hessian_entries") else None
+            if entries is not None:
+                np.add.at(data, self.pattern.positions(entries[0], entries[1]), entries[2])
         if D is not None:
             data += D / h
         return E, g, data
@@ -357,11 +361,11 @@ class TetSolver:
             targets[cv] = cp
         return h, fixed, targets
 
+    @serial_blas
     def step(self, state_in: TetState, state_out: TetState, dt: float, *, control: TetControl | None = None
              ) -> StepInfo:
         """Advance ``state_in`` by ``dt`` [s] into ``state_out`` (may be the same object).
 
-    @serial_blas
         Raises:
             SimulationError: dt <= 0 or not finite, non-finite state or control, a barrier step starting
                 with a non-positive element volume, or a non-finite result.

@@ -85,7 +85,7 @@ class Tet:
 
     kind = "tet"
 
-    def __init__(self, model, *, name: str, position=None, velocity=None, pins=None, newton_max: int = 4,
+    def __init__(self, model, *, name: str, position=None, velocity=None, pins=None, newton_max: int = 8,
                  linear_solver: str = "cg") -> None:
         from modalfem.tet import TetModel
 

@@ -77,3 +77,95 @@ class SurfaceProximity:
         first = np.ones(len(qi), dtype=bool)
         first[1:] = qi[1:] != qi[:-1]
         return Hits(qi[first], tri[first], w[first], gap[first], nrm[first])
+
+
+def surface_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unique edges (e, 2) of a triangle surface and, per edge, up to two adjacent triangles (e, 2) (-1: none)."""
+    t = np.asarray(triangles, dtype=np.int64)
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    owner = np.tile(np.arange(len(t)), 3)
+    key = np.sort(e, axis=1)
+    uniq, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    adj = np.full((len(uniq), 2), -1, dtype=np.int64)
+    order = np.argsort(inv, kind="stable")
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = inv[order][1:] != inv[order][:-1]
+    adj[inv[order][first], 0] = owner[order][first]
+    second = ~first
+    adj[inv[order][second], 1] = owner[order][second]
+    return uniq, adj
+
+
+@dataclass
+class EdgeHits:
+    """Close edge pairs: ``mine`` (k,) and ``other`` (k,) edge indices, closest-point parameters ``s`` on mine and
+    ``t`` on the other's (k,) [-], ``gap`` (k,) [m] (negative: my edge is behind the other surface) and
+    ``normal`` (k, 3) pointing from the other surface to my edge."""
+
+    mine: np.ndarray
+    other: np.ndarray
+    s: np.ndarray
+    t: np.ndarray
+    gap: np.ndarray
+    normal: np.ndarray
+
+
+class EdgeProximity:
+    """Edge-edge proximity against one surface (a BVH over its edges, built once, refitted per query).
+
+    Args:
+        triangles: (f, 3) triangles of the surface (outward).
+        x_ref: (n, 3) reference positions [m].
+    """
+
+    def __init__(self, triangles: np.ndarray, x_ref: np.ndarray) -> None:
+        self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
+        self.edges, self.adjacent = surface_edges(self.triangles)
+        e = self.edges
+        self.bvh = BroadPhaseBVH(np.column_stack([e[:, 0], e[:, 1], e[:, 1]]), np.asarray(x_ref, dtype=np.float64))
+
+    def query(self, a0: np.ndarray, a1: np.ndarray, V: np.ndarray, margin: float) -> EdgeHits:
+        """Pairs of my edges ``a0 a1`` (k, 3) [m] with the surface's edges (at vertex positions ``V``) closer than
+        ``margin`` [m], their closest points inside both edges and the edges at least ~12 degrees from parallel: the
+        closest point pair and its separation along the other surface's outward side."""
+        from modalfem.collision.distance import edge_edge
+
+        V = np.ascontiguousarray(V, dtype=np.float64)
+        self.bvh.refit(V, margin=0.0)
+        lo = np.minimum(a0, a1) - margin
+        hi = np.maximum(a0, a1) + margin
+        qi, ei = self.bvh.query(lo, hi)
+        if len(qi) == 0:
+            z = np.zeros(0, dtype=np.int64)
+            return EdgeHits(z, z, np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 3)))
+        b0, b1 = V[self.edges[ei, 0]], V[self.edges[ei, 1]]
+        d, s, t = edge_edge(a0[qi], a1[qi], b0, b1)
+        # only pairs whose closest points are inside both edges and whose edges are far from parallel: the others
+        # are vertex-face contacts already (and parallel pairs have no well-defined normal)
+        ua, ub = a1[qi] - a0[qi], b1 - b0
+        cr = np.linalg.norm(np.cross(ua, ub), axis=1)
+        keep = (d <= margin) & (s > 1e-6) & (s < 1 - 1e-6) & (t > 1e-6) & (t < 1 - 1e-6) & \
+            (cr > 0.2 * np.linalg.norm(ua, axis=1) * np.linalg.norm(ub, axis=1))
+        qi, ei, d, s, t, b0, b1 = qi[keep], ei[keep], d[keep], s[keep], t[keep], b0[keep], b1[keep]
+        pa = a0[qi] + s[:, None] * (a1[qi] - a0[qi])
+        pb = b0 + t[:, None] * (b1 - b0)
+        # the other surface's outward side at the edge: the sum of its adjacent faces' normals
+        T = self.triangles
+        side = np.zeros((len(ei), 3))
+        for j in range(2):
+            f = self.adjacent[ei, j]
+            ok = f >= 0
+            tri = T[np.where(ok, f, 0)]
+            nf = np.cross(V[tri[:, 1]] - V[tri[:, 0]], V[tri[:, 2]] - V[tri[:, 0]])
+            side += np.where(ok[:, None], nf / np.maximum(np.linalg.norm(nf, axis=1), 1e-300)[:, None], 0.0)
+        diff = pa - pb
+        n = diff / np.maximum(d, 1e-300)[:, None]
+        flip = np.einsum("ij,ij->i", n, side) < 0
+        n = np.where(flip[:, None], -n, n)
+        gap = np.where(flip, -d, d)
+        tiny = d <= 1e-12 * max(1.0, float(np.abs(V).max()))
+        ln = np.linalg.norm(side, axis=1)
+        n[tiny] = side[tiny] / np.maximum(ln[tiny], 1e-300)[:, None]
+        good = np.linalg.norm(n, axis=1) > 0.5
+        return EdgeHits(qi[good], ei[good], s[good], t[good], gap[good], n[good])

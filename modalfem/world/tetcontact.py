@@ -6,7 +6,12 @@ dhat``, zero beyond. The planes are the other surfaces (obstacles, modal and tet
 linearised at the closest points found at the step start. The stiffness of a contact is ``STIFFNESS m_eff /
 dt^2`` (m_eff its effective mass ``1 / sum_j w_j^2 / m_j``): the implicit step then stops an approach within
 the step, at any dt, and a body resting on it compresses the skin ``dhat`` by ``m g dt^2 / STIFFNESS`` per
-vertex's share of the weight. The contact force ``k (dhat - g) n`` at the step end, times dt, is the impulse
+vertex's share of the weight. A contact already inside the skin at the step start is held there (its plane
+shifted to the start depth): a body placed on the ground is not thrown off; against another body the depth is
+kept at least dhat / 4 from its surface, so the surfaces never meet (an impact at v [m/s] sinks ~v dt / 6 into
+the skin). On an obstacle a resting body creeps into the skin by ``g dt^2 / STIFFNESS`` per step down to the
+surface, and rests ~``g dt^2 / STIFFNESS`` (0.3 um at dt = 1 ms) below it.
+The contact force ``k (dhat - g) n`` at the step end, times dt, is the impulse
 the other body receives back (equal and opposite).
 """
 
@@ -17,7 +22,7 @@ import numpy as np
 __all__ = ["STIFFNESS", "PenaltyContacts"]
 
 #: penalty stiffness in units of m_eff / dt^2 [-]
-STIFFNESS = 16.0
+STIFFNESS = 36.0
 
 
 class PenaltyContacts:
@@ -62,10 +67,29 @@ class PenaltyContacts:
         return g
 
     def hessian_diagonal(self, x: np.ndarray, masses: np.ndarray) -> np.ndarray | None:
+        return None  # all of it in ``hessian_entries``
+
+    def hessian_entries(self, x: np.ndarray, masses: np.ndarray):
+        """The exact Hessian of the active contacts, ``k (w w^T) (x) (n n^T)``, as DOF entries (rows, cols, values)
+        (the vertices of one contact share a tetrahedron: a surface triangle's or edge's)."""
         if not self.count:
             return None
-        h = np.zeros((self.n, 3))
-        act = (self._depth(x) > 0).astype(float)
-        for j in range(3):
-            np.add.at(h, self.vid[:, j], ((act * self.k * self.w[:, j] ** 2)[:, None]) * self.nrm**2)
-        return h
+        act = np.flatnonzero(self._depth(x) > 0)
+        if not len(act):
+            return None
+        k, w, n, v = self.k[act], self.w[act], self.nrm[act], self.vid[act]
+        used = self.verts[act] >= 0
+        rows, cols, vals = [], [], []
+        for i in range(3):
+            for j in range(3):
+                sel = used[:, i] & used[:, j]
+                if not sel.any():
+                    continue
+                kij = k[sel] * w[sel, i] * w[sel, j]
+                nn = n[sel][:, :, None] * n[sel][:, None, :]  # (c, 3, 3)
+                r = 3 * v[sel, i][:, None, None] + np.arange(3)[None, :, None] + 0 * np.arange(3)[None, None, :]
+                c = 3 * v[sel, j][:, None, None] + np.arange(3)[None, None, :] + 0 * np.arange(3)[None, :, None]
+                rows.append(r.ravel())
+                cols.append(c.ravel())
+                vals.append((kij[:, None, None] * nn).ravel())
+        return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)

@@ -42,7 +42,7 @@ from modalfem.errors import InputError, SimulationError
 from modalfem.world import _kernels
 from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
-from modalfem.world.proximity import SurfaceProximity
+from modalfem.world.proximity import EdgeProximity, SurfaceProximity
 from modalfem.world.tetcontact import STIFFNESS, PenaltyContacts
 
 __all__ = ["Stage", "StepReport", "World", "WorldControl", "WorldState"]
@@ -233,12 +233,18 @@ class World:
         self._modal_contact = [n for n in self._modal if self._one(n, fx.Contact)]
         self._surf = {n: SurfaceProximity(self._modal[n]["body"].triangles, self._modal[n]["body"].rest)
                       for n in self._modal_contact}
+        self._solid = self._modal_contact + [n for n, t in self._tet.items() if t["contact"] is not None]
+        self._tris = {n: self._modal[n]["body"].triangles for n in self._modal_contact}
+        self._tris.update({n: self._tet[n]["triangles"] for n in self._solid if n in self._tet})
+        self._edges = {n: EdgeProximity(self._tris[n], self._modal[n]["body"].rest) for n in self._modal_contact}
+        self._edges.update({n: self._tet[n]["edges"] for n in self._solid if n in self._tet})
+        self._surf.update({n: self._tet[n]["proximity"] for n in self._solid if n in self._tet})
         self._world_obstacles = {}
         for n in self._modal_contact:
             obs = [o for o in self.obstacles if o.moving or isinstance(o, TriangleMesh)]
             if obs:
                 self._world_obstacles[n] = obs
-        self._pairs = [(a, b) for i, a in enumerate(self._modal_contact) for b in self._modal_contact[i + 1:]]
+        self._pairs = [(a, b) for i, a in enumerate(self._solid) for b in self._solid[i + 1:]]
         self._obstacle_surf = {i: SurfaceProximity(o.triangles, o.vertices) for i, o in enumerate(self.obstacles)
                                if isinstance(o, TriangleMesh)}
         self._build_deformable()
@@ -334,7 +340,7 @@ class World:
         tris = np.ascontiguousarray(surf.triangles)
         out = {"solver": solver, "effects": tuple(names), "surface": surf.mesh_vertices, "triangles": tris,
                "wind": wind, "masses": masses, "penalty": penalty, "contact": contact, "pipeline": None,
-               "proximity": SurfaceProximity(tris, surf.vertices)}
+               "proximity": SurfaceProximity(tris, surf.vertices), "edges": EdgeProximity(tris, surf.vertices)}
         sc = self._one(b.name, fx.SelfCollision)
         if sc is not None:
             from modalfem.collision.pipeline import CollisionConfig, CollisionPipeline
@@ -449,12 +455,12 @@ class World:
         def effects(group):
             return tuple(sorted({e for g in group.values() for e in g["effects"]}))
 
-        if self._pairs or self._world_obstacles:
-            plan.append((Stage("modal contacts", tuple(self._modal_contact), ("contact",)), self._stage_contacts))
-        if self._modal:
-            plan.append((Stage("modal step", tuple(self._modal), effects(self._modal)), self._stage_modal_step))
         if self._tet:
             plan.append((Stage("tet step", tuple(self._tet), effects(self._tet)), self._stage_tet_step))
+        if self._pairs or self._world_obstacles:
+            plan.append((Stage("solid contacts", tuple(self._solid), ("contact",)), self._stage_contacts))
+        if self._modal:
+            plan.append((Stage("modal step", tuple(self._modal), effects(self._modal)), self._stage_modal_step))
         selfc = tuple(n for n, t in self._tet.items() if t["pipeline"] is not None)
         if selfc:
             plan.append((Stage("tet self-collision", selfc, ("self-collision",)), self._stage_tet_self))
@@ -585,7 +591,7 @@ class World:
             except SimulationError as exc:
                 raise SimulationError(f"tet body {name!r}: {exc}") from None
             if links is not None:
-                self._tet_reactions(ctx, name, out, links)
+                self._tet_reactions(ctx, name, s, out, links)
             ctx.out.bodies[name] = out
             ctx.start[name] = s  # the start the step used (strikes applied)
             ctx.done.add(name)
@@ -632,7 +638,7 @@ class World:
                 if len(idx):
                     n = np.asarray(n)[idx]
                     add_vertex(idx, xs[idx] - gap[idx, None] * n, n, [("obstacle", o, None)] * len(idx))
-        others = [m for m in self._modal_contact] + [u for u in self._tet if u != name and self._tet[u]["contact"]]
+        others = []  # bodies meet in the solid contact solve (impulses on both); the penalty is for obstacles
         for other in others:
             xo = self._surface_now(ctx, other)
             lo = np.maximum(xs.min(0), xo.min(0)) - reach
@@ -660,31 +666,58 @@ class World:
                     ps.append(xo[near[h.point]])
                     ns.append(-h.normal)
                     links.extend((kind, other, (np.array([j]), np.ones(1), xo[j])) for j in near[h.point])
+            # our edges against the other's edges (surfaces can cross with every vertex outside)
+            eo = self._edges[other] if other in self._modal else self._tet[other]["edges"]
+            mine = t["edges"].edges
+            a0, a1 = xs[mine[:, 0]], xs[mine[:, 1]]
+            sel = np.flatnonzero(np.all((np.minimum(a0, a1) <= hi) & (np.maximum(a0, a1) >= lo), axis=1))
+            if len(sel):
+                h = eo.query(a0[sel], a1[sel], xo, reach)
+                if len(h.mine):
+                    me = mine[sel[h.mine]]
+                    verts.append(np.column_stack([sv[me[:, 0]], sv[me[:, 1]], -np.ones(len(me), np.int64)]))
+                    ws.append(np.column_stack([1.0 - h.s, h.s, np.zeros(len(me))]))
+                    oe = eo.edges[h.other]
+                    pb = xo[oe[:, 0]] + h.t[:, None] * (xo[oe[:, 1]] - xo[oe[:, 0]])
+                    ps.append(pb)
+                    ns.append(h.normal)
+                    links.extend((kind, other, (e2, np.array([1.0 - tt, tt]), p3)) for e2, tt, p3 in zip(oe, h.t, pb))
         pen = t["penalty"]
         if not verts:
             pen.set(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), dhat)
             return []
         V, W = np.concatenate(verts), np.concatenate(ws)
+        P, N = np.concatenate(ps), np.concatenate(ns)
+        # a contact already inside the skin at the step start is held where it is (a push out of the skin would
+        # throw a body placed on the ground); against another body, one closer than dhat/4 is pushed to dhat/4, so
+        # the two surfaces never meet
+        g0 = np.einsum("cd,cd->c", np.einsum("cj,cjd->cd", W, s.x[np.where(V >= 0, V, 0)]) - P, N)
+        body = np.array([lk[0] != "obstacle" for lk in links])
+        g_ref = np.clip(g0, np.where(body, 0.25 * dhat, 0.0), dhat)
+        P = P - (dhat - g_ref)[:, None] * N
         inv = np.where(V >= 0, 1.0 / t["masses"][np.where(V >= 0, V, 0)], 0.0)
         meff_inv = np.einsum("cj,cj->c", W**2, inv)
         ok = meff_inv > 0
         k = np.where(ok, STIFFNESS / np.where(ok, meff_inv, 1.0) / dt**2, 0.0)
-        pen.set(V, W, np.concatenate(ps), np.concatenate(ns), k, dhat)
+        pen.set(V, W, P, N, k, dhat)
         return links
 
-    def _tet_reactions(self, ctx, name: str, out, links: list) -> None:
-        """Friction on the tet's contacts and the equal and opposite impulses on the bodies it touched."""
+    def _tet_reactions(self, ctx, name: str, s, out, links: list) -> None:
+        """Friction on the tet's contacts and the equal and opposite impulses on the bodies it touched: the
+        penalty forces at the step end times dt (what the implicit step applied, to its Newton tolerance)."""
         t = self._tet[name]
         pen = t["penalty"]
         if not pen.count:
             return
         dt = ctx.dt
         f = pen.forces(out.x)
+        act = np.flatnonzero(f > 0)
+        Jn = (f[:, None] * dt) * pen.nrm
         mu = t["contact"].friction
         per = {}
-        for c in np.flatnonzero(f > 0):
+        for c in act:
             kind, other, data = links[c]
-            J = f[c] * dt * pen.nrm[c]  # what the tet received along the normal [N s]
+            J = Jn[c].copy()  # what the tet received through this contact [N s]
             single = pen.verts[c, 1] < 0
             if mu > 0 and single:  # Coulomb friction of a vertex contact against the other surface's velocity
                 i = pen.verts[c, 0]
@@ -771,26 +804,36 @@ class World:
             ctx.done.add(name)
 
     def _stage_contacts(self, ctx) -> None:
+        """Solid bodies (modal, tet) against each other and modal bodies against moving and mesh obstacles: one
+        compiled sequential-impulse solve (see the module docstring)."""
         dt = ctx.dt
         t0 = ctx.state_in.time
+        names = self._solid
         seg, V_parts, pos, speed = {}, [], {}, {}
         n_off = 0
-        for name in self._modal_contact:
-            m = self._modal[name]
-            s = ctx.state_in.bodies[name]
-            body = m["body"]
-            w = body.angular_velocity(s)
-            V_parts.append(np.concatenate([s.velocity + m["g"] * dt, w, s.qdot]))
-            pos[name] = body.positions(s, precise=True)
-            speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
-                                + np.linalg.norm(m["g"]) * dt)
-            if body.mode_count:
-                speed[name] += float(np.abs(body.shapes_t.T @ s.qdot).max())
-            seg[name] = (n_off, 6 + body.mode_count)
-            n_off += 6 + body.mode_count
+        for name in names:
+            if name in self._modal:
+                m = self._modal[name]
+                s = ctx.state_in.bodies[name]
+                body = m["body"]
+                w = body.angular_velocity(s)
+                V_parts.append(np.concatenate([s.velocity + m["g"] * dt, w, s.qdot]))
+                pos[name] = body.positions(s, precise=True)
+                speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
+                                    + np.linalg.norm(m["g"]) * dt)
+                if body.mode_count:
+                    speed[name] += float(np.abs(body.shapes_t.T @ s.qdot).max())
+                seg[name] = (n_off, 6 + body.mode_count)
+            else:
+                out = ctx.out.bodies[name]
+                V_parts.append(out.v.reshape(-1).copy())
+                pos[name] = ctx.start[name].x[self._tet[name]["surface"]]
+                speed[name] = float(np.sqrt(np.einsum("ij,ij->i", out.v, out.v)).max())
+                seg[name] = (n_off, 3 * len(out.v))
+            n_off += seg[name][1]
         V = np.concatenate(V_parts)
-        builder = _ContactBuilder(self, ctx, seg)
-        for name, obs in self._world_obstacles.items():  # moving obstacles and meshes
+        builder = _ContactBuilder(self, ctx, seg, names)
+        for name, obs in self._world_obstacles.items():  # modal bodies: moving obstacles and meshes
             c = self._one(name, fx.Contact)
             x = pos[name]
             for o in obs:
@@ -806,23 +849,35 @@ class World:
                     gap, nrm = gap_all[idx], np.asarray(n_all)[idx]
                 if len(idx):
                     builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c)
-        for a, b in self._pairs:  # modal bodies against each other: each one's vertices on the other's surface
-            ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
-            reach = max(ca.margin, cb.margin) + (speed[a] + speed[b]) * dt
-            xa, xb = pos[a], pos[b]
-            lo = np.maximum(xa.min(0), xb.min(0)) - reach
-            hi = np.minimum(xa.max(0), xb.max(0)) + reach
-            if np.any(lo > hi):
-                continue
-            for p, q, xp, xq, cp, cq in ((a, b, xa, xb, ca, cb), (b, a, xb, xa, cb, ca)):
-                near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
-                if not len(near):
+        for i, a in enumerate(names):  # every pair: vertices on faces both ways, edges on edges
+            for b in names[i + 1:]:
+                ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
+                reach = max(ca.margin, cb.margin) + (speed[a] + speed[b]) * dt
+                xa, xb = pos[a], pos[b]
+                lo = np.maximum(xa.min(0), xb.min(0)) - reach
+                hi = np.minimum(xa.max(0), xb.max(0)) + reach
+                if np.any(lo > hi):
                     continue
-                hits = self._surf[q].query(xp[near], xq, reach)
-                if len(hits.point):
-                    builder.pair(p, near[hits.point], q, hits.triangle, hits.bary, hits.gap, hits.normal, cp, cq)
+                for p, q, xp, xq, cp, cq in ((a, b, xa, xb, ca, cb), (b, a, xb, xa, cb, ca)):
+                    near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
+                    if len(near):
+                        h = self._surf[q].query(xp[near], xq, reach)
+                        if len(h.point):
+                            builder.general(p, near[h.point][:, None], np.ones((len(h.point), 1)), q,
+                                            self._tris[q][h.triangle], h.bary, h.gap, h.normal, cp, cq)
+                # edges against edges only within the margin (surfaces at rest on each other, where an edge can
+                # cross a face with every vertex outside); approaching surfaces are held by their vertices
+                ea = self._edges[a].edges
+                a0, a1 = xa[ea[:, 0]], xa[ea[:, 1]]
+                sel = np.flatnonzero(np.all((np.minimum(a0, a1) <= hi) & (np.maximum(a0, a1) >= lo), axis=1))
+                if len(sel):
+                    h = self._edges[b].query(a0[sel], a1[sel], xb, max(ca.margin, cb.margin))
+                    if len(h.mine):
+                        builder.general(a, ea[sel[h.mine]], np.column_stack([1.0 - h.s, h.s]), b,
+                                        self._edges[b].edges[h.other], np.column_stack([1.0 - h.t, h.t]),
+                                        h.gap, h.normal, ca, cb)
         k = builder.count
-        ctx.report.contacts["modal"] = k
+        ctx.report.contacts["solid"] = k
         if k == 0:
             return
         data = builder.arrays()
@@ -844,17 +899,23 @@ class World:
         lam = lam_n[:, None] * n + lam_t
         dV = V - V0
         for name, (o, nd) in seg.items():
-            ctx.dV[name] = dV[o:o + nd]
+            if name in self._modal:
+                ctx.dV[name] = dV[o:o + nd]  # taken at the step start by the modal step
+            else:  # a tet body's end velocities, and its positions with them (x = x_start + dt v)
+                dv = dV[o:o + nd].reshape(-1, 3)
+                out = ctx.out.bodies[name]
+                out.v += dv
+                out.x += dt * dv
         ex = {}  # what each body received from each other body (the other received the opposite)
         for c in np.flatnonzero(data["other"] >= 0):
             key = (int(data["body"][c]), int(data["other"][c]))
             J0, L0 = ex.get(key, (np.zeros(3), np.zeros(3)))
             ex[key] = (J0 + lam[c], L0 + np.cross(data["point"][c], lam[c]))
         for (a, b), (J, L) in ex.items():
-            ctx.report.exchanged.append((self._modal_contact[a], self._modal_contact[b], J, L))
+            ctx.report.exchanged.append((names[a], names[b], J, L))
         for name in self._sounds:  # what sounding bodies hear: the modal kick of the contacts that bounced
             if name in seg:
-                i = self._modal_contact.index(name)
+                i = names.index(name)
                 sel = np.flatnonzero(bounce & ((data["body"] == i) | (data["other"] == i)))
                 if len(sel):
                     ctx.impacts[name] = builder.modal_change(name, sel, lam)
@@ -1053,8 +1114,8 @@ def _skew(r: np.ndarray) -> np.ndarray:
 class _ContactBuilder:
     """Entries of the compiled solve (see ``modalfem.world._kernels``) for obstacle and body-body contacts."""
 
-    def __init__(self, world: World, ctx: _StepContext, seg: dict) -> None:
-        self.w, self.ctx, self.seg = world, ctx, seg
+    def __init__(self, world: World, ctx: _StepContext, seg: dict, names: list) -> None:
+        self.w, self.ctx, self.seg, self.names = world, ctx, seg, names
         self.count = 0
         self.ptr = [0]
         self.off, self.nd, self.jptr = [], [], []
@@ -1126,7 +1187,7 @@ class _ContactBuilder:
         self.mu.append(np.full(k, mu))
         self.e.append(np.full(k, e))
         self.margin.append(np.full(k, ca.margin if cb is None else max(ca.margin, cb.margin)))
-        ia = self.w._modal_contact.index(name_a)
+        ia = self.names.index(name_a)
         self.body.append(np.full(k, ia))
         self.other.append(np.full(k, other))
         self.point.append(point)
@@ -1136,9 +1197,20 @@ class _ContactBuilder:
     def _side(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
         """Per contact a list of entries for body ``name`` at points sum_j w_j verts_j (verts (k, m))."""
         o0, _ = self.seg[name]
-        J, WJt, p = self._entries_modal(name, verts, w, sign)
-        nd = J.shape[2]
-        return [[(o0, nd, J[c], WJt[c])] for c in range(len(J))], p
+        if name in self.w._modal:
+            J, WJt, p = self._entries_modal(name, verts, w, sign)
+            nd = J.shape[2]
+            return [[(o0, nd, J[c], WJt[c])] for c in range(len(J))], p
+        t = self.w._tet[name]
+        ids = t["surface"][verts]  # surface-local -> mesh vertex ids (k, m)
+        inv = np.where(np.isfinite(t["masses"][ids]), 1.0 / t["masses"][ids], 0.0)
+        p = np.einsum("kj,kjd->kd", w, self.ctx.start[name].x[ids])
+        eye = np.eye(3)
+        out = []
+        for c in range(len(ids)):
+            out.append([(o0 + 3 * int(ids[c, j]), 3, sign * w[c, j] * eye, sign * w[c, j] * inv[c, j] * eye)
+                        for j in range(ids.shape[1]) if w[c, j] != 0.0])
+        return out, p
 
     def obstacle(self, name, idx, gap, nrm, vobs, contact) -> None:
         ents, p = self._side(name, idx[:, None], np.ones((len(idx), 1)), 1.0)
@@ -1149,7 +1221,14 @@ class _ContactBuilder:
         ents_a, p = self._side(a, idx[:, None], np.ones((len(idx), 1)), 1.0)
         tb = self.w._modal[b]["body"].triangles[tri]
         ents_b, _ = self._side(b, tb, bary, -1.0)
-        self._add(a, ents_a, b, ents_b, nrm, gap, np.zeros(len(gap)), ca, cb, p, self.w._modal_contact.index(b))
+        self._add(a, ents_a, b, ents_b, nrm, gap, np.zeros(len(gap)), ca, cb, p, self.names.index(b))
+
+    def general(self, a, verts_a, w_a, b, verts_b, w_b, gap, nrm, ca, cb) -> None:
+        """Contacts between points sum_j w_a[:, j] verts_a[:, j] of body a and sum_j w_b verts_b of body b (normal
+        from b to a)."""
+        ents_a, p = self._side(a, verts_a, w_a, 1.0)
+        ents_b, _ = self._side(b, verts_b, w_b, -1.0)
+        self._add(a, ents_a, b, ents_b, nrm, gap, np.zeros(len(gap)), ca, cb, p, self.names.index(b))
 
     def arrays(self) -> dict:
         return {"ptr": np.asarray(self.ptr, dtype=np.int64), "off": np.asarray(self.off, dtype=np.int64),
