@@ -172,6 +172,8 @@ def render(cases: list[dict], *, command: str, date: str, machine: str, load: tu
           "the shader's work shows in the fps)."]
     if skipped:
         L.append(skipped[0]["skipped"])
+    elif any(c["kind"] == "viser" for c in cases):
+        L.append("viser is not a dependency of modalfem; it was installed beside it for this run (pip install viser).")
     return "\n".join(L) + "\n"
 
 
