@@ -79,6 +79,7 @@ def test_click_strikes_the_body_and_plays_its_sound(page, page_errors, explorer)
     assert np.abs(explorer.qdot).max() > 0 and explorer.strikes == 1  # the server's modal velocities changed
     sound = page.evaluate("window.modalfemViewer.lastSound")
     assert sound["samples"] == round(strike["out"]["result"]["sound_s"] * sound["rate"]) and sound["peak"] > 0.8
+    assert page.evaluate("window.modalfemViewer.soundsPlayed") == 1  # handed to WebAudio (the click unlocked it)
     # frames after the strike carry the ringing in modes other than the one picked
     page.wait_for_timeout(200)
     q = np.array(page.evaluate("window.modalfemViewer.last.bodies[0].q"))
