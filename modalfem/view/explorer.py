@@ -146,6 +146,7 @@ class ModeExplorer:
             self._gain = self.amplitude * self._size / reach if reach > 0 else 0.0
             self.strikes += 1
         seconds = self._sound(SurfacePoint(int(triangle), tuple(b)), J, -np.asarray(direction, dtype=np.float64))
+        self._show_status()
         return {"dqdot_norm": float(np.linalg.norm(dq)), "sound_s": seconds}
 
     def _sound(self, point, J, listener) -> float:
@@ -187,8 +188,9 @@ class ModeExplorer:
 
     def _show_status(self) -> None:
         i = self.mode
+        ringing = f", ringing magnified x{self._gain:.3g}" if self.strikes else ""
         self.viewer.status(f"mode {i + 1} of {self.model.mode_count}: {self.model.frequencies_hz[i]:.6g} Hz; "
-                           f"click the body to strike it (slow motion 1:{self.slow_motion:.3g})")
+                           f"click the body to strike it (slow motion 1:{self.slow_motion:.3g}{ringing})")
 
     def _run(self) -> None:
         period = 1.0 / self.viewer.fps

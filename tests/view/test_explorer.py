@@ -35,6 +35,7 @@ def test_strike_changes_the_modal_velocities_by_phi_transpose_j(view_model):
     np.testing.assert_allclose(ex.qdot, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
     assert out["dqdot_norm"] == pytest.approx(np.linalg.norm(ref), rel=1e-12)
     assert np.abs(ex.qdot).max() > 0 and ex.strikes == 1
+    assert f"magnified x{ex._gain:.3g}" in ex.viewer._status and "slow motion 1:" in ex.viewer._status
     ex.strike(0, 5, bary, (0.0, 0.0, -1.0))  # strikes add up
     np.testing.assert_allclose(ex.qdot, 2 * ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
     ex.rest()
