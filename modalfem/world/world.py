@@ -638,50 +638,7 @@ class World:
                 if len(idx):
                     n = np.asarray(n)[idx]
                     add_vertex(idx, xs[idx] - gap[idx, None] * n, n, [("obstacle", o, None)] * len(idx))
-        others = []  # bodies meet in the solid contact solve (impulses on both); the penalty is for obstacles
-        for other in others:
-            xo = self._surface_now(ctx, other)
-            lo = np.maximum(xs.min(0), xo.min(0)) - reach
-            hi = np.minimum(xs.max(0), xo.max(0)) + reach
-            if np.any(lo > hi):
-                continue
-            tri_o = self._modal[other]["body"].triangles if other in self._modal else self._tet[other]["triangles"]
-            prox_o = self._surf[other] if other in self._modal else self._tet[other]["proximity"]
-            kind = "modal" if other in self._modal else "tet"
-            # our vertices against the other's surface
-            near = np.flatnonzero(np.all((xs >= lo) & (xs <= hi), axis=1))
-            if len(near):
-                h = prox_o.query(xs[near], xo, reach)
-                if len(h.point):
-                    p = np.einsum("kj,kjd->kd", h.bary, xo[tri_o[h.triangle]])
-                    add_vertex(near[h.point], p, h.normal,
-                               [(kind, other, (tri_o[tr], w, pt)) for tr, w, pt in zip(h.triangle, h.bary, p)])
-            # the other's vertices against our surface (they push our faces)
-            near = np.flatnonzero(np.all((xo >= lo) & (xo <= hi), axis=1))
-            if len(near):
-                h = t["proximity"].query(xo[near], xs, reach)
-                if len(h.point):
-                    verts.append(sv[t["triangles"][h.triangle]])
-                    ws.append(h.bary)
-                    ps.append(xo[near[h.point]])
-                    ns.append(-h.normal)
-                    links.extend((kind, other, (np.array([j]), np.ones(1), xo[j])) for j in near[h.point])
-            # our edges against the other's edges (surfaces can cross with every vertex outside)
-            eo = self._edges[other] if other in self._modal else self._tet[other]["edges"]
-            mine = t["edges"].edges
-            a0, a1 = xs[mine[:, 0]], xs[mine[:, 1]]
-            sel = np.flatnonzero(np.all((np.minimum(a0, a1) <= hi) & (np.maximum(a0, a1) >= lo), axis=1))
-            if len(sel):
-                h = eo.query(a0[sel], a1[sel], xo, reach)
-                if len(h.mine):
-                    me = mine[sel[h.mine]]
-                    verts.append(np.column_stack([sv[me[:, 0]], sv[me[:, 1]], -np.ones(len(me), np.int64)]))
-                    ws.append(np.column_stack([1.0 - h.s, h.s, np.zeros(len(me))]))
-                    oe = eo.edges[h.other]
-                    pb = xo[oe[:, 0]] + h.t[:, None] * (xo[oe[:, 1]] - xo[oe[:, 0]])
-                    ps.append(pb)
-                    ns.append(h.normal)
-                    links.extend((kind, other, (e2, np.array([1.0 - tt, tt]), p3)) for e2, tt, p3 in zip(oe, h.t, pb))
+        # bodies meet each other in the solid contact solve (impulses on both); the penalty is for the obstacles
         pen = t["penalty"]
         if not verts:
             pen.set(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), dhat)
