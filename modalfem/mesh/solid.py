@@ -227,7 +227,9 @@ def _ftetwild(v, f, h, envelope):
     _tetwild_module()  # a missing pytetwild is reported here, in one line
     with tempfile.TemporaryDirectory(prefix="modalfem-ftetwild-") as folder:
         np.savez(os.path.join(folder, "in.npz"), v=v, f=f, h=h, envelope=envelope)
-        code = f"from modalfem.mesh.solid import _ftetwild_worker; _ftetwild_worker({folder!r})"
+        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # holds modalfem/
+        code = (f"import sys; sys.path.insert(0, {root!r}); from modalfem.mesh.solid import _ftetwild_worker; "
+                f"_ftetwild_worker({folder!r})")
         child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         try:
             _, err = child.communicate()
