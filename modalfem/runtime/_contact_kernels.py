@@ -265,7 +265,51 @@ def contact_velocities(ba, bb, J, Jb, V, off, msz):
 
 
 @numba.njit(cache=True)
-def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam, jt, lam_n):
+def _uniform_guess(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, shift, lam, lam_n):
+    """Initial normal impulses: one common value at every contact, the one that meets the contacts' mean
+    normal target (found matrix-free by applying a unit impulse at every contact once), if positive.
+    For a body resting or sliding on a face (many coplanar contacts sharing the load) this is close to
+    the solution, so the sweeps that follow converge in a few passes instead of dozens."""
+    k = ba.shape[0]
+    dV = np.zeros(V.shape[0])
+    for i in range(k):
+        oa = off[ba[i]]
+        for c in range(msz[ba[i]]):
+            dV[oa + c] += WJ[i, 0, c] * n[i, 0] + WJ[i, 1, c] * n[i, 1] + WJ[i, 2, c] * n[i, 2]
+        if bb[i] >= 0:
+            ob = off[bb[i]]
+            for c in range(msz[bb[i]]):
+                dV[ob + c] -= WJb[i, 0, c] * n[i, 0] + WJb[i, 1, c] * n[i, 1] + WJb[i, 2, c] * n[i, 2]
+    u = np.empty(3)
+    t = np.empty(3)
+    resid = 0.0
+    slope = 0.0
+    for i in range(k):
+        _velocity(J[i], V, off[ba[i]], msz[ba[i]], u)
+        _velocity(J[i], dV, off[ba[i]], msz[ba[i]], t)
+        vn = n[i, 0] * (u[0] + shift[i, 0]) + n[i, 1] * (u[1] + shift[i, 1]) + n[i, 2] * (u[2] + shift[i, 2])
+        dn = n[i, 0] * t[0] + n[i, 1] * t[1] + n[i, 2] * t[2]
+        if bb[i] >= 0:
+            _velocity(Jb[i], V, off[bb[i]], msz[bb[i]], u)
+            _velocity(Jb[i], dV, off[bb[i]], msz[bb[i]], t)
+            vn -= n[i, 0] * u[0] + n[i, 1] * u[1] + n[i, 2] * u[2]
+            dn -= n[i, 0] * t[0] + n[i, 1] * t[1] + n[i, 2] * t[2]
+        resid += target[i] - vn
+        slope += dn
+    if not (slope > 0.0) or not (resid > 0.0):
+        return
+    g = resid / slope
+    for c in range(V.shape[0]):
+        V[c] += g * dV[c]
+    for i in range(k):
+        lam_n[i] = g
+        lam[i, 0] = g * n[i, 0]
+        lam[i, 1] = g * n[i, 1]
+        lam[i, 2] = g * n[i, 2]
+
+
+@numba.njit(cache=True)
+def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam, jt, lam_n, guess=False):
     """Sequential impulses (projected Gauss-Seidel) over the contacts, in place on V.
 
     Per contact i and sweep: the relative velocity ``u = J_a V_a - J_b V_b + shift_i`` (shift: a
@@ -284,8 +328,11 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
         n: (k, 3) contact normals (pointing from b to a). target: (k,) [m/s]. mu: (k,) friction.
         shift: (k, 3) [m/s]. iters: sweeps.
         lam: (k, 3) total impulses [N s] (out); jt: (k, 3) friction impulses (out); lam_n (k,) normal.
+        guess: start from ``_uniform_guess`` instead of zero impulses.
     """
     k = ba.shape[0]
+    if guess and k > 1:
+        _uniform_guess(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, shift, lam, lam_n)
     A = np.zeros((k, 3, 3))
     for i in range(k):
         ma = msz[ba[i]]

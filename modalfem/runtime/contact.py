@@ -364,7 +364,7 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None
     jt = np.zeros((k, 3))
     lam_n = np.zeros(k)
     K.solve(zeros, zeros - 1, J, WJ, J, WJ, V, _ONE, msz, n, np.ascontiguousarray(target), mu, shift,
-            plan.iterations, lam, jt, lam_n)
+            plan.iterations, lam, jt, lam_n, sustained)
     dV = V - V0
     Iw = R @ body.inertia @ R.T
     dv, dw, dq = dV[0:3], dV[3:6], dV[6:]
@@ -602,7 +602,7 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
             x = K.world_positions(local_positions(body, state.q, vs), R, state.position)
             gap, nrm = K.signed_distances(kinds[0], params[0], x)
             i = int(np.argmin(gap))
-            if gap[i] < slack:
+            if gap[i] < 0.5 * slack or gap[i] < 0.0:
                 shift = (slack - gap[i]) * nrm[i] * (1.0 + 1e-9)
                 state.position += shift
                 total += shift
