@@ -338,3 +338,14 @@ def test_cli_refuses_generator_options_for_a_surface(tmp_path, capsys):
     code = main(["modes", str(shipped("bunny.ply")), "--size", "1", "1", "1"])
     assert code == 2
     assert "--size is a generator option" in capsys.readouterr().err
+
+
+def test_a_mesh_below_the_quality_bound_warns_and_says_so():
+    from modalfem.mesh.solid import QualityWarning
+
+    v, f = box_surface((1.0, 1.0, 1.0), (40, 1, 1))  # faces cut into 40:1 strips: flat tets along them
+    with pytest.warns(QualityWarning, match="below the bound"):
+        r = tetrahedralize((v, f), method="gmsh", h=0.5)
+    assert r.report.worst_quality < QUALITY_BOUND
+    assert r.report.worst_quality == pytest.approx(radius_ratio(r.mesh.points, r.mesh.cells).min())
+    assert "BELOW the bound" in str(r.report)
