@@ -3,13 +3,11 @@ tet block and a small cloth."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
+from _world import BAR
 
 import modalfem
 from modalfem.mesh import box
-
-from _world import BAR
 
 
 @pytest.fixture(scope="session")
@@ -33,7 +31,6 @@ def block_model():
 def cloth_model():
     from modalfem.cloth.mesh import grid
     from modalfem.cloth.model import ClothModel
-
     from modalfem.cloth.scenes import MATERIAL
 
     return ClothModel(grid((0.4, 0.4), (13, 13), origin=(-0.05, -0.15, 0.0)), MATERIAL, mass_damping=0.1)

@@ -6,12 +6,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _world import BAR, total_momentum
 
 from modalfem import world as mw
-from modalfem.effects import Contact, Damping, Gravity, PseudoForces, SelfCollision, Sound, Wind
+from modalfem.effects import (
+    Contact,
+    Damping,
+    Gravity,
+    PseudoForces,
+    SelfCollision,
+    Sound,
+    Wind,
+)
 from modalfem.errors import InputError, SimulationError
-
-from _world import BAR, total_momentum
 
 
 # ----------------------------------------------------------------------------- vocabulary and refusals
@@ -26,13 +33,13 @@ def test_an_effect_that_acts_on_no_body_is_refused(bar_model):
 
 
 @pytest.mark.parametrize("make, msg", [
-    (lambda m: dict(bodies=[mw.Modal(m, name="a"), mw.Modal(m, name="a")]), "duplicate body name"),
-    (lambda m: dict(bodies=[mw.Modal(m, name="a")], effects=[Gravity(bodies=["b"])]), "names body 'b'"),
-    (lambda m: dict(bodies=[mw.Modal(m, name="a")], effects=[object()]), "unknown effect object"),
-    (lambda m: dict(bodies=[mw.Modal(m, name="a")], obstacles=["floor"]), "unknown obstacle type"),
-    (lambda m: dict(bodies=[]), "at least one body"),
-    (lambda m: dict(bodies=[mw.Modal(m, name="a")], effects=[Contact(), Contact()]), "2 contact effects"),
-    (lambda m: dict(bodies=[mw.Modal(m, name="a")], effects=[Wind(lambda x, t: x * 0)]), "constant wind"),
+    (lambda m: {"bodies": [mw.Modal(m, name="a"), mw.Modal(m, name="a")]}, "duplicate body name"),
+    (lambda m: {"bodies": [mw.Modal(m, name="a")], "effects": [Gravity(bodies=["b"])]}, "names body 'b'"),
+    (lambda m: {"bodies": [mw.Modal(m, name="a")], "effects": [object()]}, "unknown effect object"),
+    (lambda m: {"bodies": [mw.Modal(m, name="a")], "obstacles": ["floor"]}, "unknown obstacle type"),
+    (lambda m: {"bodies": []}, "at least one body"),
+    (lambda m: {"bodies": [mw.Modal(m, name="a")], "effects": [Contact(), Contact()]}, "2 contact effects"),
+    (lambda m: {"bodies": [mw.Modal(m, name="a")], "effects": [Wind(lambda x, t: x * 0)]}, "constant wind"),
 ])
 def test_bad_worlds_get_one_line(bar_model, make, msg):
     with pytest.raises(InputError, match=msg) as e:
@@ -166,7 +173,7 @@ def test_modal_bodies_collide_without_tunnelling_momentum_or_energy_gain(bar_mod
     p0 = total_momentum(w, s)
     e0 = sum(w.energy(s, n)["total"] for n in ("a", "b"))
     exchanged = 0
-    for _ in range(int(round(0.05 / dt)) + 2):
+    for _ in range(round(0.05 / dt) + 2):
         r = w.step(s, s, None, dt)
         for a, b, J, _ in r.exchanged:
             exchanged += 1
