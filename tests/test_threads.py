@@ -21,7 +21,8 @@ def _child(code: str, **env) -> subprocess.CompletedProcess:
 
 
 def test_default_is_every_core_and_the_environment_variable_sets_it():
-    code = "import modalfem, numba, os; print(modalfem.threads(), numba.get_num_threads(), len(os.sched_getaffinity(0)))"
+    code = ("import modalfem, numba, os; "
+            "print(modalfem.threads(), numba.get_num_threads(), len(os.sched_getaffinity(0)))")
     p = _child(code)
     assert p.returncode == 0, p.stderr
     count, numba_count, cores = map(int, p.stdout.split())

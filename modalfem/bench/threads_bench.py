@@ -280,7 +280,8 @@ def command(argv: list[str]) -> int:
                 store[t].append(r)
     profiles = {}
     if not (a.quick or a.no_profile):
-        for case, label, steps in (("cloth", "cloth pile 64x64", cloth_steps), ("tet", "tet bar, newton+cg", tet_steps)):
+        for case, label, steps in (("cloth", "cloth pile 64x64", cloth_steps),
+                                   ("tet", "tet bar, newton+cg", tet_steps)):
             print(f"[bench threads] one-thread CPU profile: {label} ...", file=sys.stderr, flush=True)
             profiles[label] = _profile_child(case, steps, a.timeout)
     cmd = "python -m modalfem bench threads" + ("" if not argv else " " + shlex.join(argv))

@@ -87,12 +87,32 @@ def membrane_gradient(x, tri, G, area, mu, lam, out):
                 out[v, i] += P[i, 0] * G[e, a, 0] + P[i, 1] * G[e, a, 1]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def membrane_hessian(x, tri, G, area, mu, lam, project, out, maps):
     """Per-triangle 9x9 Hessians [N/m] (``Membrane.hessian_blocks``): into ``out`` (m, 9, 9) if ``maps`` is
-    empty, else added straight into the block matrix data ``out`` (nnzb, 3, 3) at the triangles' block
-    positions ``maps`` (m, 3, 3)."""
+    empty, else added into the block matrix data ``out`` (nnzb, 3, 3) at the triangles' block positions
+    ``maps`` (m, 3, 3). The blocks are computed in parallel chunks of triangles; the additions into
+    ``out`` follow in triangle order (one thread), so every thread count gives the same sums."""
+    m = tri.shape[0]
     scatter = maps.shape[0] > 0
+    blocks = np.empty((m, 9, 9)) if scatter else out
+    chunks = chunk_count(m, 256)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        _membrane_blocks(x, tri, G, area, mu, lam, project, blocks, start, stop)
+    if scatter:
+        for e in range(m):
+            for a in range(3):
+                for b in range(3):
+                    p = maps[e, a, b]
+                    for i in range(3):
+                        for k in range(3):
+                            out[p, i, k] += blocks[e, 3 * a + i, 3 * b + k]
+
+
+@numba.njit(cache=True)
+def _membrane_blocks(x, tri, G, area, mu, lam, project, out, start, stop):
+    """The 9x9 Hessians of triangles ``start..stop-1`` into ``out`` (m, 9, 9)."""
     F = np.empty((3, 2))
     R = np.empty((3, 2))
     Sinv = np.empty((2, 2))
@@ -103,7 +123,7 @@ def membrane_hessian(x, tri, G, area, mu, lam, project, out, maps):
     nrm = np.empty(3)
     V = np.empty((2, 2))
     T = np.empty((3, 3, 3, 2))
-    for e in range(tri.shape[0]):
+    for e in range(start, stop):
         _deformation(x, tri, G, e, F)
         tr_s = _polar(F, R, Sinv)
         c = lam * (tr_s - 2.0) - 2.0 * mu
@@ -172,14 +192,10 @@ def membrane_hessian(x, tri, G, area, mu, lam, project, out, maps):
                         T[a, i, k, l] = G[e, a, 0] * H[2 * i, 2 * k + l] + G[e, a, 1] * H[2 * i + 1, 2 * k + l]
         for a in range(3):
             for b in range(3):
-                p = maps[e, a, b] if scatter else 0
                 for i in range(3):
                     for k in range(3):
-                        v = area[e] * (T[a, i, k, 0] * G[e, b, 0] + T[a, i, k, 1] * G[e, b, 1])
-                        if scatter:
-                            out[p, i, k] += v
-                        else:
-                            out[e, 3 * a + i, 3 * b + k] = v
+                        out[e, 3 * a + i, 3 * b + k] = area[e] * (T[a, i, k, 0] * G[e, b, 0]
+                                                                  + T[a, i, k, 1] * G[e, b, 1])
 
 
 @numba.njit(cache=True)

@@ -251,7 +251,8 @@ def _svd_element(e, F, V0t, warm, U, s, V, AV) -> None:
                 n1, n2 = n2, n1
             else:
                 n0, n1 = n1, n0
-    det = (AV[3, 0] * (AV[4, 1] * AV[5, 2] - AV[5, 1] * AV[4, 2]) + AV[4, 0] * (AV[5, 1] * AV[3, 2] - AV[3, 1] * AV[5, 2])
+    det = (AV[3, 0] * (AV[4, 1] * AV[5, 2] - AV[5, 1] * AV[4, 2])
+           + AV[4, 0] * (AV[5, 1] * AV[3, 2] - AV[3, 1] * AV[5, 2])
            + AV[5, 0] * (AV[3, 1] * AV[4, 2] - AV[4, 1] * AV[3, 2]))
     if det < 0:
         for r in range(6):
