@@ -247,7 +247,7 @@ def _ftetwild(v, f, h, envelope):
 # ---------------------------------------------------------------------------------- pipeline
 def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, method: str = "auto",
                    quality_bound: float = QUALITY_BOUND, envelope: float = 2e-3, max_triangles: int = 20000,
-                   max_open_fraction: float = 0.3, progress: Callable[[str], None] | None = None) -> Tetrahedralization:
+                   max_open_fraction: float = 0.6, progress: Callable[[str], None] | None = None) -> Tetrahedralization:
     """Make a solid tetrahedral mesh from a surface and report how close and how good it is.
 
     Args:
@@ -260,7 +260,8 @@ def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, m
             as a fraction of the bounding-box diagonal.
         max_triangles: inputs with more triangles (and finer than ``h``) are decimated first.
         max_open_fraction: refuse open surfaces whose boundary loops span more than this fraction
-            of their area (sheets and bowls, not solids with holes).
+            of their area: 1 for a flat sheet, ~0.8-1 for curved sheets, 0.5 for a hemisphere open at
+            its base (a scanned dome without its bottom is accepted and filled), small for scans with holes.
         progress: called with one line per stage.
 
     Returns:
