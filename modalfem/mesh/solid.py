@@ -52,6 +52,8 @@ __all__ = ["SURFACE_SUFFIXES", "QUALITY_BOUND", "QualityWarning", "SurfaceReport
 QUALITY_BOUND = 0.1
 #: default target element size as a fraction of the bounding-box diagonal (fTetWild's default)
 H_FRACTION = 0.05
+#: smallest h accepted, as a fraction 1/MAX_DIVISIONS of the bounding-box diagonal (a cube: ~7e7 tets)
+MAX_DIVISIONS = 400
 
 
 class QualityWarning(UserWarning):
@@ -304,6 +306,9 @@ def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, m
         from modalfem.mesh.generators import _positive
 
         h = _positive("h", h)
+    if h < diag / MAX_DIVISIONS:
+        raise InputError(f"h = {h:.3g} m is below 1/{MAX_DIVISIONS} of the surface's {diag:.3g} m diagonal: that would "
+                         f"make millions of tetrahedra (h is in metres after unit_scale={unit_scale:g})")
     if boundary:
         frac = open_fraction(v, f, bedges)
         if frac > max_open_fraction:
@@ -431,6 +436,9 @@ def load_surface(path, *, h: float | None = None, unit_scale: float = 1.0, progr
         if value is not None:
             raise InputError(f"--{opt} is a generator option; {str(path)!r} is a surface file (it takes --h, --unit-scale)")
     result = tetrahedralize(path, h=h, unit_scale=unit_scale, progress=progress)
+    from modalfem.mesh.io import _warn_about_size
+
+    _warn_about_size(result.mesh, Path(path), float(unit_scale))  # a part in mm read as metres, ...
     done = getattr(progress, "done", None)
     for line in result.report.lines():
         if done is not None:

@@ -360,3 +360,20 @@ def test_a_dome_scanned_without_its_base_is_filled():
     # filled where the generalised winding number exceeds 1/2; on the rim's plane it is 1/2 itself, so the fill
     # may stop short of that plane: most of the half ball, never more (5.5 % short when written)
     assert 0.9 * half_ball < r.mesh.volume <= half_ball
+
+
+def test_tiny_h_is_refused_and_a_part_in_millimetres_warns(tmp_path):
+    import meshio
+
+    from modalfem.errors import InputError
+    from modalfem.mesh.io import UnitWarning
+    from modalfem.mesh.solid import load_surface
+
+    v, f = box_surface((60.0, 20.0, 10.0), (6, 2, 1))  # a part in millimetres
+    with pytest.raises(InputError, match="millions of tetrahedra"):
+        from_surface((v, f), h=0.01)
+    path = tmp_path / "part.stl"
+    meshio.write(path, meshio.Mesh(v, [("triangle", f)]))
+    with pytest.warns(UnitWarning, match="unit_scale=0.001"):
+        mesh, source = load_surface(path, h=10.0)
+    assert source["surface"]["tets"] == mesh.cell_count
