@@ -1082,7 +1082,7 @@ class _ContactBuilder:
         self.body, self.other, self.point = [], [], []
         self.iterations = 1
         self._modal_frames = {}
-        self.full = []  # per entry: sign R Phi (3, r) with every mode (what an impulse does to the modes)
+        self.full = []  # per entry: sign R Phi (3, r) with every mode of a modal body, None for a vertex
 
     def _modal_frame(self, name: str):
         f = self._modal_frames.get(name)
@@ -1115,11 +1115,10 @@ class _ContactBuilder:
         # step, so a velocity-level contact cannot predict them: they take no part (the sound still hears
         # them: ``modal_change``)
         J[:, :, 6:] = Rphi * (body.omega * self.ctx.dt <= SLOW)
-        self.full.extend(sign * Rphi)
         WJt = np.transpose(J, (0, 2, 1)).copy()
         WJt[:, 0:3, :] /= body.mass
         WJt[:, 3:6, :] = np.einsum("ab,kbc->kac", Iw_inv, S)  # Iw^-1 (-[r]x)^T = Iw^-1 [r]x
-        return sign * J, sign * WJt, r + s.position
+        return sign * J, sign * WJt, r + s.position, sign * Rphi
 
     def _add(self, name_a, ent_a, name_b, ent_b, n, gap, vobs_n, ca, cb, point, other):
         """Append contacts: ent_* = list over contacts of lists of (off, nd, J (3, nd), WJt (nd, 3))."""
@@ -1128,7 +1127,8 @@ class _ContactBuilder:
             for ents in (ent_a, ent_b):
                 if ents is None:
                     continue
-                for o, nd, Jb, Wb in ents[c]:
+                for o, nd, Jb, Wb, full in ents[c]:
+                    self.full.append(full)
                     self.off.append(o)
                     self.nd.append(nd)
                     self.jptr.append(self.jlen)
@@ -1155,9 +1155,9 @@ class _ContactBuilder:
         """Per contact a list of entries for body ``name`` at points sum_j w_j verts_j (verts (k, m))."""
         o0, _ = self.seg[name]
         if name in self.w._modal:
-            J, WJt, p = self._entries_modal(name, verts, w, sign)
+            J, WJt, p, full = self._entries_modal(name, verts, w, sign)
             nd = J.shape[2]
-            return [[(o0, nd, J[c], WJt[c])] for c in range(len(J))], p
+            return [[(o0, nd, J[c], WJt[c], full[c])] for c in range(len(J))], p
         t = self.w._tet[name]
         ids = t["surface"][verts]  # surface-local -> mesh vertex ids (k, m)
         inv = np.where(np.isfinite(t["masses"][ids]), 1.0 / t["masses"][ids], 0.0)
@@ -1165,7 +1165,7 @@ class _ContactBuilder:
         eye = np.eye(3)
         out = []
         for c in range(len(ids)):
-            out.append([(o0 + 3 * int(ids[c, j]), 3, sign * w[c, j] * eye, sign * w[c, j] * inv[c, j] * eye)
+            out.append([(o0 + 3 * int(ids[c, j]), 3, sign * w[c, j] * eye, sign * w[c, j] * inv[c, j] * eye, None)
                         for j in range(ids.shape[1]) if w[c, j] != 0.0])
         return out, p
 
@@ -1206,7 +1206,7 @@ class _ContactBuilder:
         dq = np.zeros(nd - 6)
         for c in sel:
             for e in range(self.ptr[c], self.ptr[c + 1]):
-                if self.off[e] == o0:
+                if self.off[e] == o0 and self.full[e] is not None:
                     dq += self.full[e].T @ lam[c]
         return dq
 
