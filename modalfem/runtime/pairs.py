@@ -180,7 +180,12 @@ class ContactGroup:
 
     def _step(self, states, h: float) -> GroupReport:
         from modalfem.runtime import _contact_kernels as K
-        from modalfem.runtime.contact import Contacts, deformation_bound, local_positions, push_out
+        from modalfem.runtime.contact import (
+            Contacts,
+            deformation_bound,
+            local_positions,
+            push_out,
+        )
 
         nb = len(self.solvers)
         bodies = [s.body for s in self.solvers]
@@ -233,14 +238,20 @@ class ContactGroup:
         # ---- free second half
         for sv, st, ld in zip(self.solvers, states, loads):
             sv.advance_free(st, ld, 0.5 * h)
-        # ---- position correction
-        if close:
-            self._separate(states, bodies, close, report)
+        # ---- position correction: out of the obstacles first, then pairs apart (bodies on an obstacle stay)
+        grounded = np.zeros(nb, dtype=bool)
         if self.obstacles is not None:
+            ob = self.obstacles
             dummy = Contacts(np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int64),
-                             [self.obstacles])
-            for sv, st, a in zip(self.solvers, states, accel):
+                             [ob])
+            for i, (sv, st, a) in enumerate(zip(self.solvers, states, accel)):
                 push_out(sv, st, dummy, accel=a)
+                if close:
+                    vs, _ = K.candidates(ob.kinds, ob.params, bodies[i].rest, st.rotation(), st.position,
+                                         deformation_bound(bodies[i], st.q), np.full(len(ob.kinds), self.margin))
+                    grounded[i] = len(vs) > 0
+        if close:
+            self._separate(states, bodies, close, report, grounded, accel)
         for st in states:
             st.time += h
         return report
@@ -296,7 +307,6 @@ class ContactGroup:
 
     def _solve(self, states, bodies, R, Iw_inv, accel, parts, h, report) -> None:
         from modalfem.runtime import _contact_kernels as K
-        from modalfem.runtime.contact import local_positions
 
         ba, vert, bb, tri, bary, n, gap, point = (np.concatenate([p[i] for p in parts]) for i in range(8))
         n = np.ascontiguousarray(n)
@@ -384,8 +394,23 @@ class ContactGroup:
         if obstacle.any():
             np.add.at(report.obstacle_impulse, ba[obstacle], lam[obstacle])
 
-    def _separate(self, states, bodies, close, report, passes: int = 2) -> None:
-        """Translate pairs with a vertex deeper than ``tolerance`` inside the other apart (see the module docstring)."""
+    @staticmethod
+    def _pay_lift(st, body, accel, d) -> None:
+        """Take the potential energy gained by moving ``st`` by d [m] in the load field from its kinetic energy."""
+        gain = _lift_cost(body, accel, d)
+        if gain <= 0.0:
+            return
+        kinetic = body.kinetic_energy_rigid(st) + 0.5 * float(st.qdot @ st.qdot)
+        scale = float(np.sqrt(max(0.0, 1.0 - gain / kinetic))) if kinetic > 0.0 else 0.0
+        st.velocity *= scale
+        st.angular_momentum *= scale
+        st.qdot *= scale
+
+    def _separate(self, states, bodies, close, report, grounded, accel, passes: int = 4) -> None:
+        """Translate pairs with a vertex deeper than ``tolerance`` inside the other apart (see the module
+        docstring). A body touching an obstacle (``grounded``) is not moved when the other one is free: the
+        free one moves the whole way; the potential energy this lift adds in the load field is taken from
+        the kinetic energy of the lifted body (as ``contact.push_out`` does)."""
         from modalfem.runtime import _contact_kernels as K
         from modalfem.runtime.contact import local_positions
 
@@ -416,8 +441,12 @@ class ContactGroup:
                     continue
                 ma, mb = bodies[a].mass, bodies[b].mass
                 shift = (depth - 0.5 * self.tolerance) * normal
-                states[a].position += shift * (mb / (ma + mb))
-                states[b].position -= shift * (ma / (ma + mb))
+                wa = 0.0 if grounded[a] and not grounded[b] else (1.0 if grounded[b] and not grounded[a]
+                                                                   else mb / (ma + mb))
+                for i, d in ((a, wa * shift), (b, -(1.0 - wa) * shift)):
+                    states[i].position += d
+                    if grounded[a] != grounded[b]:  # the pair's centre of mass moves: pay its lift
+                        self._pay_lift(states[i], bodies[i], accel[i], d)
                 world.pop(a, None)
                 world.pop(b, None)
                 report.separated.append((a, b, float(depth)))
@@ -429,6 +458,10 @@ class ContactGroup:
                     self._tree(i).refit(world[i], margin=0.0)
             if not moved:
                 break
+
+
+def _lift_cost(body, accel, d) -> float:
+    return -body.mass * float(np.asarray(accel) @ d)
 
 
 def step_group(solvers, states, dt: float, **options) -> GroupReport:
