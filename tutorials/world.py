@@ -131,8 +131,8 @@ for step in range(round(t_end / dt)):
         crossings += len(world.intersections(state))
     if step in (0, 120, 300, 699):
         snapshots.append(state.copy())
-    for n in energy:
-        energy[n].append(world.energy(state, n)["total"])
+    for n, series in energy.items():
+        series.append(world.energy(state, n)["total"])
 print(f"{checks} intersection checks, {crossings} crossings; body pairs that touched: {pairs}")
 print(f"simulation done after {time.perf_counter() - t_start:.1f} s")
 # -
