@@ -79,60 +79,55 @@ def signed_distances(kind, params, x):
 
 
 @numba.njit(cache=True)
+def _rigid_gaps(kind, p, rest, R, c, out):
+    """Gaps (nv,) [m] of the rigid positions ``c + R X_j`` against one obstacle (written into ``out``)."""
+    nv = rest.shape[0]
+    if kind == PLANE:
+        # gap = n . (c + R X) - d = (R^T n) . X + (n . c - d): one dot per vertex
+        a0 = R[0, 0] * p[0] + R[1, 0] * p[1] + R[2, 0] * p[2]
+        a1 = R[0, 1] * p[0] + R[1, 1] * p[1] + R[2, 1] * p[2]
+        a2 = R[0, 2] * p[0] + R[1, 2] * p[1] + R[2, 2] * p[2]
+        base = c[0] * p[0] + c[1] * p[1] + c[2] * p[2] - p[3]
+        for j in range(nv):
+            out[j] = base + a0 * rest[j, 0] + a1 * rest[j, 1] + a2 * rest[j, 2]
+        return
+    for j in range(nv):
+        x0 = c[0] + R[0, 0] * rest[j, 0] + R[0, 1] * rest[j, 1] + R[0, 2] * rest[j, 2]
+        x1 = c[1] + R[1, 0] * rest[j, 0] + R[1, 1] * rest[j, 1] + R[1, 2] * rest[j, 2]
+        x2 = c[2] + R[2, 0] * rest[j, 0] + R[2, 1] * rest[j, 1] + R[2, 2] * rest[j, 2]
+        g, _, _, _ = _signed(kind, p, x0, x1, x2)
+        out[j] = g
+
+
+@numba.njit(cache=True)
 def candidates(kinds, params, rest, R, c, bound, margins):
     """Vertices that may be within ``margins[o]`` [m] of obstacle o.
 
     The rigid position ``c + R X_j`` of every vertex is tested against each obstacle with the margin
     grown by ``bound`` [m], an upper bound of the deformation ``|Phi_j q|`` of any vertex, so no vertex
-    closer than the margin is missed. Returns ``(vertex, obstacle)`` (p,) int64 arrays.
+    closer than the margin is missed. Returns ``(vertex, obstacle)`` (p,) int64 arrays, obstacle-major.
     """
     nv = rest.shape[0]
     no = kinds.shape[0]
-    cap = 64
-    vs = np.empty(cap, dtype=np.int64)
-    os_ = np.empty(cap, dtype=np.int64)
+    g = np.empty((no, nv))
     n = 0
     for o in range(no):
-        kind = kinds[o]
-        p = params[o]
+        _rigid_gaps(kinds[o], params[o], rest, R, c, g[o])
         lim = margins[o] + bound
-        if kind == PLANE:
-            # gap = n . (c + R X) - d = (R^T n) . X + (n . c - d): one dot per vertex
-            a0 = R[0, 0] * p[0] + R[1, 0] * p[1] + R[2, 0] * p[2]
-            a1 = R[0, 1] * p[0] + R[1, 1] * p[1] + R[2, 1] * p[2]
-            a2 = R[0, 2] * p[0] + R[1, 2] * p[1] + R[2, 2] * p[2]
-            base = c[0] * p[0] + c[1] * p[1] + c[2] * p[2] - p[3]
-            for j in range(nv):
-                g = base + a0 * rest[j, 0] + a1 * rest[j, 1] + a2 * rest[j, 2]
-                if g < lim:
-                    if n == cap:
-                        cap *= 2
-                        vs2 = np.empty(cap, dtype=np.int64)
-                        os2 = np.empty(cap, dtype=np.int64)
-                        vs2[:n] = vs[:n]
-                        os2[:n] = os_[:n]
-                        vs, os_ = vs2, os2
-                    vs[n] = j
-                    os_[n] = o
-                    n += 1
-        else:
-            for j in range(nv):
-                x0 = c[0] + R[0, 0] * rest[j, 0] + R[0, 1] * rest[j, 1] + R[0, 2] * rest[j, 2]
-                x1 = c[1] + R[1, 0] * rest[j, 0] + R[1, 1] * rest[j, 1] + R[1, 2] * rest[j, 2]
-                x2 = c[2] + R[2, 0] * rest[j, 0] + R[2, 1] * rest[j, 1] + R[2, 2] * rest[j, 2]
-                g, _, _, _ = _signed(kind, p, x0, x1, x2)
-                if g < lim:
-                    if n == cap:
-                        cap *= 2
-                        vs2 = np.empty(cap, dtype=np.int64)
-                        os2 = np.empty(cap, dtype=np.int64)
-                        vs2[:n] = vs[:n]
-                        os2[:n] = os_[:n]
-                        vs, os_ = vs2, os2
-                    vs[n] = j
-                    os_[n] = o
-                    n += 1
-    return vs[:n], os_[:n]
+        for j in range(nv):
+            if g[o, j] < lim:
+                n += 1
+    vs = np.empty(n, dtype=np.int64)
+    os_ = np.empty(n, dtype=np.int64)
+    n = 0
+    for o in range(no):
+        lim = margins[o] + bound
+        for j in range(nv):
+            if g[o, j] < lim:
+                vs[n] = j
+                os_[n] = o
+                n += 1
+    return vs, os_
 
 
 @numba.njit(cache=True)
@@ -375,8 +370,7 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
             n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
             vn = n0 * u[0] + n1 * u[1] + n2 * u[2]
             new = lam_n[i] + (target[i] - vn) / Wn[i]
-            if new < 0.0:
-                new = 0.0
+            new = max(new, 0.0)
             dn = new - lam_n[i]
             lam_n[i] = new
             d[0], d[1], d[2] = dn * n0, dn * n1, dn * n2
@@ -423,12 +417,10 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
                         V[ob + c] -= WJb[i, 0, c] * d[0] + WJb[i, 1, c] * d[1] + WJb[i, 2, c] * d[2]
                 for a in range(3):
                     ad = abs(d[a])
-                    if ad > change:
-                        change = ad
+                    change = max(change, ad)
         for i in range(k):
             for a in range(3):
                 al = abs(lam[i, a])
-                if al > big:
-                    big = al
+                big = max(big, al)
         if change <= 1e-12 * big:
             break
