@@ -291,3 +291,53 @@ _SUPPORT = {
 def supported(kind: str) -> tuple:
     """Names of the effects a body kind (``"modal"``, ``"tet"``, ``"cloth"``) supports."""
     return _SUPPORT[kind]
+
+
+def for_modal(effect):
+    """The runtime's implementation of a public effect for ``runtime.ModalSolver`` (other objects pass through).
+
+    Raises:
+        InputError: an effect a modal body cannot take, or one a single solver cannot (damping lives in the
+            body: ``ModalBody(model, damping=(alpha, beta))``; contact needs obstacles: ``runtime.Obstacles`` or a
+            ``World``).
+    """
+    if not isinstance(effect, _Effect):
+        return effect
+    from modalfem.runtime import effects as rte
+
+    if isinstance(effect, Gravity):
+        return rte.Gravity(effect.g)
+    if isinstance(effect, Wind):
+        if callable(effect.velocity):
+            raise InputError("a modal body takes a constant wind velocity (3 numbers [m/s]); wind fields (x, t) act "
+                             "on cloth and tet bodies")
+        return rte.Wind(effect.velocity, density=effect.density, drag=effect.drag)
+    if isinstance(effect, PseudoForces):
+        return rte.PseudoForces(coriolis=effect.coriolis, centripetal=effect.centripetal, euler=effect.euler)
+    if effect.name in supported("modal"):
+        raise InputError(f"{effect.name} on a single modal solver: give damping to ModalBody(model, damping=(alpha, "
+                         "beta)), contact as runtime.Obstacles([...]), sound as runtime.ModalSound, or use a "
+                         "modalfem.world.World")
+    raise InputError(f"effect {effect.name} cannot act on a modal body: a modal body takes "
+                     f"{', '.join(supported('modal'))}")
+
+
+def for_tet(effect):
+    """The tet solver's implementation of a public effect for ``tet.TetSolver`` (other objects pass through).
+
+    Raises:
+        InputError: an effect a tet body cannot take, or one that needs a ``World`` (contact, self-collision, a
+            wind, which acts on the surface the world knows).
+    """
+    if not isinstance(effect, _Effect):
+        return effect
+    from modalfem import tet
+
+    if isinstance(effect, Gravity):
+        return tet.Gravity(effect.g)
+    if isinstance(effect, Damping):
+        return tet.RayleighDamping(effect.alpha, effect.beta)
+    if effect.name in supported("tet"):
+        raise InputError(f"{effect.name} on a single tet solver: use a modalfem.world.World (or tet.Ground for a "
+                         "penalty ground)")
+    raise InputError(f"effect {effect.name} cannot act on a tet body: a tet body takes {', '.join(supported('tet'))}")

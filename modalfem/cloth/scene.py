@@ -71,8 +71,9 @@ class ClothScene:
 
     Args:
         model: the cloth.
-        gravity: acceleration (3,) [m/s^2], e.g. ``(0, 0, -9.81)``; None for none.
-        wind: a ``Wind``; None for none.
+        gravity: acceleration (3,) [m/s^2], e.g. ``(0, 0, -9.81)``, or a ``modalfem.effects.Gravity``; None for none.
+        wind: a ``Wind`` (linear drag D), or a ``modalfem.effects.Wind`` (pressure ``0.5 rho C |s| s``); None for
+            none.
         collisions: a ``modalfem.collision.pipeline.CollisionConfig``; None for no collision handling.
         obstacles: kinematic obstacles for the pipeline (``modalfem.collision.obstacles``).
         smoothing: post-collision smoothing time s [s] (>= 0; 0 skips stage (d)).
@@ -109,6 +110,14 @@ class ClothScene:
     ):
         self.model = model
         n = model.mesh.point_count
+        from modalfem import effects as fx
+
+        if isinstance(gravity, fx.Gravity):  # the public effect, or a vector
+            gravity = gravity.g
+        if isinstance(wind, fx.Wind):
+            from modalfem.world.world import _cloth_wind
+
+            wind = _cloth_wind(wind)
         self.gravity = None
         if gravity is not None:
             g = np.asarray(gravity, dtype=float)
@@ -260,7 +269,7 @@ class ClothScene:
             raise SimulationError(f"time step must be finite and > 0 s, got {dt!r}")
         st = StepStats()
         t0 = time.perf_counter()
-        x, v, t = self.x, self.v, self.t
+        x, t = self.x, self.t
         v_new, released, t1 = self.implicit_velocity(dt, st)
         idx = self.model.handle_targets(t + dt)[0]
         t2 = time.perf_counter()

@@ -91,8 +91,10 @@ class ModalSolver:
     """
 
     def __init__(self, body, *, effects=()) -> None:
+        from modalfem.effects import for_modal
+
         self.body = body
-        self.effects = list(effects)
+        self.effects = [for_modal(e) for e in effects]  # modalfem.effects classes are taken too
         self.integrator = ModalIntegrator(body.omega, body.mu)
         self._load_effects = [e for e in self.effects if hasattr(e, "loads")]
         self._dependent = [e for e in self._load_effects if getattr(e, "state_dependent", False)]

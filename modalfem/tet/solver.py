@@ -203,6 +203,9 @@ class TetSolver:
         self.tol = float(tol)
         self.cg_rtol = float(cg_rtol)
         self.linear_solver = linear_solver
+        from modalfem.effects import for_tet
+
+        effects = [for_tet(e) for e in effects]  # modalfem.effects classes are taken too
         self.element_terms, self.vertex_terms, self.damping, pins = [model.density], [], None, []
         for e in effects:
             kind = getattr(e, "kind", None)

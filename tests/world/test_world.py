@@ -379,3 +379,29 @@ def test_a_struck_bar_sounds_at_its_modes(bar_model):
     peak = f[np.argmax(spec)]
     hz = snd.kept_hz
     assert np.min(np.abs(hz - peak)) <= 2 * snd.sample_rate / len(p)
+
+
+# ----------------------------------------------------------------------------- one vocabulary for the kind solvers too
+def test_every_kind_solver_takes_the_public_effects(bar_model, block_model, cloth_model):
+    from modalfem import runtime as rt
+    from modalfem import tet
+    from modalfem.cloth.scene import ClothScene
+
+    body = rt.ModalBody(bar_model, dtype=np.float64)
+    solver = rt.ModalSolver(body, effects=[Gravity((0, 0, -2.0)), Wind((3.0, 0, 0))])
+    s = solver.state()
+    solver.step(s, s, None, None, 0.01)
+    assert s.velocity[2] == pytest.approx(-0.02) and s.velocity[0] > 0
+    ts = tet.TetSolver(block_model, effects=[Gravity((0, 0, -2.0)), Damping(alpha=0.0)])
+    st = tet.TetState.at_rest(block_model)
+    ts.step(st, st, 0.01)
+    assert (block_model.masses @ st.v)[2] / block_model.masses.sum() == pytest.approx(-0.02, rel=1e-6)
+    cs = ClothScene(cloth_model, gravity=Gravity((0, 0, -2.0)))
+    cs.step(0.01)
+    assert np.mean(cs.v[:, 2]) == pytest.approx(-0.02, rel=1e-3)
+    with pytest.raises(InputError, match="self-collision on a single tet solver"):
+        tet.TetSolver(block_model, effects=[SelfCollision()])
+    with pytest.raises(InputError, match="cannot act on a modal body"):
+        rt.ModalSolver(body, effects=[SelfCollision()])
+    with pytest.raises(InputError, match="damping to ModalBody"):
+        rt.ModalSolver(body, effects=[Damping(alpha=1.0)])
