@@ -131,8 +131,9 @@ def candidates(kinds, params, rest, R, c, bound, margins):
 
 
 @numba.njit(cache=True)
-def local_positions(vertex, rest, modes3, q, skip):
-    """Deformed positions ``X_j + Phi_j q`` (k, 3) [m] of vertices in body axes, float64 sums (modes
+def local_positions(vertex, rest, vm, q, skip):
+    """Deformed positions ``X_j + Phi_j q`` (k, 3) [m] of vertices in body axes from the vertex-major shapes
+    ``vm`` (nv, r, 3), float64 sums (modes
     with ``skip[i]`` True left out: their contribution is below any physical size)."""
     k = vertex.shape[0]
     r = q.shape[0]
@@ -144,9 +145,9 @@ def local_positions(vertex, rest, modes3, q, skip):
             if skip[m]:
                 continue
             qm = q[m]
-            a0 += float(modes3[m, j, 0]) * qm
-            a1 += float(modes3[m, j, 1]) * qm
-            a2 += float(modes3[m, j, 2]) * qm
+            a0 += float(vm[j, m, 0]) * qm
+            a1 += float(vm[j, m, 1]) * qm
+            a2 += float(vm[j, m, 2]) * qm
         out[i, 0] = a0 + rest[j, 0]
         out[i, 1] = a1 + rest[j, 1]
         out[i, 2] = a2 + rest[j, 2]
@@ -180,14 +181,14 @@ def gaps_of(vertex_world, obstacle, kinds, params):
 
 
 @numba.njit(cache=True)
-def rows(vertex, local, modal, modes3, R, mass, Iw_inv, m, J, WJ, col):
+def rows(vertex, local, modal, vm, R, mass, Iw_inv, m, J, WJ, col):
     """Fill the Jacobian rows of one body's contact side (see the module docstring).
 
     Args:
         vertex: (k,) surface vertex indices.
         local: (k, 3) deformed positions relative to the centre of mass [m], body axes.
         modal: (k,) bool, include the modal columns.
-        modes3: (r, nv, 3) mode shapes [m/sqrt(kg)], body axes.
+        vm: (nv, r, 3) mode shapes [m/sqrt(kg)], body axes, vertex-major (``contact.vertex_modes``).
         R: (3, 3) body -> world; mass [kg]; Iw_inv (3, 3) world inverse inertia [1/(kg m^2)].
         m: 6 + r (columns used).
         J, WJ: (K, 3, M) outputs, rows ``col[i]`` written (M >= m; the rest of the row zeroed).
@@ -216,9 +217,9 @@ def rows(vertex, local, modal, modes3, R, mass, Iw_inv, m, J, WJ, col):
         Jr[2, 3], Jr[2, 4] = r1, -r0
         if modal[i]:
             for mm in range(r):
-                p0 = float(modes3[mm, j, 0])
-                p1 = float(modes3[mm, j, 1])
-                p2 = float(modes3[mm, j, 2])
+                p0 = float(vm[j, mm, 0])
+                p1 = float(vm[j, mm, 1])
+                p2 = float(vm[j, mm, 2])
                 Jr[0, 6 + mm] = R[0, 0] * p0 + R[0, 1] * p1 + R[0, 2] * p2
                 Jr[1, 6 + mm] = R[1, 0] * p0 + R[1, 1] * p1 + R[1, 2] * p2
                 Jr[2, 6 + mm] = R[2, 0] * p0 + R[2, 1] * p1 + R[2, 2] * p2
@@ -424,3 +425,32 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
                 big = max(big, al)
         if change <= 1e-12 * big:
             break
+
+
+@numba.njit(cache=True)
+def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
+    """``n . (v + w x r + R Phi_j qdot)`` (k,) [m/s] of one body's contact vertices, without forming rows
+    (r = R local; the modal part over the first ``nm`` modes where ``modal``)."""
+    k = vertex.shape[0]
+    out = np.empty(k)
+    for i in range(k):
+        x0, x1, x2 = local[i, 0], local[i, 1], local[i, 2]
+        r0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
+        r1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
+        r2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
+        u0 = v[0] + w[1] * r2 - w[2] * r1
+        u1 = v[1] + w[2] * r0 - w[0] * r2
+        u2 = v[2] + w[0] * r1 - w[1] * r0
+        if modal[i] and nm > 0:
+            j = vertex[i]
+            b0 = b1 = b2 = 0.0
+            for m in range(nm):
+                qd = qdot[m]
+                b0 += float(vm[j, m, 0]) * qd
+                b1 += float(vm[j, m, 1]) * qd
+                b2 += float(vm[j, m, 2]) * qd
+            u0 += R[0, 0] * b0 + R[0, 1] * b1 + R[0, 2] * b2
+            u1 += R[1, 0] * b0 + R[1, 1] * b1 + R[1, 2] * b2
+            u2 += R[2, 0] * b0 + R[2, 1] * b1 + R[2, 2] * b2
+        out[i] = n[i, 0] * u0 + n[i, 1] * u1 + n[i, 2] * u2
+    return out

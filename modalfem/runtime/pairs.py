@@ -321,12 +321,12 @@ class ContactGroup:
             sel = np.flatnonzero(ba == i)
             if len(sel):  # side a: the vertex itself
                 loc = (point[sel] - st.position) @ R[i]  # body axes, from the centre of mass
-                K.rows(vert[sel], loc, modal[sel], b._modes3, R[i], b.mass, Iw_inv[i], int(self._msz[i]), J, WJ, sel)
+                K.rows(vert[sel], loc, modal[sel], vertex_modes(b), R[i], b.mass, Iw_inv[i], int(self._msz[i]), J, WJ, sel)
             sel = np.flatnonzero(bb == i)
             if len(sel):  # side b: rigid at the same world point, modal at the closest point of its triangle
                 loc = (point[sel] - st.position) @ R[i]
                 corners = b.triangles[tri[sel]]
-                K.rows(corners[:, 0], loc, np.zeros(len(sel), dtype=bool), b._modes3, R[i], b.mass, Iw_inv[i],
+                K.rows(corners[:, 0], loc, np.zeros(len(sel), dtype=bool), vertex_modes(b), R[i], b.mass, Iw_inv[i],
                        int(self._msz[i]), Jb, WJb, sel)
                 if self._msz[i] > 6:
                     phi = np.einsum("kc,rkcd->krd", bary[sel], b._modes3[:, corners, :].astype(np.float64))
