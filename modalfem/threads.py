@@ -11,7 +11,9 @@ otherwise every core this process may run on (``os.sched_getaffinity``). ``threa
 
 Results do not depend on the count: every parallel loop splits its work into chunks whose number and
 bounds depend only on the problem size (``chunk_count``), per-chunk results (partial sums, candidate
-buffers) are combined in chunk order, so 1 and N threads give bit-identical numbers and pair lists.
+buffers) are combined in chunk order, so 1 and N threads give bit-identical numbers and pair lists. Each
+chunk is scheduled on its own (``numba.set_parallel_chunksize(1)``): on a busy machine a thread waiting for
+a core leaves its chunks to the threads that run.
 
 Threading layer: numba's TBB layer when ``libtbb`` can be loaded (the ``tbb`` wheel, a dependency on x86-64:
 it is the layer numba calls both thread-safe and fork-safe), else OpenMP (thread-safe; GNU OpenMP is not
@@ -175,6 +177,9 @@ def apply() -> None:
     n = threads()
     if getattr(_applied, "n", None) != n:
         numba.set_num_threads(n)
+        # every prange iteration (one of the loop's fixed chunks) is scheduled on its own: a thread that
+        # waits for a core on a busy machine leaves its chunks to the others instead of holding up the loop
+        numba.set_parallel_chunksize(1)
         _applied.n = n
 
 

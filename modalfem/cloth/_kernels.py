@@ -57,9 +57,13 @@ def _row_product(indptr, indices, data, x, i):
 
 @numba.njit(cache=True, parallel=True)
 def bsr_matvec(indptr, indices, data, x, out):
-    """``out = A x`` for block ``A`` and ``x``, ``out`` (n, 3) (rows in parallel)."""
-    for i in numba.prange(len(indptr) - 1):
-        out[i, 0], out[i, 1], out[i, 2] = _row_product(indptr, indices, data, x, i)
+    """``out = A x`` for block ``A`` and ``x``, ``out`` (n, 3) (chunks of rows in parallel)."""
+    n = len(indptr) - 1
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            out[i, 0], out[i, 1], out[i, 2] = _row_product(indptr, indices, data, x, i)
 
 
 @numba.njit(cache=True)
@@ -233,10 +237,14 @@ def _update(y, r, c, q, alpha):
 
 @numba.njit(cache=True, parallel=True)
 def _direction(c, z, beta):
-    """``c = z + beta c`` (rows in parallel)."""
-    for i in numba.prange(len(c)):
-        for a in range(3):
-            c[i, a] = z[i, a] + beta * c[i, a]
+    """``c = z + beta c`` (chunks of rows in parallel)."""
+    n = len(c)
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            for a in range(3):
+                c[i, a] = z[i, a] + beta * c[i, a]
 
 
 @numba.njit(cache=True)

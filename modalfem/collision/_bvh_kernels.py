@@ -344,15 +344,18 @@ def refit(tri: np.ndarray, x0: np.ndarray, x1: np.ndarray, margin: float, static
     m, L = len(tri), slot_tri.shape[1]
     tri_lo, tri_hi = np.empty((m, 3)), np.empty((m, 3))
     use_static = not math.isnan(static_margin)
-    for f in numba.prange(m):  # triangles, then leaves in parallel (each writes only its own entries)
-        i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
-        for c in range(3):
-            l0, h0 = min(x0[i, c], x0[j, c], x0[k, c]), max(x0[i, c], x0[j, c], x0[k, c])
-            l1, h1 = min(x1[i, c], x1[j, c], x1[k, c]), max(x1[i, c], x1[j, c], x1[k, c])
-            lo_, hi_ = min(l0, l1) - margin, max(h0, h1) + margin
-            if use_static:
-                lo_, hi_ = min(lo_, l0 - static_margin), max(hi_, h0 + static_margin)
-            tri_lo[f, c], tri_hi[f, c] = lo_, hi_
+    tchunks = chunk_count(m, 256)
+    for ch in numba.prange(tchunks):  # triangles, then leaves in parallel (each writes only its own entries)
+        start, stop = chunk_bounds(m, tchunks, ch)
+        for f in range(start, stop):
+            i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
+            for c in range(3):
+                l0, h0 = min(x0[i, c], x0[j, c], x0[k, c]), max(x0[i, c], x0[j, c], x0[k, c])
+                l1, h1 = min(x1[i, c], x1[j, c], x1[k, c]), max(x1[i, c], x1[j, c], x1[k, c])
+                lo_, hi_ = min(l0, l1) - margin, max(h0, h1) + margin
+                if use_static:
+                    lo_, hi_ = min(lo_, l0 - static_margin), max(hi_, h0 + static_margin)
+                tri_lo[f, c], tri_hi[f, c] = lo_, hi_
     lo, hi = np.full((2 * P, 3), np.inf), np.full((2 * P, 3), -np.inf)
     slo, shi = np.full((3, P, L), np.inf), np.full((3, P, L), -np.inf)
     cone_axis, cone_angle = np.zeros((2 * P, 3)), np.full(2 * P, math.pi)

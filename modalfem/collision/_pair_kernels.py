@@ -56,17 +56,20 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
                 fdone[f] = True
                 used[nu] = f
                 nu += 1
-    for u in numba.prange(nu):
-        f = used[u]
-        for c in range(3):
-            flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
-            fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
-        for r in range(3):
-            e = own_e[f, r]
-            if e >= 0:
-                for c in range(3):
-                    elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
-                    ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
+    bchunks = chunk_count(nu, PAIR_CHUNK)
+    for ch in numba.prange(bchunks):
+        start, stop = chunk_bounds(nu, bchunks, ch)
+        for u in range(start, stop):
+            f = used[u]
+            for c in range(3):
+                flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
+                fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
+            for r in range(3):
+                e = own_e[f, r]
+                if e >= 0:
+                    for c in range(3):
+                        elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
+                        ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
     chunks = chunk_count(k, PAIR_CHUNK)
     vbufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
     ebufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
