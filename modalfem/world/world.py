@@ -302,7 +302,11 @@ class World:
         for e in eff:
             if isinstance(e, fx.Gravity):
                 g += np.asarray(e.g)
-        return {"body": body, "solver": solver, "effects": tuple(names), "static": bool(static), "g": g}
+        from modalfem.runtime.state import State
+
+        scratch = State.rest(body)
+        return {"body": body, "solver": solver, "effects": tuple(names), "static": bool(static), "g": g,
+                "scratch": scratch, "start": scratch.copy()}
 
     def _build_tet(self, b: Tet, eff: list) -> dict:
         from modalfem import tet
@@ -546,7 +550,7 @@ class World:
         for body in control.scripted:
             if body not in self._tet:
                 raise SimulationError(f"scripted vertices need a tet body, {body!r} is not one")
-        ctx = _StepContext(state_in, state_in.copy(), control, dt)
+        ctx = _StepContext(state_in, WorldState(state_in.time, {}), control, dt)
         report = StepReport()
         ctx.report = report
         for stage, fn in self._plan:
@@ -556,9 +560,18 @@ class World:
         for b in self.bodies:  # bodies no stage moved (none today; kept for completeness)
             if b.name not in ctx.done:
                 raise SimulationError(f"body {b.name!r} was not stepped (internal plan error)")
-        ctx.out.time = state_in.time + dt
-        state_out.time = ctx.out.time
-        state_out.bodies = ctx.out.bodies
+        # all stages succeeded: only now does state_out change (a modal body's scratch state is copied into
+        # the caller's state object; the other kinds' new states are handed over)
+        bodies = dict(state_out.bodies)
+        for name, new in ctx.out.bodies.items():
+            old = bodies.get(name)
+            if name in self._modal and old is not None and old is not new:
+                old.assign(new)
+                old.time = new.time
+            else:
+                bodies[name] = new
+        state_out.bodies = bodies
+        state_out.time = state_in.time + dt
         return report
 
     def advance(self, state: WorldState, dt: float, control: WorldControl | None = None) -> StepReport:
@@ -882,10 +895,12 @@ class World:
 
         dt = ctx.dt
         for name, m in self._modal.items():
-            s = ctx.state_in.bodies[name].copy()
+            s = ctx.state_in.bodies[name]
             body, solver = m["body"], m["solver"]
             dV = ctx.dV.get(name)
             if dV is not None:  # the contact impulses of the modal contact solve, at the step start
+                m["start"].assign(s)
+                s = m["start"]
                 s.velocity += dV[0:3]
                 R = s.rotation()
                 s.angular_momentum += R @ (body.inertia @ (R.T @ dV[3:6]))
@@ -896,7 +911,7 @@ class World:
                 ctl = rt.Control()
                 for p, J in strikes:
                     ctl.add_impulse(p, J)
-            out = s.copy()
+            out = m["scratch"]  # reused every step; the caller's state receives a copy at the end of the step
             contacts = solver.collide(s, dt) if m["static"] else None
             try:
                 solver.step(s, out, ctl, contacts, dt)
