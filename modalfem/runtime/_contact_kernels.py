@@ -426,31 +426,3 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
         if change <= 1e-12 * big:
             break
 
-
-@numba.njit(cache=True)
-def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
-    """``n . (v + w x r + R Phi_j qdot)`` (k,) [m/s] of one body's contact vertices, without forming rows
-    (r = R local; the modal part over the first ``nm`` modes where ``modal``)."""
-    k = vertex.shape[0]
-    out = np.empty(k)
-    for i in range(k):
-        x0, x1, x2 = local[i, 0], local[i, 1], local[i, 2]
-        r0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
-        r1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
-        r2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
-        u0 = v[0] + w[1] * r2 - w[2] * r1
-        u1 = v[1] + w[2] * r0 - w[0] * r2
-        u2 = v[2] + w[0] * r1 - w[1] * r0
-        if modal[i] and nm > 0:
-            j = vertex[i]
-            b0 = b1 = b2 = 0.0
-            for m in range(nm):
-                qd = qdot[m]
-                b0 += float(vm[j, m, 0]) * qd
-                b1 += float(vm[j, m, 1]) * qd
-                b2 += float(vm[j, m, 2]) * qd
-            u0 += R[0, 0] * b0 + R[0, 1] * b1 + R[0, 2] * b2
-            u1 += R[1, 0] * b0 + R[1, 1] * b1 + R[1, 2] * b2
-            u2 += R[2, 0] * b0 + R[2, 1] * b1 + R[2, 2] * b2
-        out[i] = n[i, 0] * u0 + n[i, 1] * u1 + n[i, 2] * u2
-    return out

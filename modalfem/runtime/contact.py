@@ -301,18 +301,16 @@ _ONE = np.zeros(1, dtype=np.int64)
 
 def normal_velocities(solver, state, contacts: Contacts) -> np.ndarray:
     """Normal velocities (k,) [m/s] of the contact vertices (flexible: with the modal part where the
-    contact's effect is ``modal``); negative = approaching the obstacle."""
+    contact's effect is ``modal``); negative = approaching the obstacle. Computed through the same rows
+    as the solve (the same rounding as the velocities it sees)."""
     from modalfem.runtime import _contact_kernels as K
     k = contacts.count
     if k == 0:
         return np.zeros(0)
-    body = solver.body
-    R = state.rotation()
-    w = R @ (body.inertia_inv @ (R.T @ state.angular_momentum))
-    modal = _plan(contacts.effects).modal[contacts.effect]
-    return K.normal_velocities(contacts.vertex, local_positions(body, state.q, contacts.vertex), modal,
-                               vertex_modes(body), R, body.mode_count, np.ascontiguousarray(contacts.normal),
-                               state.velocity, w, state.qdot)
+    J, _, V, _, _, nm = _system(solver, state, contacts)
+    zeros = np.zeros(k, dtype=np.int64)
+    u = K.contact_velocities(zeros, zeros - 1, J, J, V, _ONE, np.array([6 + nm]))
+    return np.einsum("ka,ka->k", contacts.normal, u)
 
 
 def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None, sustained: bool = False) -> None:

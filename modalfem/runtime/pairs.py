@@ -307,6 +307,7 @@ class ContactGroup:
 
     def _solve(self, states, bodies, R, Iw_inv, accel, parts, h, report) -> None:
         from modalfem.runtime import _contact_kernels as K
+        from modalfem.runtime.contact import vertex_modes
 
         ba, vert, bb, tri, bary, n, gap, point = (np.concatenate([p[i] for p in parts]) for i in range(8))
         n = np.ascontiguousarray(n)
