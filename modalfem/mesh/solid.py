@@ -11,7 +11,7 @@ surface``, BENCHMARKS.md):
 2. **Decimate** scans much finer than ``h`` (quadric decimation, ``fast-simplification``) to at most
    ``max_triangles`` triangles.
 3. **Closed, manifold, consistently oriented surfaces**: gmsh meshes the volume inside the
-   (cleaned) triangles, with interior size ``h``: 3-9x faster than fTetWild and exact to the input
+   (cleaned) triangles, with interior size ``h``: 2-10x faster than fTetWild and exact to the input
    surface (bench: the bunny in ~3 s). Its tetrahedra inherit the input's triangles, so CAD STLs with
    long skinny triangles give slivers (worst radius ratio 0.000-0.026 on gmsh's own example parts):
    below a quarter of the bound, or still below the bound after optimising, or when gmsh fails

@@ -49,7 +49,7 @@ def test_quick_bench_writes_its_section(tmp_path):
     text = out.read_text()
     assert "keep me" in text and text.count(sb.SECTION) == 1
     rows = [r for r in text[text.index(sb.SECTION):].splitlines() if r.startswith("| bunny")]
-    assert [r.split("|")[4].strip() for r in rows] == ["gmsh", "ftetwild", "auto (gmsh)"]
+    assert [r.split("|")[4].strip() for r in rows] == ["gmsh", "repair+gmsh", "ftetwild", "auto (gmsh)"]
     for r in rows:
         cells = [c.strip() for c in r.strip("|").split("|")]
         assert float(cells[4]) > 0 and int(cells[6]) > 0  # seconds, tets
