@@ -24,7 +24,7 @@ import subprocess
 import sys
 import time
 
-__all__ = ["SECTION", "amdahl", "command", "profile_share", "render"]
+__all__ = ["SECTION", "amdahl", "command", "profile_share", "render", "replay"]
 
 SECTION = "## Threads: scaling of the cloth pile and the tet step"
 CLOTH_GOAL_1 = 10.0  # steps/s on one thread
@@ -129,6 +129,97 @@ def profile_share(case: str, steps: int | None) -> dict:
     total = sum(v[2] for v in stats.values())
     kernels = {f"{os.path.basename(f)}:{name}": v[2] for (f, _, name), v in stats.items() if _is_parallel(f, name)}
     return {"total_s": total, "parallel_s": sum(kernels.values()), "kernels": kernels}
+
+
+def replay(case: str, n: int, repeats: int, *, warm: int, window: int) -> dict:
+    """Replayed steps: the case advanced ``warm`` steps, then the same ``window`` steps replayed from a copy
+    of that state ``repeats`` times on 1 and on ``n`` threads (interleaved ``1 n n 1``), in this process.
+    The fastest replay of each count is the least disturbed by other load (the work is identical).
+    Returns ``{"1": [ms/step, ...], "n": [...]}``."""
+    import copy
+
+    from modalfem.threads import thread_count
+
+    if case == "cloth":
+        from modalfem.cloth import scenes
+
+        setup = scenes.pile(64)
+        state, dt = setup.scene, setup.dt
+
+        def advance(obj):
+            obj.step(dt)
+    else:
+        from modalfem.bench import tet_bench
+        from modalfem.material import Material
+        from modalfem.mesh import box
+        from modalfem.tet.effects import Gravity, Pins
+        from modalfem.tet.model import tet_model
+        from modalfem.tet.solver import TetSolver, TetState
+
+        mesh = box(size=tuple(0.05 * c for c in TET_CELLS), cells=TET_CELLS)
+        model = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
+        state = (TetSolver(model, effects=[Gravity(), Pins(mesh.tag_points("x0"))]), TetState.at_rest(model))
+
+        def advance(obj):
+            obj[0].step(obj[1], obj[1], tet_bench.DT)
+    for _ in range(warm):
+        advance(state)
+    out: dict = {"1": [], str(n): []}
+    for t in (1, n):  # one untimed replay per count (first launches of the thread pool at that count)
+        with thread_count(t):
+            obj = copy.deepcopy(state)
+            for _ in range(window):
+                advance(obj)
+    for r in range(repeats):
+        for t in (1, n, n, 1) if r % 2 == 0 else (n, 1, 1, n):
+            obj = copy.deepcopy(state)
+            with thread_count(t):
+                t0 = time.perf_counter()
+                for _ in range(window):
+                    advance(obj)
+                out[str(t)].append(1e3 * (time.perf_counter() - t0) / window)
+    return out
+
+
+def _replay_child(case: str, n: int, repeats: int, timeout: float) -> dict | None:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    env.pop("MODALFEM_THREADS", None)
+    cmd = [sys.executable, "-m", "modalfem.bench.threads_bench", "--replay", case, "--threads", str(n),
+           "--repeats", str(repeats)]
+    try:
+        p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        return None
+    if p.returncode != 0:
+        print(f"  replay {case} failed: {(p.stderr.strip().splitlines() or ['?'])[-1]}", file=sys.stderr)
+        return None
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+#: (label, warm-up steps, replayed steps) of the replays: the pile's settled many-layer phase (steps 61-63
+#: of its 80) and the sagging bar after 5 steps
+REPLAYS = {"cloth": ("cloth pile 64x64, steps 61-63", 60, 3), "tet": ("tet bar 10080 tets, steps 6-8", 5, 3)}
+
+
+def replay_lines(replays: dict, n: int) -> list[str]:
+    """Markdown lines of the replays: fastest and median ms/step on 1 and ``n`` threads, the speed-up of
+    the fastest and the serial fraction it implies."""
+    if not replays:
+        return []
+    L = ["", (f"Replays (the same steps re-run from a copy of one state, 1 and {n} threads interleaved, in one "
+              "process): the fastest of the repeats is the least disturbed by other processes, so its ratio is "
+              "the best estimate here of what free cores give:"), "",
+         f"| steps | repeats | 1 thread fastest / median ms | {n} threads fastest / median ms | speed-up (fastest) "
+         "| serial fraction | at 16 cores |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for label, rep in replays.items():
+        if not rep:
+            L.append(f"| {label} | failed | | | | | |")
+            continue
+        a, b = sorted(rep["1"]), sorted(rep[str(n)])
+        s, sp16 = amdahl(a[0], b[0], n)
+        L.append(f"| {label} | {len(a)} | {a[0]:.1f} / {a[len(a) // 2]:.1f} | {b[0]:.1f} / {b[len(b) // 2]:.1f} | "
+                 f"{a[0] / b[0]:.2f}x | {s:.2f} | {sp16:.1f}x |")
+    return L
 
 
 def _best(runs: list[dict]) -> dict | None:
@@ -278,6 +369,11 @@ def command(argv: list[str]) -> int:
                 if "ms_per_step" in r:
                     print(f"[bench threads]   {r['ms_per_step']:.1f} ms/step", file=sys.stderr, flush=True)
                 store[t].append(r)
+    replays = {}
+    if not (a.quick or a.no_profile):
+        for case, (label, _, _) in REPLAYS.items():
+            print(f"[bench threads] replay: {label} ...", file=sys.stderr, flush=True)
+            replays[label] = _replay_child(case, n, max(6, 3 * a.repeats), a.timeout)
     profiles = {}
     if not (a.quick or a.no_profile):
         for case, label, steps in (("cloth", "cloth pile 64x64", cloth_steps),
@@ -290,7 +386,8 @@ def command(argv: list[str]) -> int:
     section = render(cloth, tet, n, command=cmd, date=date, machine=_machine(), layer=threading_layer(),
                      cloth_label=f"cloth pile {cloth_n}x{cloth_n}, all stages",
                      tet_label=f"tet bar {tets} tets, newton+cg")
-    section = section + "\n".join(profile_lines(profiles)) + ("\n" if profiles else "")
+    extra = replay_lines(replays, n) + profile_lines(profiles)
+    section = section + "\n".join(extra) + ("\n" if extra else "")
     print(section)
     update_section(a.out, section)
     print(f"bench threads: {time.perf_counter() - t0:.0f} s, section written to {a.out}", file=sys.stderr)
@@ -300,10 +397,17 @@ def command(argv: list[str]) -> int:
 
 def _main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="python -m modalfem.bench.threads_bench")
-    ap.add_argument("--profile", choices=("cloth", "tet"), required=True)
+    ap.add_argument("--profile", choices=("cloth", "tet"))
+    ap.add_argument("--replay", choices=("cloth", "tet"))
     ap.add_argument("--steps", type=int, default=0, help="0: the case's default")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=4)
     a = ap.parse_args(argv)
-    print(json.dumps(profile_share(a.profile, a.steps or None)))
+    if a.replay:
+        _, warm, window = REPLAYS[a.replay]
+        print(json.dumps(replay(a.replay, a.threads, a.repeats, warm=warm, window=window)))
+    else:
+        print(json.dumps(profile_share(a.profile, a.steps or None)))
     return 0
 
 

@@ -56,3 +56,19 @@ def test_profile_lines_give_the_amdahl_bounds_of_the_parallel_share():
     # p = 0.6: 1 / (0.4 + 0.3) = 1.43 on 2 cores, 1 / (0.4 + 0.0375) = 2.29 on 16
     assert "| pile | 10.0 | 60 % | 1.43x | 2.29x | a.py:k 6.00 |" in text
     assert "| bar | failed |" in text
+
+
+def test_replay_lines_use_the_fastest_replays():
+    from modalfem.bench.threads_bench import replay_lines
+
+    text = "\n".join(replay_lines({"pile": {"1": [130.0, 100.0, 120.0], "2": [70.0, 60.0, 90.0]}, "bar": None}, 2))
+    # fastest 100 / 60: 1.67x, s = 2 * 0.6 - 1 = 0.2, 16 cores: 1 / (0.2 + 0.05) = 4x
+    assert "| pile | 3 | 100.0 / 120.0 | 60.0 / 70.0 | 1.67x | 0.20 | 4.0x |" in text
+    assert "| bar | failed |" in text
+
+
+def test_replay_repeats_the_same_steps_on_both_counts():
+    from modalfem.bench import threads_bench
+
+    out = threads_bench.replay("tet", 2, 1, warm=1, window=1)
+    assert len(out["1"]) == len(out["2"]) == 2 and min(out["1"] + out["2"]) > 0
