@@ -42,7 +42,8 @@ GOAL_FLOOR_RATIO = 2.0
 FEM_SIZE = (0.4, 0.1, 0.1)  # [m] steel box of the full-FEM comparison
 FEM_CELLS = (40, 10, 10)
 DT = 1e-3  # [s]
-_ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+_ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "MODALFEM_THREADS")}
+CONTACT_SECTION = "## Runtime: modal contact"
 
 
 def _timeit(fn, *, repeats: int = 9, min_time: float = 0.05) -> float:
@@ -182,7 +183,11 @@ def measure_fem(cells, *, r: int = 30) -> dict:
 # ------------------------------------------------------------------------------ child process
 def _child(argv: list[str]) -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--case", choices=["runtime", "fem", "info"], required=True)
+    ap.add_argument("--case", choices=["runtime", "fem", "info", "resting", "pile"], required=True)
+    ap.add_argument("--model", help="model file of a resting case")
+    ap.add_argument("--models", help="folder of the pile's model files")
+    ap.add_argument("--count", type=int, default=20)
+    ap.add_argument("--steps", type=int, default=600)
     ap.add_argument("--nv", type=int)
     ap.add_argument("--r", type=int)
     ap.add_argument("--cells", type=int, nargs=3)
@@ -193,6 +198,15 @@ def _child(argv: list[str]) -> int:
         res = measure_case(a.nv, a.r, layouts=a.layouts)
     elif a.case == "fem":
         res = measure_fem(a.cells)
+    elif a.case == "resting":
+        from modalfem.bench.contact_bench import measure_resting
+
+        res = measure_resting(a.model)
+    elif a.case == "pile":
+        from modalfem.bench.contact_bench import measure_pile
+
+        res = measure_pile({k: os.path.join(a.models, k + ".npz") for k in ("small_bar", "fork", "bell")},
+                           count=a.count, steps=a.steps)
     else:
         import platform
 
@@ -302,13 +316,98 @@ def render(cases: list[dict], fem: list[dict], info: dict, *, command: str, date
     return "\n".join(L) + "\n"
 
 
+def render_contact(resting: list[dict], pile: dict, *, command: str, date: str, machine: str, load: str) -> str:
+    """The contact section (starts with ``CONTACT_SECTION``): resting bodies and the pile, each against the
+    free step of the same bodies measured in the same process."""
+    from modalfem.bench.contact_bench import GOALS
+
+    L = [CONTACT_SECTION, "",
+         ("Contact of modal bodies (`runtime.contact`: compiled matrix-free sequential impulses in generalised "
+          "velocity space, O(6 + r) per contact and sweep; `runtime.pairs.ContactGroup` for bodies touching "
+          "each other). Real models (modes from scikit-fem + SciPy, built once per run; see "
+          "`modalfem/bench/contact_bench.py`). Each case in a fresh child process on one thread; the free step "
+          "(`ModalSolver.step` without effects) of the same bodies is timed in the same process, and the contact "
+          "cost is given as a ratio to it. dt = 1 ms."), "",
+         f"- Date: {date}", f"- Command: `{command}`",
+         f"- Machine: {machine}; load average when measured: {load} (other jobs shared the 2 cores: absolute "
+         "times are inflated, the ratios less so)", "",
+         "| case | surface vertices | modes | contacts | free step us | contact step us | contact / free | "
+         "steps/s | goal steps/s | verdict |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for name, r in resting:
+        if "error" in r:
+            L.append(f"| {name} | error: {r['error']} |||||||||")
+            continue
+        sps = 1.0 / r["contact"]
+        goal = GOALS[name]
+        L.append(f"| {name} resting on the ground | {r['nv']} | {r['r']} | {r['contacts']} | {1e6 * r['free']:.1f} | "
+                 f"{1e6 * r['contact']:.0f} | {r['contact'] / r['free']:.0f} | {sps:.0f} | {goal:.0f} | "
+                 f"**{'met' if sps >= goal else 'NOT met'}** |")
+    if "error" in pile:
+        L.append(f"| pile | error: {pile['error']} |||||||||")
+    elif pile:
+        sps = 1.0 / pile["step"]
+        L.append(f"| pile of {pile['count']} bodies in a box ({pile['steps']} steps from the drop) | "
+                 f"{pile['vertices']} (all bodies) | 8 each | {pile['contacts']} (max; {pile['pair_contacts']} "
+                 f"body-body) | {1e6 * pile['free']:.0f} (all bodies) | {1e6 * pile['step']:.0f} | "
+                 f"{pile['step'] / pile['free']:.0f} | {sps:.0f} | {GOALS['pile']:.0f} | "
+                 f"**{'met' if sps >= GOALS['pile'] else 'NOT met'}** |")
+    L += ["", "Where the time of a resting step goes (cProfile over 50 steps, own time per step, largest first):", ""]
+    for name, r in resting:
+        if "profile" in r:
+            L.append(f"- {name}: " + "; ".join(f"{fn} {1e6 * t:.0f} us" for fn, t in r["profile"]))
+    if pile and "error" not in pile:
+        L += ["", (f"Pile: {pile['separated']} pair position corrections (a vertex more than the tolerance inside "
+                   "another body) over the run; momentum of every body-body impulse and the no-energy-gain property "
+                   "are tested in tests/runtime/test_contact_pairs.py.")]
+    return "\n".join(L) + "\n"
+
+
+def _contact_cases(quick: bool) -> tuple[list, dict]:
+    from modalfem.bench.contact_bench import build_models
+
+    with tempfile.TemporaryDirectory() as d:
+        print("[bench runtime] contact models (scikit-fem modes)", file=sys.stderr, flush=True)
+        try:
+            paths = build_models(d)
+        except Exception as exc:  # noqa: BLE001 - reported in the table
+            err = {"error": f"models: {exc}"}
+            return [("bar", err), ("tall", err)], err
+        resting = []
+        for name in ("bar", "tall"):
+            print(f"[bench runtime] {name} resting on the ground", file=sys.stderr, flush=True)
+            resting.append((name, _spawn(["--case", "resting", "--model", paths[name]])))
+        print("[bench runtime] pile of bodies in a box", file=sys.stderr, flush=True)
+        pile = _spawn(["--case", "pile", "--models", d, "--count", "6" if quick else "20",
+                       "--steps", "20" if quick else "600"], 1800.0)
+    return resting, pile
+
+
 def command(argv: list[str]) -> int:
     """``modalfem bench runtime [--out BENCHMARKS.md] [--quick]``: measure and write the section."""
     ap = argparse.ArgumentParser(prog="modalfem bench runtime",
                                  description="Modal step + reconstruction vs the copy floor and a full-FEM step.")
     ap.add_argument("--out", default="BENCHMARKS.md", help="markdown file whose runtime section is replaced")
     ap.add_argument("--quick", action="store_true", help="tiny sizes (smoke test)")
+    ap.add_argument("--only", choices=["all", "step", "contact"], default="all",
+                    help="measure only the step section or only the contact section (default: both)")
     a = ap.parse_args(argv)
+    from modalfem.bench.cli import _machine, update_section
+
+    cmd = "python -m modalfem bench runtime" + ("" if not argv else " " + shlex.join(argv))
+    date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    if a.only in ("all", "step"):
+        _step_section(a, cmd, date)
+    if a.only in ("all", "contact"):
+        resting, pile = _contact_cases(a.quick)
+        load = open("/proc/loadavg").read().split()[0] if os.path.exists("/proc/loadavg") else "?"
+        contact = render_contact(resting, pile, command=cmd, date=date, machine=_machine(), load=load)
+        print(contact)
+        update_section(a.out, contact)
+    return 0
+
+
+def _step_section(a, cmd: str, date: str) -> None:
+    """Measure and write the step + reconstruction section."""
     vertices, modes = ((2000, 5000), (5, 10)) if a.quick else (VERTICES, MODES)
     fem_cells = [(8, 2, 2)] if a.quick else [FEM_CELLS]
     info = _spawn(["--case", "info"], 120)
@@ -325,12 +424,9 @@ def command(argv: list[str]) -> int:
         fem.append({"cells": list(cells), **_spawn(["--case", "fem", "--cells", *map(str, cells)])})
     from modalfem.bench.cli import _machine, update_section
 
-    cmd = "python -m modalfem bench runtime" + ("" if not argv else " " + shlex.join(argv))
-    date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     section = render(cases, fem, info, command=cmd, date=date, machine=_machine())
     print(section)
     update_section(a.out, section)
-    return 0
 
 
 if __name__ == "__main__":

@@ -215,20 +215,26 @@ class ContactGroup:
                     k = int(sel.sum())
                     parts.append((np.full(k, i), vs[sel], np.full(k, -1), np.full(k, -1), np.zeros((k, 3)), nrm[sel],
                                   gap[sel], x[sel]))
-        world = None
+        world: dict = {}
         centre = np.array([st.position for st in states])
         radius = np.array([b.radius for b in bodies]) + np.array([deformation_bound(b, st.q) for b, st in zip(bodies, states)])
-        close = [(a, b) for a in range(nb) for b in range(a + 1, nb)
-                 if np.linalg.norm(centre[a] - centre[b]) < radius[a] + radius[b] + reach[a] + reach[b]]
-        if close:
-            world = {}
-            for i in sorted({i for p in close for i in p}):
+        dist = np.linalg.norm(centre[:, None, :] - centre[None, :, :], axis=2)
+        ia, ib = np.nonzero(np.triu(dist < radius[:, None] + radius[None, :] + reach[:, None] + reach[None, :], 1))
+        close = []
+        if len(ia):  # bounding spheres overlap: compare the deformed surfaces' boxes
+            for i in sorted(set(ia.tolist()) | set(ib.tolist())):
                 b, st = bodies[i], states[i]
                 world[i] = K.world_positions(local_positions(b, st.q, np.arange(b.vertex_count)), R[i], st.position)
+            box = {i: (x.min(axis=0), x.max(axis=0)) for i, x in world.items()}
+            for a, b in zip(ia.tolist(), ib.tolist()):
+                r = reach[a] + reach[b]
+                if np.all(box[a][0] - r <= box[b][1]) and np.all(box[b][0] - r <= box[a][1]):
+                    close.append((a, b))
+            for i in sorted({i for p in close for i in p}):
                 self._tree(i).refit(world[i], margin=0.0)
             for a, b in close:
                 for va, vb in ((a, b), (b, a)):
-                    part = self._pair_contacts(va, vb, world, centre, radius, reach)
+                    part = self._pair_contacts(va, vb, world, box, reach)
                     if part is not None:
                         parts.append(part)
         k = sum(len(p[0]) for p in parts)
@@ -246,28 +252,28 @@ class ContactGroup:
                              [ob])
             for i, (sv, st, a) in enumerate(zip(self.solvers, states, accel)):
                 push_out(sv, st, dummy, accel=a)
-                if close:
+                if parts:
                     vs, _ = K.candidates(ob.kinds, ob.params, bodies[i].rest, st.rotation(), st.position,
                                          deformation_bound(bodies[i], st.q), np.full(len(ob.kinds), self.margin))
                     grounded[i] = len(vs) > 0
-        if close:
-            self._separate(states, bodies, close, report, grounded, accel)
+        touching = sorted({(int(min(p[0][0], p[2][0])), int(max(p[0][0], p[2][0]))) for p in parts if p[2][0] >= 0})
+        if touching:
+            self._separate(states, bodies, touching, report, grounded, accel)
         for st in states:
             st.time += h
         return report
 
-    def _pair_contacts(self, a: int, b: int, world, centre, radius, reach):
-        """Vertices of body a near the deformed surface of body b: (ba, vertex, bb, triangle, bary, normal, gap,
-        point) or None. The normal points out of b (towards a)."""
+    def _pair_contacts(self, a: int, b: int, world, box, reach):
+        """Vertices of body a near the deformed surface of body b (within ``reach[a] + reach[b]`` [m]; ``box``
+        the bodies' world boxes): (ba, vertex, bb, triangle, bary, normal, gap, point) or None. The normal
+        points out of b (towards a)."""
         from modalfem.collision._distance_kernels import point_triangle_batch
 
         xa = world[a]
-        d = xa - centre[b]
-        lim = radius[b] + reach[a] + reach[b]
-        near = np.flatnonzero(np.einsum("ij,ij->i", d, d) < lim * lim)
+        r = reach[a] + reach[b]
+        near = np.flatnonzero(np.all((xa >= box[b][0] - r) & (xa <= box[b][1] + r), axis=1))
         if not len(near):
             return None
-        r = reach[a] + reach[b]
         p = xa[near]
         qi, tri = self._tree(b).query(p - r, p + r)
         if not len(qi):
@@ -295,7 +301,8 @@ class ContactGroup:
         dist, w, tri, qi, side, diff, face = dist[best], w[best], tri[best], qi[best], side[best], diff[best], face[best]
         pa = p[qi]
         gap = np.where(side >= 0.0, dist, -dist)
-        nrm = np.where((dist > 1e-12 * (1.0 + radius[b]))[:, None] & (side >= 0.0)[:, None],
+        nrm = np.where((dist > 1e-12 * (1.0 + float(np.abs(box[b][1] - box[b][0]).max())))[:, None]
+                       & (side >= 0.0)[:, None],
                        diff / np.maximum(dist, 1e-300)[:, None], face)
         # every triangle within r of the vertex was a candidate, so a closest distance <= r is the true one;
         # a vertex whose found triangles are all farther than r is not judged (its closest may be missed)
@@ -407,31 +414,33 @@ class ContactGroup:
         st.angular_momentum *= scale
         st.qdot *= scale
 
-    def _separate(self, states, bodies, close, report, grounded, accel, passes: int = 4) -> None:
+    def _separate(self, states, bodies, pairs, report, grounded, accel, passes: int = 2) -> None:
         """Translate pairs with a vertex deeper than ``tolerance`` inside the other apart (see the module
         docstring). A body touching an obstacle (``grounded``) is not moved when the other one is free: the
         free one moves the whole way; the potential energy this lift adds in the load field is taken from
-        the kinetic energy of the lifted body (as ``contact.push_out`` does)."""
+        the kinetic energy of the lifted body (as ``contact.push_out`` does). A body moved in a pass is
+        checked against its other partners in the next pass."""
         from modalfem.runtime import _contact_kernels as K
         from modalfem.runtime.contact import local_positions
 
+        todo = list(pairs)
         for _ in range(passes):
-            moved = False
-            world = {}
-            for a, b in close:
-                for i in (a, b):
-                    if i not in world:
-                        st = states[i]
-                        world[i] = K.world_positions(local_positions(bodies[i], st.q, np.arange(bodies[i].vertex_count)),
-                                                     st.rotation(), st.position)
-                        self._tree(i).refit(world[i], margin=0.0)
-            centre = np.array([st.position for st in states])
-            radius = np.array([b.radius for b in bodies]) * 1.01 + self.tolerance
-            zero = np.full(len(bodies), self.margin)  # query half-size 2 margin: deeper vertices are not judged
-            for a, b in close:
+            world, box, moved = {}, {}, set()
+            for i in sorted({i for p in todo for i in p}):
+                st = states[i]
+                world[i] = K.world_positions(local_positions(bodies[i], st.q, np.arange(bodies[i].vertex_count)),
+                                             st.rotation(), st.position)
+                box[i] = (world[i].min(axis=0), world[i].max(axis=0))
+                self._tree(i).refit(world[i], margin=0.0)
+            reach = np.full(len(bodies), self.margin)  # query half-size 2 margin: deeper vertices are not judged
+            again = []
+            for a, b in todo:
+                if a in moved or b in moved:
+                    again.append((a, b))
+                    continue
                 depth, normal = 0.0, None
                 for va, vb, sgn in ((a, b, 1.0), (b, a, -1.0)):
-                    part = self._pair_contacts(va, vb, world, centre, radius, zero)
+                    part = self._pair_contacts(va, vb, world, box, reach)
                     if part is None:
                         continue
                     gap, nrm = part[6], part[5]
@@ -448,15 +457,10 @@ class ContactGroup:
                     states[i].position += d
                     if grounded[a] != grounded[b]:  # the pair's centre of mass moves: pay its lift
                         self._pay_lift(states[i], bodies[i], accel[i], d)
-                world.pop(a, None)
-                world.pop(b, None)
                 report.separated.append((a, b, float(depth)))
-                moved = True
-                for i in (a, b):
-                    st = states[i]
-                    world[i] = K.world_positions(local_positions(bodies[i], st.q, np.arange(bodies[i].vertex_count)),
-                                                 st.rotation(), st.position)
-                    self._tree(i).refit(world[i], margin=0.0)
+                moved |= {a, b}
+                again.append((a, b))
+            todo = again
             if not moved:
                 break
 

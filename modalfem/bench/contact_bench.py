@@ -1,0 +1,193 @@
+"""Contact cases of ``modalfem bench runtime``: modal bodies resting on the ground and a pile of bodies.
+
+Real models, built once per run into a temporary folder (``build_models``) and loaded by the child
+processes of ``runtime_bench`` (one core each):
+
+* ``bar``: a free steel bar 0.4 x 0.1 x 0.1 m (box mesh 40 x 10 x 10, P1, 12 modes, scikit-fem + SciPy);
+  its boundary surface (~1.8k vertices) rests flat on the ground on a 0.4 x 0.1 m face;
+* ``tall``: a steel bar 0.1 x 0.1 x 0.3 m with 30 modes computed on a coarse P2 mesh (3 x 3 x 9 boxes)
+  and carried to a fine render surface of ~50k vertices (``reduction.embed.carry_modes``); it stands
+  on its 0.1 x 0.1 m end (~3.7k contacts);
+* the pile: 20 bodies (small bars, tuning forks, bells from ``modalfem.mesh`` generators, 8 modes
+  each) dropped into a box (ground and four walls), stepped by one ``runtime.pairs.ContactGroup``.
+
+Every case times the free step of the same bodies (``ModalSolver.step`` without effects) in the same
+process, so the contact cost is a ratio to it.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+__all__ = ["build_models", "measure_pile", "measure_resting"]
+
+BAR = {"size": (0.4, 0.1, 0.1), "cells": (40, 10, 10), "k": 12}
+TALL = {"size": (0.1, 0.1, 0.3), "cells": (3, 3, 9), "k": 30, "h": 1.67e-3}
+PILE_COUNT = 20
+PILE_DT = 1e-3  # [s]
+PILE_STEPS = 600
+GOALS = {"bar": 5000.0, "tall": 300.0, "pile": 200.0}  # steps/s
+
+
+def _box_surface(size, h):
+    """Closed triangulated surface of an axis-aligned box [0, size] with spacing ~h [m], outward triangles."""
+    size = np.asarray(size, dtype=float)
+    n = np.maximum(1, np.round(size / h).astype(int))
+    pts, tris = [], []
+    for axis in range(3):
+        u, v = [a for a in range(3) if a != axis]
+        gu, gv = np.meshgrid(np.linspace(0, size[u], n[u] + 1), np.linspace(0, size[v], n[v] + 1), indexing="ij")
+        for side in (0.0, size[axis]):
+            p = np.zeros(gu.shape + (3,))
+            p[..., u], p[..., v], p[..., axis] = gu, gv, side
+            base = sum(len(q) for q in pts)
+            idx = base + np.arange(gu.size).reshape(gu.shape)
+            a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+            t = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+            pts.append(p.reshape(-1, 3))
+            tris.append(t)
+    x = np.concatenate(pts)
+    t = np.concatenate(tris)
+    key = np.round(x / (1e-6 * h)).astype(np.int64)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    x, t = x[first], inv.reshape(-1)[t]
+    # outward: the normal points away from the box centre
+    nrm = np.cross(x[t[:, 1]] - x[t[:, 0]], x[t[:, 2]] - x[t[:, 0]])
+    flip = np.einsum("ij,ij->i", nrm, x[t].mean(axis=1) - 0.5 * size) < 0
+    t[flip] = t[flip][:, [0, 2, 1]]
+    return x, t
+
+
+def build_models(folder: str) -> dict:
+    """Compute the models of the contact cases into ``folder`` (``.npz`` model files); returns their paths."""
+    import modalfem
+    from modalfem.mesh import bell, box, tuning_fork
+    from modalfem.mesh.surface import mass_properties
+    from modalfem.model import ModalModel
+    from modalfem.reduction.embed import carry_modes
+
+    out = {}
+
+    def modes(mesh, k, degree=1):
+        return modalfem.modes(mesh, modalfem.STEEL, k=k, degree=degree, backend="skfem", solver="scipy")
+
+    mesh = box(size=BAR["size"], cells=BAR["cells"])
+    ModalModel.from_modes(modes(mesh, BAR["k"]), mesh, modalfem.STEEL, damping=(0.0, 1e-7),
+                          rotation_coupling=False).save(os.path.join(folder, "bar.npz"))
+    out["bar"] = os.path.join(folder, "bar.npz")
+    mesh = box(size=TALL["size"], cells=TALL["cells"])
+    res = modes(mesh, TALL["k"], degree=2)
+    x, t = _box_surface(TALL["size"], TALL["h"])
+    mp = mass_properties(mesh, modalfem.STEEL.rho)
+    mat = {"name": "steel", "E": modalfem.STEEL.E, "nu": modalfem.STEEL.nu, "rho": modalfem.STEEL.rho}
+    ModalModel(vertices=x, triangles=t, shapes=carry_modes(res, mesh, x), omega=np.asarray(res.omega), mass=mp.mass,
+               center_of_mass=mp.center_of_mass, inertia=mp.inertia, material=mat, damping=(0.0, 1e-7),
+               provenance={"source": "coarse P2 3x3x9 modes carried to a fine box surface"}).save(
+        os.path.join(folder, "tall.npz"))
+    out["tall"] = os.path.join(folder, "tall.npz")
+    for name, mesh in (("small_bar", box(size=(0.12, 0.03, 0.02), cells=(8, 2, 2))),
+                       ("fork", tuning_fork(h=0.003)), ("bell", bell(diameter=0.08, height=0.064, thickness=0.004,
+                                                                     h=0.006))):
+        ModalModel.from_modes(modes(mesh, 8), mesh, modalfem.STEEL, damping=(0.0, 1e-7),
+                              rotation_coupling=False).save(os.path.join(folder, name + ".npz"))
+        out[name] = os.path.join(folder, name + ".npz")
+    return out
+
+
+def _timeit(fn, *, repeats: int = 5, min_time: float = 0.2) -> float:
+    fn()
+    t0 = time.perf_counter()
+    fn()
+    one = max(time.perf_counter() - t0, 1e-7)
+    n = max(1, int(min_time / one))
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        times.append((time.perf_counter() - t0) / n)
+    return float(np.median(times))
+
+
+def measure_resting(path: str, *, dt: float = 1e-3, settle: int = 300) -> dict:
+    """A body resting on the ground: free step vs contact step (``ModalSolver.advance`` with gravity and the
+    ground), after ``settle`` steps of settling; seconds per step, contact count."""
+    import modalfem.runtime as rt
+
+    body = rt.load(path)
+    free = rt.ModalSolver(body)
+    fs = free.state(angular_velocity=(1.0, 2.0, 3.0))
+    fs.qdot[:] = 1e-3
+    t_free = _timeit(lambda: free.step(fs, fs, None, None, dt))
+    solver = rt.ModalSolver(body, effects=[rt.Gravity(), rt.Obstacles([rt.Ground(0.0)])])
+    st = solver.state()
+    st.position[2] -= body.positions(st, precise=True)[:, 2].min()
+    for _ in range(settle):
+        solver.advance(st, dt)
+    contacts = solver.collide(st, dt)
+    t_contact = _timeit(lambda: solver.advance(st, dt))
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(50):
+        solver.advance(st, dt)
+    prof.disable()
+    stats = pstats.Stats(prof).sort_stats("tottime")
+    top = [(f"{fn[2]} ({os.path.basename(fn[0])})", float(v[2]) / 50) for fn, v in
+           sorted(stats.stats.items(), key=lambda kv: -kv[1][2])[:6]]
+    gap = body.positions(st, precise=True)[:, 2].min()
+    return {"nv": body.vertex_count, "r": body.mode_count, "contacts": int(contacts.count), "free": t_free,
+            "contact": t_contact, "min_gap": float(gap), "profile": top}
+
+
+def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEPS, dt: float = PILE_DT) -> dict:
+    """``count`` bodies dropped into a box, ``steps`` group steps: seconds per step, largest contact counts,
+    position corrections (pairs separated beyond the tolerance). Momentum of the exchanges is tested in
+    tests/runtime/test_pairs.py, not here."""
+    import modalfem.runtime as rt
+    from modalfem.runtime.pairs import ContactGroup
+    from modalfem.runtime.rotation import quat_from_axis_angle
+
+    kinds = ["small_bar", "fork", "bell"]
+    bodies = {k: rt.load(paths[k], dtype=np.float64) for k in kinds}
+    rng = np.random.default_rng(1)
+    solvers, states = [], []
+    for i in range(count):
+        body = bodies[kinds[i % 3]]
+        s = rt.ModalSolver(body, effects=[rt.Gravity()])
+        axis = rng.normal(size=3)
+        pos = (-0.12 + 0.12 * (i % 3), -0.06 + 0.12 * ((i // 3) % 2), 0.08 + 0.1 * (i // 6))
+        solvers.append(s)
+        states.append(s.state(position=pos, orientation=quat_from_axis_angle(axis / np.linalg.norm(axis),
+                                                                           rng.uniform(0, np.pi)),
+                              velocity=0.2 * rng.normal(size=3)))
+    walls = rt.Obstacles([rt.Ground(0.0), rt.Plane((1, 0, 0), (-0.25, 0, 0)), rt.Plane((-1, 0, 0), (0.25, 0, 0)),
+                          rt.Plane((0, 1, 0), (0, -0.2, 0)), rt.Plane((0, -1, 0), (0, 0.2, 0))],
+                         restitution=0.3, friction=0.4)
+    group = ContactGroup(solvers, obstacles=walls, restitution=0.3, friction=0.4, margin=2e-3)
+    free = [rt.ModalSolver(s.body) for s in solvers]
+    fst = [st.copy() for st in states]
+
+    def free_step():
+        for f, st in zip(free, fst):
+            f.step(st, st, None, None, dt)
+
+    t_free = _timeit(free_step)
+    group.step(states, dt)  # compile
+    contacts = pair_contacts = separated = 0
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        rep = group.step(states, dt)
+        contacts = max(contacts, rep.contacts)
+        pair_contacts = max(pair_contacts, rep.pair_contacts)
+        separated += len(rep.separated)
+    elapsed = (time.perf_counter() - t0) / steps
+    heights = [float(st.position[2]) for st in states]
+    return {"count": count, "steps": steps, "dt": dt, "step": elapsed, "free": t_free, "contacts": contacts,
+            "pair_contacts": pair_contacts, "separated": separated, "max_height": max(heights),
+            "vertices": int(sum(s.body.vertex_count for s in solvers))}
