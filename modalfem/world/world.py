@@ -876,13 +876,17 @@ class World:
                 out = ctx.out.bodies[name]
                 out.v += dv
                 out.x += dt * dv
-        ex = {}  # what each body received from each other body (the other received the opposite)
-        for c in np.flatnonzero(data["other"] >= 0):
-            key = (int(data["body"][c]), int(data["other"][c]))
-            J0, L0 = ex.get(key, (np.zeros(3), np.zeros(3)))
-            ex[key] = (J0 + lam[c], L0 + np.cross(data["point"][c], lam[c]))
-        for (a, b), (J, L) in ex.items():
-            ctx.report.exchanged.append((names[a], names[b], J, L))
+        # what each body received from each other body (the other received the opposite), per pair
+        sel = np.flatnonzero(data["other"] >= 0)
+        if len(sel):
+            key = data["body"][sel] * len(names) + data["other"][sel]
+            uniq, inv = np.unique(key, return_inverse=True)
+            J = np.zeros((len(uniq), 3))
+            L = np.zeros((len(uniq), 3))
+            np.add.at(J, inv, lam[sel])
+            np.add.at(L, inv, np.cross(data["point"][sel], lam[sel]))
+            for i, kk in enumerate(uniq):
+                ctx.report.exchanged.append((names[kk // len(names)], names[kk % len(names)], J[i], L[i]))
         for name in self._sounds:  # what sounding bodies hear: the modal kick of the contacts that bounced
             if name in seg:
                 i = names.index(name)
@@ -1084,20 +1088,18 @@ def _skew(r: np.ndarray) -> np.ndarray:
 
 
 class _ContactBuilder:
-    """Entries of the compiled solve (see ``modalfem.world._kernels``) for obstacle and body-body contacts."""
+    """Entries of the compiled solve (see ``modalfem.world._kernels``), built a batch of contacts at a time: in a
+    batch every contact has the same entry layout (a modal side is one entry of 6 + r velocities, a tet side one
+    entry of 3 per vertex of the touched point), so the arrays are assembled with numpy, not per contact."""
 
     def __init__(self, world: World, ctx: _StepContext, seg: dict, names: list) -> None:
         self.w, self.ctx, self.seg, self.names = world, ctx, seg, names
         self.count = 0
-        self.ptr = [0]
-        self.off, self.nd, self.jptr = [], [], []
-        self.J, self.WJt = [], []
+        self.n_entries = 0
         self.jlen = 0
-        self.normal, self.gap, self.vobs_n, self.mu, self.e, self.margin = [], [], [], [], [], []
-        self.body, self.other, self.point = [], [], []
+        self.batches = []  # per batch: dict of arrays
         self.iterations = 1
         self._modal_frames = {}
-        self.full = []  # per entry: sign R Phi (3, r) with every mode of a modal body, None for a vertex
 
     def _modal_frame(self, name: str):
         f = self._modal_frames.get(name)
@@ -1111,7 +1113,8 @@ class _ContactBuilder:
         return f
 
     def _entries_modal(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
-        """(k,) entries for points sum_j w_j vertex_j of a modal body: J (k, 3, 6 + r), WJt (k, 6 + r, 3), r (k, 3)."""
+        """(k,) entries for points sum_j w_j vertex_j of a modal body: J (k, 3, 6 + r), WJt (k, 6 + r, 3), r (k, 3),
+        sign R Phi (k, 3, r)."""
         body = self.w._modal[name]["body"]
         R, Iw_inv, s = self._modal_frame(name)
         phi = np.einsum("kj,kjcr->kcr", w, body.vertex_shapes(verts.reshape(-1)).reshape(verts.shape + (3, -1)))
@@ -1135,95 +1138,96 @@ class _ContactBuilder:
         WJt[:, 3:6, :] = np.einsum("ab,kbc->kac", Iw_inv, S)  # Iw^-1 (-[r]x)^T = Iw^-1 [r]x
         return sign * J, sign * WJt, r + s.position, sign * Rphi
 
-    def _add(self, name_a, ent_a, name_b, ent_b, n, gap, vobs_n, ca, cb, point, other):
-        """Append contacts: ent_* = list over contacts of lists of (off, nd, J (3, nd), WJt (nd, 3))."""
-        k = len(gap)
-        for c in range(k):
-            for ents in (ent_a, ent_b):
-                if ents is None:
-                    continue
-                for o, nd, Jb, Wb, full in ents[c]:
-                    self.full.append(full)
-                    self.off.append(o)
-                    self.nd.append(nd)
-                    self.jptr.append(self.jlen)
-                    self.J.append(np.ascontiguousarray(Jb).reshape(-1))
-                    self.WJt.append(np.ascontiguousarray(Wb).reshape(-1))
-                    self.jlen += 3 * nd
-            self.ptr.append(len(self.off))
-        self.normal.append(n)
-        self.gap.append(gap)
-        self.vobs_n.append(vobs_n)
-        mu = ca.friction if cb is None else math.sqrt(ca.friction * cb.friction)
-        e = ca.restitution if cb is None else min(ca.restitution, cb.restitution)
-        self.mu.append(np.full(k, mu))
-        self.e.append(np.full(k, e))
-        self.margin.append(np.full(k, ca.margin if cb is None else max(ca.margin, cb.margin)))
-        ia = self.names.index(name_a)
-        self.body.append(np.full(k, ia))
-        self.other.append(np.full(k, other))
-        self.point.append(point)
-        self.iterations = max(self.iterations, ca.iterations, 0 if cb is None else cb.iterations)
-        self.count += k
-
     def _side(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
-        """Per contact a list of entries for body ``name`` at points sum_j w_j verts_j (verts (k, m))."""
+        """One side of k contacts at points sum_j w_j verts_j (verts (k, m)): entry arrays ``off`` (k, e), ``nd`` (e,),
+        ``J`` (k, sum 3 nd) and ``WJt`` (k, sum 3 nd) flattened per contact, the points (k, 3) and the modal
+        matrices (k, 3, r) (None for a tet side)."""
         o0, _ = self.seg[name]
+        k = len(verts)
         if name in self.w._modal:
             J, WJt, p, full = self._entries_modal(name, verts, w, sign)
             nd = J.shape[2]
-            return [[(o0, nd, J[c], WJt[c], full[c])] for c in range(len(J))], p
+            return (np.full((k, 1), o0, dtype=np.int64), np.array([nd]), J.reshape(k, -1), WJt.reshape(k, -1), p,
+                    full)
         t = self.w._tet[name]
         ids = t["surface"][verts]  # surface-local -> mesh vertex ids (k, m)
-        inv = np.where(np.isfinite(t["masses"][ids]), 1.0 / t["masses"][ids], 0.0)
+        m = ids.shape[1]
+        masses = t["masses"][ids]
+        inv = np.where(np.isfinite(masses), 1.0 / np.where(np.isfinite(masses), masses, 1.0), 0.0)
         p = np.einsum("kj,kjd->kd", w, self.ctx.start[name].x[ids])
         eye = np.eye(3)
-        out = []
-        for c in range(len(ids)):
-            out.append([(o0 + 3 * int(ids[c, j]), 3, sign * w[c, j] * eye, sign * w[c, j] * inv[c, j] * eye, None)
-                        for j in range(ids.shape[1]) if w[c, j] != 0.0])
-        return out, p
+        J = (sign * w)[:, :, None, None] * eye  # (k, m, 3, 3)
+        WJt = (sign * w * inv)[:, :, None, None] * eye
+        return (o0 + 3 * ids, np.full(m, 3), J.reshape(k, -1), WJt.reshape(k, -1), p, None)
+
+    def _add(self, a, side_a, b, side_b, n, gap, vobs_n, ca, cb, other):
+        k = len(gap)
+        if k == 0:
+            return
+        off = [side_a[0]] + ([side_b[0]] if side_b is not None else [])
+        nd = [side_a[1]] + ([side_b[1]] if side_b is not None else [])
+        J = [side_a[2]] + ([side_b[2]] if side_b is not None else [])
+        W = [side_a[3]] + ([side_b[3]] if side_b is not None else [])
+        full = [side_a[5]] + ([side_b[5]] if side_b is not None else [])
+        off = np.concatenate(off, axis=1)  # (k, e)
+        nd = np.concatenate(nd)  # (e,)
+        e = len(nd)
+        per = int((3 * nd).sum())  # J data per contact
+        jstart = np.concatenate([[0], np.cumsum(3 * nd)[:-1]])
+        self.batches.append({
+            "ptr": self.n_entries + e * np.arange(1, k + 1), "off": off.reshape(-1), "nd": np.tile(nd, k),
+            "jptr": (self.jlen + per * np.arange(k)[:, None] + jstart[None, :]).reshape(-1),
+            "J": np.concatenate(J, axis=1).reshape(-1), "WJt": np.concatenate(W, axis=1).reshape(-1),
+            "normal": np.asarray(n, dtype=float).reshape(k, 3), "gap": np.asarray(gap, dtype=float),
+            "vobs_n": np.asarray(vobs_n, dtype=float),
+            "mu": np.full(k, ca.friction if cb is None else math.sqrt(ca.friction * cb.friction)),
+            "restitution": np.full(k, ca.restitution if cb is None else min(ca.restitution, cb.restitution)),
+            "margin": np.full(k, ca.margin if cb is None else max(ca.margin, cb.margin)),
+            "body": np.full(k, self.names.index(a)), "other": np.full(k, other), "point": side_a[4],
+            "full": full, "modal_names": [a] + ([b] if b is not None else []), "first": self.count})
+        self.n_entries += e * k
+        self.jlen += per * k
+        self.count += k
+        self.iterations = max(self.iterations, ca.iterations, 0 if cb is None else cb.iterations)
 
     def obstacle(self, name, idx, gap, nrm, vobs, contact) -> None:
-        ents, p = self._side(name, idx[:, None], np.ones((len(idx), 1)), 1.0)
-        self._add(name, ents, None, None, np.asarray(nrm, dtype=float), np.asarray(gap, dtype=float),
-                  np.einsum("ij,ij->i", vobs, nrm), contact, None, p, -1)
-
-    def pair(self, a, idx, b, tri, bary, gap, nrm, ca, cb) -> None:
-        ents_a, p = self._side(a, idx[:, None], np.ones((len(idx), 1)), 1.0)
-        tb = self.w._modal[b]["body"].triangles[tri]
-        ents_b, _ = self._side(b, tb, bary, -1.0)
-        self._add(a, ents_a, b, ents_b, nrm, gap, np.zeros(len(gap)), ca, cb, p, self.names.index(b))
+        side = self._side(name, idx[:, None], np.ones((len(idx), 1)), 1.0)
+        nrm = np.asarray(nrm, dtype=float)
+        self._add(name, side, None, None, nrm, gap, np.einsum("ij,ij->i", vobs, nrm), contact, None, -1)
 
     def general(self, a, verts_a, w_a, b, verts_b, w_b, gap, nrm, ca, cb) -> None:
         """Contacts between points sum_j w_a[:, j] verts_a[:, j] of body a and sum_j w_b verts_b of body b (normal
         from b to a)."""
-        ents_a, p = self._side(a, verts_a, w_a, 1.0)
-        ents_b, _ = self._side(b, verts_b, w_b, -1.0)
-        self._add(a, ents_a, b, ents_b, nrm, gap, np.zeros(len(gap)), ca, cb, p, self.names.index(b))
+        side_a = self._side(a, verts_a, w_a, 1.0)
+        side_b = self._side(b, verts_b, w_b, -1.0)
+        self._add(a, side_a, b, side_b, nrm, gap, np.zeros(len(gap)), ca, cb, self.names.index(b))
 
     def arrays(self) -> dict:
-        return {"ptr": np.asarray(self.ptr, dtype=np.int64), "off": np.asarray(self.off, dtype=np.int64),
-                "nd": np.asarray(self.nd, dtype=np.int64), "jptr": np.asarray(self.jptr, dtype=np.int64),
-                "J": np.concatenate(self.J) if self.J else np.zeros(0),
-                "WJt": np.concatenate(self.WJt) if self.WJt else np.zeros(0),
-                "normal": np.ascontiguousarray(np.concatenate(self.normal)),
-                "gap": np.concatenate(self.gap), "vobs_n": np.concatenate(self.vobs_n),
-                "mu": np.concatenate(self.mu), "restitution": np.concatenate(self.e),
-                "margin": np.concatenate(self.margin), "body": np.concatenate(self.body),
-                "other": np.concatenate(self.other), "point": np.concatenate(self.point),
-                "iterations": self.iterations}
+        cat = {key: np.concatenate([bt[key] for bt in self.batches]) for key in (
+            "ptr", "off", "nd", "jptr", "J", "WJt", "normal", "gap", "vobs_n", "mu", "restitution", "margin", "body",
+            "other", "point")}
+        cat["ptr"] = np.concatenate([[0], cat["ptr"]]).astype(np.int64)
+        for key in ("off", "nd", "jptr"):
+            cat[key] = cat[key].astype(np.int64)
+        cat["normal"] = np.ascontiguousarray(cat["normal"])
+        cat["iterations"] = self.iterations
+        return cat
 
     def modal_change(self, name: str, sel: np.ndarray, lam: np.ndarray) -> np.ndarray:
         """The modal velocity change (r,) the impulses of contacts ``sel`` give every mode of modal body ``name``
         (what its sound hears)."""
-        o0, nd = self.seg[name]
-        dq = np.zeros(nd - 6)
-        for c in sel:
-            for e in range(self.ptr[c], self.ptr[c + 1]):
-                if self.off[e] == o0 and self.full[e] is not None:
-                    dq += self.full[e].T @ lam[c]
-        return dq
+        dq = None
+        chosen = {int(c) for c in sel}
+        for bt in self.batches:
+            for side, nm in enumerate(bt["modal_names"]):
+                full = bt["full"][side]
+                if nm != name or full is None:
+                    continue
+                rows = [c - bt["first"] for c in range(bt["first"], bt["first"] + len(bt["gap"])) if c in chosen]
+                if rows:
+                    add = np.einsum("kcr,kc->r", full[rows], lam[np.asarray(rows) + bt["first"]])
+                    dq = add if dq is None else dq + add
+        return dq if dq is not None else np.zeros(self.w._modal[name]["body"].mode_count)
 
 
 class _TetWind:
