@@ -325,6 +325,9 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
         shift: (k, 3) [m/s]. iters: sweeps.
         lam: (k, 3) total impulses [N s] (out); jt: (k, 3) friction impulses (out); lam_n (k,) normal.
         guess: start from ``_uniform_guess`` instead of zero impulses.
+
+    Returns:
+        the number of sweeps done.
     """
     k = ba.shape[0]
     if guess and k > 1:
@@ -352,7 +355,7 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
     u = np.empty(3)
     t = np.empty(3)
     d = np.empty(3)
-    for _ in range(iters):
+    for sweep in range(iters):
         change = 0.0
         big = 0.0
         for i in range(k):
@@ -424,5 +427,55 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
                 al = abs(lam[i, a])
                 big = max(big, al)
         if change <= 1e-12 * big:
-            break
+            return sweep + 1
+    return iters
 
+
+
+@numba.njit(cache=True)
+def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
+    """``n . (J_j V)`` (k,) [m/s] of one body's contact vertices without storing rows: the same products
+    summed in the same order as ``rows`` + ``contact_velocities`` (bit-identical), so event decisions are
+    the same whichever computes them (r = R local; modal columns over the first ``nm`` modes where
+    ``modal``)."""
+    k = vertex.shape[0]
+    out = np.empty(k)
+    jr = np.empty((3, 6))
+    for i in range(k):
+        x0, x1, x2 = local[i, 0], local[i, 1], local[i, 2]
+        r0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
+        r1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2
+        r2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2
+        jr[:, :] = 0.0
+        jr[0, 0] = 1.0
+        jr[1, 1] = 1.0
+        jr[2, 2] = 1.0
+        jr[0, 4], jr[0, 5] = r2, -r1
+        jr[1, 3], jr[1, 5] = -r2, r0
+        jr[2, 3], jr[2, 4] = r1, -r0
+        j = vertex[i]
+        u0 = 0.0
+        u1 = 0.0
+        u2 = 0.0
+        for c in range(3):
+            u0 += jr[0, c] * v[c]
+            u1 += jr[1, c] * v[c]
+            u2 += jr[2, c] * v[c]
+        for c in range(3):
+            u0 += jr[0, 3 + c] * w[c]
+            u1 += jr[1, 3 + c] * w[c]
+            u2 += jr[2, 3 + c] * w[c]
+        for mm in range(nm):
+            if modal[i]:
+                p0 = float(vm[j, mm, 0])
+                p1 = float(vm[j, mm, 1])
+                p2 = float(vm[j, mm, 2])
+                u0 += (R[0, 0] * p0 + R[0, 1] * p1 + R[0, 2] * p2) * qdot[mm]
+                u1 += (R[1, 0] * p0 + R[1, 1] * p1 + R[1, 2] * p2) * qdot[mm]
+                u2 += (R[2, 0] * p0 + R[2, 1] * p1 + R[2, 2] * p2) * qdot[mm]
+            else:
+                u0 += 0.0 * qdot[mm]
+                u1 += 0.0 * qdot[mm]
+                u2 += 0.0 * qdot[mm]
+        out[i] = n[i, 0] * u0 + n[i, 1] * u1 + n[i, 2] * u2
+    return out
