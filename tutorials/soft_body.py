@@ -36,17 +36,18 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import modalfem
+from modalfem.effects import Damping, Gravity
 from modalfem.material import Material
 from modalfem.mesh import box
 from modalfem.mesh.core import signed_volumes
 from modalfem.mesh.surface import boundary_surface
 from modalfem.model import ModalModel
-from modalfem.output.notebook import show as show_inline  # `show` is the frame schedule below
+from modalfem.output.notebook import (
+    show as show_inline,  # `show` is the frame schedule below
+)
 from modalfem.tet import (
-    Gravity,
     Ground,
     Pins,
-    RayleighDamping,
     TetSolver,
     TetState,
     plot_frame_sheet,
@@ -75,7 +76,7 @@ OUT.mkdir(parents=True, exist_ok=True)
 jelly = Material(E=5e4, nu=0.45, rho=1000.0, name="jelly")
 cube = box(size=(0.1, 0.1, 0.1), cells=(4, 4, 4))
 model = tet_model(cube, jelly)
-solver = TetSolver(model, effects=[Gravity(), Ground(height=0.0, stiffness=1e5), RayleighDamping(alpha=2.0)])
+solver = TetSolver(model, effects=[Gravity(), Ground(height=0.0, stiffness=1e5), Damping(alpha=2.0)])
 
 state = TetState.at_rest(model)
 state.x[:, 2] = 0.0  # squashed flat onto the ground

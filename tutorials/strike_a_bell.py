@@ -32,6 +32,7 @@ import numpy as np
 
 import modalfem
 from modalfem import runtime as rt
+from modalfem.effects import Gravity
 from modalfem.mesh import bell
 from modalfem.model import ModalModel
 from modalfem.output.animation import (
@@ -110,7 +111,7 @@ print(f"model file {model_path.stat().st_size / 1e3:.0f} kB, mass {body.mass * 1
 
 # +
 g = 9.81
-solver = rt.ModalSolver(body, effects=[rt.Gravity((0.0, 0.0, -g)),
+solver = rt.ModalSolver(body, effects=[Gravity((0.0, 0.0, -g)),
                                        rt.Obstacles([rt.Ground(0.0)], restitution=0.5, friction=0.4, modal=True)])
 lying = quat_multiply(quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), 0.4),
                       quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), np.radians(100.0)))
