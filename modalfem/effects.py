@@ -303,7 +303,7 @@ def for_modal(effect):
     """
     if not isinstance(effect, _Effect):
         return effect
-    from modalfem.runtime import effects as rte
+    from modalfem.runtime import effects as rte  # the runtime's implementations
 
     if isinstance(effect, Gravity):
         return rte.Gravity(effect.g)
@@ -331,12 +331,12 @@ def for_tet(effect):
     """
     if not isinstance(effect, _Effect):
         return effect
-    from modalfem import tet
+    from modalfem.tet import effects as te  # the tet solver's implementations
 
     if isinstance(effect, Gravity):
-        return tet.Gravity(effect.g)
+        return te.Gravity(effect.g)
     if isinstance(effect, Damping):
-        return tet.RayleighDamping(effect.alpha, effect.beta)
+        return te.RayleighDamping(effect.alpha, effect.beta)
     if effect.name in supported("tet"):
         raise InputError(f"{effect.name} on a single tet solver: use a modalfem.world.World (or tet.Ground for a "
                          "penalty ground)")

@@ -37,18 +37,23 @@ For sound: modal state ``state.q``/``state.qdot`` with ``body.omega`` [rad/s] an
 
 Pieces: ``integrator`` (exact oscillator steps, ``transition``), ``rotation`` (quaternions, free
 rigid rotation), ``body`` (``ModalBody``, ``SurfacePoint``, ``load``), ``state`` (``State``,
-``Control``), ``solver`` (``ModalSolver``, ``Loads``), ``effects`` (``Gravity``, ``Wind``, ``PseudoForces``,
-``RotationCoupling``), ``obstacles`` (``Plane``, ``Ground``, ``Sphere``, ``Box``, ``Obstacles``), ``contact``
+``Control``), ``solver`` (``ModalSolver``, ``Loads``), ``effects`` (the runtime's implementations of
+``Gravity`` and ``Wind``, which are ``modalfem.effects``' classes; ``PseudoForces``, ``RotationCoupling``),
+``obstacles`` (``Plane``, ``Ground``, ``Sphere``, ``Box``, ``Obstacles``), ``contact``
 (``Contacts``; compiled kernels in ``_contact_kernels``), ``pairs`` (contact between modal bodies).
 Errors: ``SimulationError`` (dt <= 0, NaN impulse, point off the surface),
 ``ModelFileError`` (bad or newer model file), ``InputError`` (bad effect parameters).
 """
 
+from modalfem.effects import (  # the one vocabulary (modalfem.effects); the solver maps them
+    Gravity,
+    Wind,
+)
 from modalfem.runtime.body import ModalBody, SurfacePoint, load
 from modalfem.runtime.contact import Contacts
-from modalfem.runtime.obstacles import Box, Ground, Obstacles, Plane, Sphere
-from modalfem.runtime.effects import Gravity, PseudoForces, RotationCoupling, Wind
+from modalfem.runtime.effects import PseudoForces, RotationCoupling
 from modalfem.runtime.integrator import ModalIntegrator, transition
+from modalfem.runtime.obstacles import Box, Ground, Obstacles, Plane, Sphere
 from modalfem.runtime.solver import Loads, ModalSolver
 from modalfem.runtime.sound import ModalSound
 from modalfem.runtime.state import Control, State

@@ -19,8 +19,10 @@ real-time ``modalfem.runtime`` driven by an impulse, and an exact superposition 
 ``frames`` (PNG frame sheets).
 """
 
+from modalfem.effects import (
+    Gravity,  # the one vocabulary (modalfem.effects); TetSolver maps it
+)
 from modalfem.tet.effects import (
-    Gravity,
     Ground,
     Pins,
     RayleighDamping,

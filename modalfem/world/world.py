@@ -257,18 +257,20 @@ class World:
         self.plan = self._compile_plan()
 
     def _build_modal(self, b: Modal, eff: list, rt) -> dict:
+        from modalfem.runtime import effects as rte
+
         damping = self._one(b.name, fx.Damping)
         body = rt.ModalBody(b.model, damping=None if damping is None else (damping.alpha, damping.beta),
                             dtype=np.float64)
         inner, names = [], []
         for e in eff:
             if isinstance(e, fx.Gravity):
-                inner.append(rt.Gravity(e.g))
+                inner.append(rte.Gravity(e.g))
             elif isinstance(e, fx.Wind):
                 if callable(e.velocity):
                     raise InputError(f"wind on modal body {b.name!r}: a modal body takes a constant wind velocity "
                                      "(3 numbers [m/s]); wind fields (x, t) act on cloth and tet bodies")
-                inner.append(rt.Wind(e.velocity, density=e.density, drag=e.drag))
+                inner.append(rte.Wind(e.velocity, density=e.density, drag=e.drag))
             elif isinstance(e, fx.PseudoForces):
                 if body.coupling is None:
                     raise InputError(f"pseudo-forces on modal body {b.name!r}: its model file has no rotation "
@@ -311,14 +313,15 @@ class World:
     def _build_tet(self, b: Tet, eff: list) -> dict:
         from modalfem import tet
         from modalfem.mesh.surface import boundary_surface
+        from modalfem.tet import effects as te
 
         inner, names = [], []
         wind = None
         for e in eff:
             if isinstance(e, fx.Gravity):
-                inner.append(tet.Gravity(e.g))
+                inner.append(te.Gravity(e.g))
             elif isinstance(e, fx.Damping):
-                inner.append(tet.RayleighDamping(e.alpha, e.beta))
+                inner.append(te.RayleighDamping(e.alpha, e.beta))
             elif isinstance(e, fx.Wind):
                 wind = _TetWind(e)
                 inner.append(wind)

@@ -8,6 +8,7 @@ import pytest
 import modalfem.runtime as rt
 from modalfem.errors import SimulationError
 from modalfem.runtime import contact as contact_mod
+from modalfem.runtime import effects as rt_effects
 from modalfem.runtime.rotation import quat_from_axis_angle
 
 
@@ -116,7 +117,7 @@ def test_a_step_without_effects_calls_no_effect_code(monkeypatch, small_body):
     counter = _Counter()
     for owner, name in [(rt.ModalBody, "positions"), (rt.ModalBody, "normals"), (rt.ModalBody, "point_shapes"),
                         (contact_mod, "find_contacts"), (contact_mod, "resolve_contacts"), (contact_mod, "push_out"),
-                        (rt.Gravity, "loads"), (rt.PseudoForces, "loads"), (rt.ModalSolver, "add_point_force"),
+                        (rt_effects.Gravity, "loads"), (rt.PseudoForces, "loads"), (rt.ModalSolver, "add_point_force"),
                         (rt.ModalSolver, "apply_impulse")]:
         _spy(monkeypatch, owner, name, counter)
     modal = _Counter()

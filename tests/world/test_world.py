@@ -92,7 +92,9 @@ def test_a_free_modal_body_runs_the_modal_step_only(bar_model, monkeypatch):
 
     calls = _count_stages(monkeypatch)
     hit = {"wind": 0, "collide": 0}
-    monkeypatch.setattr(rt.Wind, "loads", lambda *a, **k: hit.__setitem__("wind", hit["wind"] + 1))
+    from modalfem.runtime import effects as rte
+
+    monkeypatch.setattr(rte.Wind, "loads", lambda *a, **k: hit.__setitem__("wind", hit["wind"] + 1))
     orig = rt.ModalSolver.collide
     monkeypatch.setattr(rt.ModalSolver, "collide", lambda *a, **k: (hit.__setitem__("collide", hit["collide"] + 1),
                                                                      orig(*a, **k))[1])
