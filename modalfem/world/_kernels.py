@@ -125,3 +125,19 @@ def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, it
         if change <= 1e-10 * scale:
             break
     return sweeps
+
+
+@numba.njit(cache=True)
+def apply_impulses(V, ptr, off, nd, jptr, WJt, lam):
+    """``V += sum_c W J_c^T lam[c]`` (lam (k, 3) [N s]): the warm start of ``sequential_impulses``."""
+    k = len(ptr) - 1
+    for c in range(k):
+        d0, d1, d2 = lam[c, 0], lam[c, 1], lam[c, 2]
+        if d0 == 0.0 and d1 == 0.0 and d2 == 0.0:
+            continue
+        for e in range(ptr[c], ptr[c + 1]):
+            m = nd[e]
+            base = jptr[e]
+            o = off[e]
+            for j in range(m):
+                V[o + j] += WJt[base + 3 * j] * d0 + WJt[base + 3 * j + 1] * d1 + WJt[base + 3 * j + 2] * d2

@@ -58,14 +58,17 @@ SLOW = 0.5
 
 @dataclass
 class WorldState:
-    """Changing state: ``time`` [s] and one state per body (``bodies[name]``: ``runtime.State`` for a modal
-    body, ``tet.TetState`` for a tet body, ``ClothState`` for a cloth)."""
+    """Changing state: ``time`` [s], one state per body (``bodies[name]``: ``runtime.State`` for a modal
+    body, ``tet.TetState`` for a tet body, ``ClothState`` for a cloth) and ``contacts``, the impulses [N s] of the
+    last step's solid contacts by contact (the next step's solve starts from them: resting contact converges in a
+    few sweeps, and a step from a copied state repeats exactly)."""
 
     time: float
     bodies: dict
+    contacts: dict = field(default_factory=dict)
 
     def copy(self) -> WorldState:
-        return WorldState(self.time, {k: v.copy() for k, v in self.bodies.items()})
+        return WorldState(self.time, {k: v.copy() for k, v in self.bodies.items()}, dict(self.contacts))
 
     def __getitem__(self, name: str):
         return self.bodies[name]
@@ -574,6 +577,7 @@ class World:
             else:
                 bodies[name] = new
         state_out.bodies = bodies
+        state_out.contacts = ctx.contacts
         state_out.time = state_in.time + dt
         return report
 
@@ -821,7 +825,8 @@ class World:
                     idx = np.flatnonzero(gap_all < reach)
                     gap, nrm = gap_all[idx], np.asarray(n_all)[idx]
                 if len(idx):
-                    builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c)
+                    builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c,
+                                     tag=self.obstacles.index(o))
         for i, a in enumerate(names):  # every pair: vertices on faces both ways, edges on edges
             for b in names[i + 1:]:
                 ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
@@ -865,11 +870,23 @@ class World:
         bounce = (vn < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
         target = np.where(bounce, np.maximum(target, -e * vn), target) + data["vobs_n"]
         lam_n, lam_t = np.zeros(k), np.zeros((k, 3))
+        keys = data["keys"]
+        for c, key in enumerate(keys):  # warm start: the impulses these contacts had in the last step
+            old = ctx.state_in.contacts.get(key)
+            if old is not None:
+                lam_n[c] = max(float(old @ n[c]), 0.0)
+                t = old - (old @ n[c]) * n[c]
+                tn = float(np.linalg.norm(t))
+                lim = data["mu"][c] * lam_n[c]
+                lam_t[c] = t if tn <= lim else t * (lim / tn)
         V0 = V.copy()
+        _kernels.apply_impulses(V, data["ptr"], data["off"], data["nd"], data["jptr"], data["WJt"],
+                                lam_n[:, None] * n + lam_t)
         ctx.report.sweeps = _kernels.sequential_impulses(V, data["ptr"], data["off"], data["nd"], data["jptr"],
                                                          data["J"], data["WJt"], K, n, target, data["mu"],
                                                          int(data["iterations"]), lam_n, lam_t)
         lam = lam_n[:, None] * n + lam_t
+        ctx.contacts = {key: lam[c] for c, key in enumerate(keys) if lam_n[c] > 0.0}
         dV = V - V0
         for name, (o, nd) in seg.items():
             if name in self._modal:
@@ -1077,6 +1094,7 @@ class _StepContext:
         self.cloth_dv = {}
         self.impacts = {}
         self.kicks = {}
+        self.contacts = dict(state_in.contacts)  # kept unless the solid solve runs
         self.report = None
 
 
@@ -1101,6 +1119,7 @@ class _ContactBuilder:
         self.n_entries = 0
         self.jlen = 0
         self.batches = []  # per batch: dict of arrays
+        self.keys = []  # per contact: what identifies it from step to step (warm start)
         self.iterations = 1
         self._modal_frames = {}
 
@@ -1193,17 +1212,19 @@ class _ContactBuilder:
         self.count += k
         self.iterations = max(self.iterations, ca.iterations, 0 if cb is None else cb.iterations)
 
-    def obstacle(self, name, idx, gap, nrm, vobs, contact) -> None:
+    def obstacle(self, name, idx, gap, nrm, vobs, contact, tag: int = 0) -> None:
         side = self._side(name, idx[:, None], np.ones((len(idx), 1)), 1.0)
         nrm = np.asarray(nrm, dtype=float)
         self._add(name, side, None, None, nrm, gap, np.einsum("ij,ij->i", vobs, nrm), contact, None, -1)
+        self.keys.extend((name, "obstacle", tag, int(i)) for i in idx)
 
     def general(self, a, verts_a, w_a, b, verts_b, w_b, gap, nrm, ca, cb) -> None:
         """Contacts between points sum_j w_a[:, j] verts_a[:, j] of body a and sum_j w_b verts_b of body b (normal
-        from b to a)."""
+        from b to a). A contact is known from step to step by body a's feature (vertex or edge) and body b."""
         side_a = self._side(a, verts_a, w_a, 1.0)
         side_b = self._side(b, verts_b, w_b, -1.0)
         self._add(a, side_a, b, side_b, nrm, gap, np.zeros(len(gap)), ca, cb, self.names.index(b))
+        self.keys.extend((a, b, *map(int, f)) for f in np.asarray(verts_a))
 
     def arrays(self) -> dict:
         cat = {key: np.concatenate([bt[key] for bt in self.batches]) for key in (
@@ -1214,6 +1235,7 @@ class _ContactBuilder:
             cat[key] = cat[key].astype(np.int64)
         cat["normal"] = np.ascontiguousarray(cat["normal"])
         cat["iterations"] = self.iterations
+        cat["keys"] = self.keys
         return cat
 
     def modal_change(self, name: str, sel: np.ndarray, lam: np.ndarray) -> np.ndarray:
