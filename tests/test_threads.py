@@ -46,7 +46,6 @@ def test_set_threads_checks_its_argument_and_thread_count_restores():
     assert modalfem.threads() == before
     with thread_count(1):
         assert modalfem.threads() == 1 and numba.get_num_threads() == 1
-        assert numba.get_parallel_chunksize() == 1  # each fixed chunk scheduled on its own
     assert modalfem.threads() == before and numba.get_num_threads() == before
     assert modalfem.set_threads(1) == 1
     assert modalfem.set_threads(None) == before
