@@ -23,6 +23,7 @@ import math
 import numba
 import numpy as np
 
+from modalfem.collision._distance_kernels import point_triangle_closest
 from modalfem.runtime.obstacles import BOX, PARAMS, PLANE, SPHERE  # noqa: F401 (PARAMS re-exported)
 
 
@@ -479,3 +480,82 @@ def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
                 u2 += 0.0 * qdot[mm]
         out[i] = n[i, 0] * u0 + n[i, 1] * u1 + n[i, 2] * u2
     return out
+
+
+@numba.njit(cache=True)
+def closest_triangles(p, qi, tri, X, T, tie_rel):
+    """The closest triangle of a deformed surface per query point, from BVH candidate pairs.
+
+    Args:
+        p: (n, 3) query points [m] (world). qi, tri: (P,) candidate pairs (query index, triangle).
+        X: (nv, 3) the surface's vertices [m] (world); T: (nt, 3) its outward triangles.
+        tie_rel: relative distance within which two triangles tie (a shared edge or corner).
+
+    Returns:
+        ``(best, bary, gap, normal)``: (n,) triangle index (-1: no candidate), (n, 3) barycentric weights of
+        the closest point, (n,) signed distance [m] (negative inside: behind the closest triangle's face;
+        where triangles tie the point is outside if one of them says so, as a face normal alone misjudges
+        points beside an edge), (n, 3) unit normal pointing out of the surface (from the closest point to
+        the point when outside and apart, else the face normal).
+    """
+    n = p.shape[0]
+    best = np.full(n, -1, dtype=np.int64)
+    dbest = np.full(n, np.inf)
+    sbest = np.zeros(n)
+    bary = np.zeros((n, 3))
+    x = np.empty((4, 3))
+    w = np.empty(3)
+    for k in range(qi.shape[0]):
+        i = qi[k]
+        t = tri[k]
+        a, b, c = T[t, 0], T[t, 1], T[t, 2]
+        for d in range(3):
+            x[0, d] = p[i, d]
+            x[1, d] = X[a, d]
+            x[2, d] = X[b, d]
+            x[3, d] = X[c, d]
+        dist = point_triangle_closest(x, w)
+        f0 = (x[2, 1] - x[1, 1]) * (x[3, 2] - x[1, 2]) - (x[2, 2] - x[1, 2]) * (x[3, 1] - x[1, 1])
+        f1 = (x[2, 2] - x[1, 2]) * (x[3, 0] - x[1, 0]) - (x[2, 0] - x[1, 0]) * (x[3, 2] - x[1, 2])
+        f2 = (x[2, 0] - x[1, 0]) * (x[3, 1] - x[1, 1]) - (x[2, 1] - x[1, 1]) * (x[3, 0] - x[1, 0])
+        side = 0.0
+        for d in range(3):
+            q = w[0] * x[1, d] + w[1] * x[2, d] + w[2] * x[3, d]
+            side += (p[i, d] - q) * (f0 if d == 0 else (f1 if d == 1 else f2))
+        cur = dbest[i]
+        if dist < cur * (1.0 - tie_rel) - 1e-300:
+            take = True
+        elif dist <= cur * (1.0 + tie_rel) + 1e-300:  # a tie: prefer a triangle that says outside
+            take = side >= 0.0 and sbest[i] < 0.0
+        else:
+            take = False
+        if take:
+            best[i] = t
+            dbest[i] = min(dist, cur)
+            sbest[i] = side
+            bary[i, 0], bary[i, 1], bary[i, 2] = w[0], w[1], w[2]
+    gap = np.zeros(n)
+    normal = np.zeros((n, 3))
+    for i in range(n):
+        t = best[i]
+        if t < 0:
+            continue
+        a, b, c = T[t, 0], T[t, 1], T[t, 2]
+        f0 = (X[b, 1] - X[a, 1]) * (X[c, 2] - X[a, 2]) - (X[b, 2] - X[a, 2]) * (X[c, 1] - X[a, 1])
+        f1 = (X[b, 2] - X[a, 2]) * (X[c, 0] - X[a, 0]) - (X[b, 0] - X[a, 0]) * (X[c, 2] - X[a, 2])
+        f2 = (X[b, 0] - X[a, 0]) * (X[c, 1] - X[a, 1]) - (X[b, 1] - X[a, 1]) * (X[c, 0] - X[a, 0])
+        fl = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        if fl > 0.0:
+            f0, f1, f2 = f0 / fl, f1 / fl, f2 / fl
+        d = dbest[i]
+        if sbest[i] >= 0.0:
+            gap[i] = d
+            if d > 0.0:
+                for k in range(3):
+                    q = bary[i, 0] * X[a, k] + bary[i, 1] * X[b, k] + bary[i, 2] * X[c, k]
+                    normal[i, k] = (p[i, k] - q) / d
+                continue
+        else:
+            gap[i] = -d
+        normal[i, 0], normal[i, 1], normal[i, 2] = f0, f1, f2
+    return best, bary, gap, normal

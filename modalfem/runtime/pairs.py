@@ -264,13 +264,13 @@ class ContactGroup:
         return report
 
     def _pair_contacts(self, a: int, b: int, world, box, reach):
-        """Vertices of body a near the deformed surface of body b (within ``reach[a] + reach[b]`` [m]; ``box``
-        the bodies' world boxes): (ba, vertex, bb, triangle, bary, normal, gap, point) or None. The normal
-        points out of b (towards a)."""
-        from modalfem.collision._distance_kernels import point_triangle_batch
+        """Vertices of body a near the deformed surface of body b (within ``margin`` + both bodies' travel
+        [m]; ``box`` the bodies' world boxes): (ba, vertex, bb, triangle, bary, normal, gap, point) or None.
+        The normal points out of b (towards a)."""
+        from modalfem.runtime import _contact_kernels as K
 
         xa = world[a]
-        r = reach[a] + reach[b]
+        r = reach[a] + reach[b] - self.margin
         near = np.flatnonzero(np.all((xa >= box[b][0] - r) & (xa <= box[b][1] + r), axis=1))
         if not len(near):
             return None
@@ -278,39 +278,14 @@ class ContactGroup:
         qi, tri = self._tree(b).query(p - r, p + r)
         if not len(qi):
             return None
-        tb = self.solvers[b].body.triangles
-        xb = world[b]
-        corners = xb[tb[tri]]  # (p, 3, 3)
-        quads = np.ascontiguousarray(np.concatenate([p[qi][:, None, :], corners], axis=1))
-        dist, w = point_triangle_batch(quads)
-        face = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        face /= np.maximum(np.linalg.norm(face, axis=1), 1e-300)[:, None]
-        closest = np.einsum("kc,kcd->kd", w, corners)
-        diff = p[qi] - closest
-        side = np.einsum("ij,ij->i", diff, face)
-        # the closest triangle per vertex; where several tie (the closest point on a shared edge or corner)
-        # the vertex is outside if one of them says so (a face normal alone misjudges points beside an edge)
-        dmin = np.full(len(p), np.inf)
-        np.minimum.at(dmin, qi, dist)
-        tie = dist <= dmin[qi] * (1.0 + 1e-9) + 1e-15
-        prio = np.where(tie & (side >= 0.0), 0, 1)
-        order = np.lexsort((dist, prio, qi))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = qi[order][1:] != qi[order][:-1]
-        best = order[first]
-        dist, w, tri, qi, side, diff, face = dist[best], w[best], tri[best], qi[best], side[best], diff[best], face[best]
-        pa = p[qi]
-        gap = np.where(side >= 0.0, dist, -dist)
-        nrm = np.where((dist > 1e-12 * (1.0 + float(np.abs(box[b][1] - box[b][0]).max())))[:, None]
-                       & (side >= 0.0)[:, None],
-                       diff / np.maximum(dist, 1e-300)[:, None], face)
+        best, w, gap, nrm = K.closest_triangles(p, qi, tri, world[b], self.solvers[b].body.triangles, 1e-9)
         # every triangle within r of the vertex was a candidate, so a closest distance <= r is the true one;
         # a vertex whose found triangles are all farther than r is not judged (its closest may be missed)
-        sel = (gap < r) & (gap > -r)
+        sel = (best >= 0) & (gap < r) & (gap > -r)
         if not sel.any():
             return None
         k = int(sel.sum())
-        return (np.full(k, a), near[qi[sel]], np.full(k, b), tri[sel], w[sel], nrm[sel], gap[sel], pa[sel])
+        return (np.full(k, a), near[sel], np.full(k, b), best[sel], w[sel], nrm[sel], gap[sel], p[sel])
 
     def _solve(self, states, bodies, R, Iw_inv, accel, parts, h, report) -> None:
         from modalfem.runtime import _contact_kernels as K
@@ -432,7 +407,7 @@ class ContactGroup:
                                              st.rotation(), st.position)
                 box[i] = (world[i].min(axis=0), world[i].max(axis=0))
                 self._tree(i).refit(world[i], margin=0.0)
-            reach = np.full(len(bodies), self.margin)  # query half-size 2 margin: deeper vertices are not judged
+            reach = np.full(len(bodies), 1.5 * self.margin)  # query half-size 2 margin: deeper vertices not judged
             again = []
             for a, b in todo:
                 if a in moved or b in moved:
