@@ -18,11 +18,15 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 import json
+import math
 import os
 import shlex
 import subprocess
 import sys
 import time
+
+import numba
+import numpy as np
 
 __all__ = ["SECTION", "amdahl", "command", "profile_share", "render", "replay"]
 
@@ -181,6 +185,131 @@ def replay(case: str, n: int, repeats: int, *, warm: int, window: int) -> dict:
     return out
 
 
+def probe(n: int, seconds: float = 1.0) -> float:
+    """How many cores this process gets right now: CPU time / wall time of ``seconds`` of a trivially
+    parallel compiled loop on ``n`` threads (``n`` on an idle machine; about 1 when other processes hold
+    the other cores, e.g. other users' sessions, which the scheduler shares the cores with as groups)."""
+    from modalfem.threads import thread_count
+
+    a = np.zeros(64)
+    _probe_kernel(a, 10)
+    with thread_count(n):
+        c0, t0 = time.process_time(), time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            _probe_kernel(a, 20000)
+        return (time.process_time() - c0) / (time.perf_counter() - t0)
+
+
+def kernel_times(n: int, repeats: int) -> dict:
+    """Single kernels on the goal cases' data, each called ``repeats`` times per thread count (1 and ``n``,
+    interleaved), in this process: ``{name: {"1": fastest ms, "n": fastest ms}}``. The pile is taken at
+    step 60 (its settled, many-layer phase), the bar after 5 steps."""
+    import copy
+
+    from modalfem.bench import tet_bench
+    from modalfem.cloth import _kernels as ck
+    from modalfem.cloth import scenes
+    from modalfem.cloth.solver import _constraints
+    from modalfem.collision import _ccd_kernels
+    from modalfem.collision._system import System
+    from modalfem.material import Material
+    from modalfem.mesh import box
+    from modalfem.tet import _kernels as tk
+    from modalfem.tet import energies
+    from modalfem.tet.effects import Gravity, Pins
+    from modalfem.tet.kinematics import svd_rv_of_positions
+    from modalfem.tet.model import tet_model
+    from modalfem.tet.solver import TetSolver, TetState, _matvec
+    from modalfem.threads import thread_count
+
+    setup = scenes.pile(64)
+    for _ in range(60):
+        setup.scene.step(setup.dt)
+    sc = copy.deepcopy(setup.scene)
+    sol, x = sc.solver, np.asarray(sc.x)
+    pat, lv = sol._pattern, sol._levels
+    data = sol._stiffness_data(x).copy()
+    pat.add_diagonal(data, sol._m3 / setup.dt**2)  # M / dt^2 + K: the implicit step's matrix
+    kind, normal, z = _constraints(pat.n, None, None, None)
+    b = np.random.default_rng(0).standard_normal((pat.n, 3))
+    Dinv, Cinv = lv.inverses(pat.indptr, pat.indices, data, kind, normal)
+    x1 = x + setup.dt * np.asarray(sc.v)
+    system = System(sc.model.mesh.triangles, ())
+    system.build_cloth_bvh(x)
+    cand = system.candidates(x, x1, margin=sc.pipeline.config.eta if sc.pipeline else 1e-3, self_collision=True,
+                             culling=False)
+    movable, roots = np.ones(len(x), dtype=bool), np.zeros(0, dtype=np.int64)
+    mesh = box(size=tuple(0.05 * c for c in TET_CELLS), cells=TET_CELLS)
+    model = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
+    solver, state = TetSolver(model, effects=[Gravity(), Pins(mesh.tag_points("x0"))]), TetState.at_rest(model)
+    for _ in range(5):
+        solver.step(state, state, tet_bench.DT)
+    U, sv, V = svd_rv_of_positions(state.x, model.cells, solver._grad_t)
+    d = model.density.derivs(sv, 2)
+    A = solver.pattern.matrix(solver.pattern.assemble(
+        energies.element_forces_and_hessians(U, V, d, solver._grad_t, model.rest_volumes, element_last=True)[1],
+        solver.mass_dofs, upper=True))
+    u, out = np.ones(A.shape[0]), np.empty(A.shape[0])
+
+    def pcg():
+        ck.pcg(pat.indptr, pat.indices, data, pat.diag, kind, normal, b, z.copy(), 1e-4, 2000, lv.agg, lv.up, lv.off,
+               Dinv, Cinv)
+
+    cases = {
+        "cloth: implicit-step CG solve (rtol 1e-4)": pcg,
+        "cloth: candidate pairs (BVH traversal + pair expansion)": lambda: system.candidates(
+            x, x1, margin=1e-3, self_collision=True, culling=False),
+        "cloth: CCD of the candidates": lambda: (
+            _ccd_kernels.ccd_candidates(True, x, x1, cand.vf, movable, roots, 1e-4, 32, 64),
+            _ccd_kernels.ccd_candidates(False, x, x1, cand.ee, movable, roots, 1e-4, 32, 64)),
+        "tet: SVD of the deformation gradients": lambda: svd_rv_of_positions(state.x, model.cells, solver._grad_t, V),
+        "tet: element forces and Hessians": lambda: energies.element_forces_and_hessians(
+            U, V, d, solver._grad_t, model.rest_volumes, element_last=True),
+        "tet: CG product (CSR)": lambda: _matvec(A, u, out),
+    }
+    res = {}
+    for name, fn in cases.items():
+        best = {1: np.inf, n: np.inf}
+        for t in (1, n):
+            with thread_count(t):
+                fn()
+        for r in range(repeats):
+            for t in (1, n, n, 1):
+                with thread_count(t):
+                    t0 = time.perf_counter()
+                    fn()
+                    best[t] = min(best[t], time.perf_counter() - t0)
+        res[name] = {"1": 1e3 * best[1], str(n): 1e3 * best[n]}
+    return res
+
+
+def kernel_lines(kernels: dict | None, n: int) -> list[str]:
+    """Markdown lines of ``kernel_times``."""
+    if not kernels:
+        return []
+    L = ["", (f"Kernels alone on the same data (fastest of many calls, 1 and {n} threads interleaved): what they "
+              "give when both cores happen to be free, on a busy machine too:"), "",
+         f"| kernel | 1 thread ms | {n} threads ms | speed-up |", "|---|---:|---:|---:|"]
+    for name, r in kernels.items():
+        L.append(f"| {name} | {r['1']:.2f} | {r[str(n)]:.2f} | {r['1'] / r[str(n)]:.2f}x |")
+    return L
+
+
+def _kernels_child(n: int, repeats: int, timeout: float) -> dict | None:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    env.pop("MODALFEM_THREADS", None)
+    cmd = [sys.executable, "-m", "modalfem.bench.threads_bench", "--kernels", "--threads", str(n), "--repeats",
+           str(repeats)]
+    try:
+        p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        return None
+    if p.returncode != 0:
+        print(f"  kernels failed: {(p.stderr.strip().splitlines() or ['?'])[-1]}", file=sys.stderr)
+        return None
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
 def _replay_child(case: str, n: int, repeats: int, timeout: float) -> dict | None:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     env.pop("MODALFEM_THREADS", None)
@@ -220,6 +349,15 @@ def replay_lines(replays: dict, n: int) -> list[str]:
         L.append(f"| {label} | {len(a)} | {a[0]:.1f} / {a[len(a) // 2]:.1f} | {b[0]:.1f} / {b[len(b) // 2]:.1f} | "
                  f"{a[0] / b[0]:.2f}x | {s:.2f} | {sp16:.1f}x |")
     return L
+
+
+@numba.njit(parallel=True, cache=True)
+def _probe_kernel(a, work):
+    for ch in numba.prange(len(a)):
+        s = 0.0
+        for i in range(work):
+            s += math.sqrt(i + ch + 1.0)
+        a[ch] = s
 
 
 def _best(runs: list[dict]) -> dict | None:
@@ -352,6 +490,8 @@ def command(argv: list[str]) -> int:
     cloth_n, cells = (8, (4, 2, 2)) if a.quick else (64, TET_CELLS)
     cloth_steps, tet_steps = (10, 3) if a.quick else (a.cloth_steps, a.tet_steps)
     t0 = time.perf_counter()
+    probes = [probe(n)]
+    print(f"[bench threads] cores this process gets now: {probes[0]:.2f}", file=sys.stderr, flush=True)
     print("[bench threads] warm-up (fills numba's disk cache, not timed) ...", file=sys.stderr, flush=True)
     _cloth(5, 8, n, a.timeout)
     _tet((4, 2, 2), 1, n, a.timeout)
@@ -369,6 +509,10 @@ def command(argv: list[str]) -> int:
                 if "ms_per_step" in r:
                     print(f"[bench threads]   {r['ms_per_step']:.1f} ms/step", file=sys.stderr, flush=True)
                 store[t].append(r)
+    kernels = None
+    if not (a.quick or a.no_profile):
+        print("[bench threads] kernels alone ...", file=sys.stderr, flush=True)
+        kernels = _kernels_child(n, max(10, 5 * a.repeats), a.timeout)
     replays = {}
     if not (a.quick or a.no_profile):
         for case, (label, _, _) in REPLAYS.items():
@@ -386,7 +530,12 @@ def command(argv: list[str]) -> int:
     section = render(cloth, tet, n, command=cmd, date=date, machine=_machine(), layer=threading_layer(),
                      cloth_label=f"cloth pile {cloth_n}x{cloth_n}, all stages",
                      tet_label=f"tet bar {tets} tets, newton+cg")
-    extra = replay_lines(replays, n) + profile_lines(profiles)
+    probes.append(probe(n))
+    extra = kernel_lines(kernels, n) + replay_lines(replays, n) + profile_lines(profiles)
+    extra += ["", (f"Cores this process got (CPU time / wall time of a trivially parallel loop on {n} threads, 1 s; "
+                   f"{n} on an idle machine): {probes[0]:.2f} before the runs, {probes[1]:.2f} after. The scheduler "
+                   "shares the cores between users' sessions as groups, so with other sessions busy a process gets "
+                   "about one core whatever its thread count, and no speed-up can show.")]
     section = section + "\n".join(extra) + ("\n" if extra else "")
     print(section)
     update_section(a.out, section)
@@ -399,11 +548,14 @@ def _main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(prog="python -m modalfem.bench.threads_bench")
     ap.add_argument("--profile", choices=("cloth", "tet"))
     ap.add_argument("--replay", choices=("cloth", "tet"))
+    ap.add_argument("--kernels", action="store_true")
     ap.add_argument("--steps", type=int, default=0, help="0: the case's default")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=4)
     a = ap.parse_args(argv)
-    if a.replay:
+    if a.kernels:
+        print(json.dumps(kernel_times(a.threads, a.repeats)))
+    elif a.replay:
         _, warm, window = REPLAYS[a.replay]
         print(json.dumps(replay(a.replay, a.threads, a.repeats, warm=warm, window=window)))
     else:

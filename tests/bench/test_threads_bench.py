@@ -72,3 +72,19 @@ def test_replay_repeats_the_same_steps_on_both_counts():
 
     out = threads_bench.replay("tet", 2, 1, warm=1, window=1)
     assert len(out["1"]) == len(out["2"]) == 2 and min(out["1"] + out["2"]) > 0
+
+
+def test_probe_counts_the_cores_a_parallel_loop_gets():
+    from modalfem.bench.threads_bench import probe
+
+    one = probe(1, seconds=0.3)
+    assert 0.2 < one <= 1.1  # one thread never uses more than one core
+    assert 0.2 < probe(2, seconds=0.3) <= 2.2
+
+
+def test_kernel_lines():
+    from modalfem.bench.threads_bench import kernel_lines
+
+    text = "\n".join(kernel_lines({"cloth: CG": {"1": 20.0, "2": 12.5}}, 2))
+    assert "| cloth: CG | 20.00 | 12.50 | 1.60x |" in text
+    assert kernel_lines(None, 2) == []
