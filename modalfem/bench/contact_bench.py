@@ -112,6 +112,21 @@ def _timeit(fn, *, repeats: int = 5, min_time: float = 0.2) -> float:
     return float(np.median(times))
 
 
+def _profile(fn, n: int, top: int = 6) -> list:
+    """cProfile of ``n`` calls of ``fn``: the ``top`` functions by own time, (name (file), seconds per call)."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(n):
+        fn()
+    prof.disable()
+    stats = pstats.Stats(prof)
+    return [(f"{f[2]} ({os.path.basename(f[0])})", float(v[2]) / n) for f, v in
+            sorted(stats.stats.items(), key=lambda kv: -kv[1][2])[:top]]
+
+
 def measure_resting(path: str, *, dt: float = 1e-3, settle: int = 300) -> dict:
     """A body resting on the ground: free step vs contact step (``ModalSolver.advance`` with gravity and the
     ground), after ``settle`` steps of settling; seconds per step, contact count."""
@@ -129,17 +144,7 @@ def measure_resting(path: str, *, dt: float = 1e-3, settle: int = 300) -> dict:
         solver.advance(st, dt)
     contacts = solver.collide(st, dt)
     t_contact = _timeit(lambda: solver.advance(st, dt))
-    import cProfile
-    import pstats
-
-    prof = cProfile.Profile()
-    prof.enable()
-    for _ in range(50):
-        solver.advance(st, dt)
-    prof.disable()
-    stats = pstats.Stats(prof).sort_stats("tottime")
-    top = [(f"{fn[2]} ({os.path.basename(fn[0])})", float(v[2]) / 50) for fn, v in
-           sorted(stats.stats.items(), key=lambda kv: -kv[1][2])[:6]]
+    top = _profile(lambda: solver.advance(st, dt), 50)
     gap = body.positions(st, precise=True)[:, 2].min()
     return {"nv": body.vertex_count, "r": body.mode_count, "contacts": int(contacts.count), "free": t_free,
             "contact": t_contact, "min_gap": float(gap), "profile": top}
@@ -187,7 +192,8 @@ def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEP
         pair_contacts = max(pair_contacts, rep.pair_contacts)
         separated += len(rep.separated)
     elapsed = (time.perf_counter() - t0) / steps
+    top = _profile(lambda: group.step(states, dt), 20)
     heights = [float(st.position[2]) for st in states]
     return {"count": count, "steps": steps, "dt": dt, "step": elapsed, "free": t_free, "contacts": contacts,
             "pair_contacts": pair_contacts, "separated": separated, "max_height": max(heights),
-            "vertices": int(sum(s.body.vertex_count for s in solvers))}
+            "vertices": int(sum(s.body.vertex_count for s in solvers)), "profile": top}

@@ -351,8 +351,9 @@ def render_contact(resting: list[dict], pile: dict, *, command: str, date: str, 
                  f"body-body) | {1e6 * pile['free']:.0f} (all bodies) | {1e6 * pile['step']:.0f} | "
                  f"{pile['step'] / pile['free']:.0f} | {sps:.0f} | {GOALS['pile']:.0f} | "
                  f"**{'met' if sps >= GOALS['pile'] else 'NOT met'}** |")
-    L += ["", "Where the time of a resting step goes (cProfile over 50 steps, own time per step, largest first):", ""]
-    for name, r in resting:
+    L += ["", ("Where the time of a step goes (cProfile, own time per step, largest first; resting cases over 50 "
+               "steps, the pile over 20 steps at its end):"), ""]
+    for name, r in resting + [("pile", pile)]:
         if "profile" in r:
             L.append(f"- {name}: " + "; ".join(f"{fn} {1e6 * t:.0f} us" for fn, t in r["profile"]))
     if pile and "error" not in pile:

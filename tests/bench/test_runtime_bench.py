@@ -54,3 +54,21 @@ def test_render_states_both_verdicts_at_the_goal_size():
     assert "body-frame reconstruction" in text and "1111 -> **met**" in text
     goal["both_body"] = 1.1e-3
     assert "909 -> **NOT met**" in rb.render([goal], [], {}, command="c", date="d", machine="m")
+
+
+def test_render_contact_gives_each_verdict_from_its_own_number():
+    """Steps/s, the ratio to the free step and the verdict of every contact case come from its own timings."""
+    bar = {"nv": 1802, "r": 12, "contacts": 451, "free": 4e-5, "contact": 1e-4, "profile": [("solve (k.py)", 5e-5)]}
+    tall = {"nv": 50402, "r": 30, "contacts": 3721, "free": 5e-5, "contact": 5e-3, "profile": []}
+    pile = {"count": 20, "steps": 600, "step": 4e-3, "free": 1e-3, "contacts": 900, "pair_contacts": 300,
+            "separated": 2, "vertices": 12944}
+    text = rb.render_contact([("bar", bar), ("tall", tall)], pile, command="c", date="d", machine="m", load="1.0")
+    assert text.startswith(rb.CONTACT_SECTION) and "load average when measured: 1.0" in text
+    rows = _rows(text.splitlines(), "| case")
+    assert [r["verdict"] for r in rows] == ["**met**", "**NOT met**", "**met**"]  # 10000 >= 5000, 200 < 300, 250
+    assert [r["steps/s"] for r in rows] == ["10000", "200", "250"]
+    assert [r["contact / free"] for r in rows] == ["2", "100", "4"]
+    assert "- bar: solve (k.py) 50 us" in text
+    failed = rb.render_contact([("bar", {"error": "boom"})], {"error": "boom"}, command="c", date="d", machine="m",
+                               load="1.0")
+    assert failed.count("error: boom") == 2
