@@ -400,7 +400,10 @@ def command(argv: list[str]) -> int:
         _step_section(a, cmd, date)
     if a.only in ("all", "contact"):
         resting, pile = _contact_cases(a.quick)
-        load = open("/proc/loadavg").read().split()[0] if os.path.exists("/proc/loadavg") else "?"
+        load = "?"
+        if os.path.exists("/proc/loadavg"):
+            with open("/proc/loadavg") as f:
+                load = f.read().split()[0]
         contact = render_contact(resting, pile, command=cmd, date=date, machine=_machine(), load=load)
         print(contact)
         update_section(a.out, contact)

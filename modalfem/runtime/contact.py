@@ -359,7 +359,7 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None
     if k == 0:
         return
     body = solver.body
-    J, WJ, V, R, Iw_inv, nm = _system(solver, state, contacts, dt if sustained else None)
+    J, WJ, V, R, _, nm = _system(solver, state, contacts, dt if sustained else None)
     plan = _plan(contacts.effects)
     n = np.ascontiguousarray(contacts.normal, dtype=np.float64)
     gap = contacts.gap
