@@ -29,6 +29,7 @@ TALL = {"size": (0.1, 0.1, 0.3), "cells": (3, 3, 9), "k": 30, "h": 1.67e-3}
 PILE_COUNT = 20
 PILE_DT = 1e-3  # [s]
 PILE_STEPS = 600
+PILE_MARGIN = 2e-3  # [m] contact margin of the pile (1e-3: ~20 % faster, ~40 % more position corrections)
 GOALS = {"bar": 5000.0, "tall": 300.0, "pile": 200.0}  # steps/s
 
 
@@ -174,7 +175,7 @@ def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEP
     walls = rt.Obstacles([rt.Ground(0.0), rt.Plane((1, 0, 0), (-0.25, 0, 0)), rt.Plane((-1, 0, 0), (0.25, 0, 0)),
                           rt.Plane((0, 1, 0), (0, -0.2, 0)), rt.Plane((0, -1, 0), (0, 0.2, 0))],
                          restitution=0.3, friction=0.4)
-    group = ContactGroup(solvers, obstacles=walls, restitution=0.3, friction=0.4, margin=2e-3)
+    group = ContactGroup(solvers, obstacles=walls, restitution=0.3, friction=0.4, margin=PILE_MARGIN)
     free = [rt.ModalSolver(s.body) for s in solvers]
     fst = [st.copy() for st in states]
 
