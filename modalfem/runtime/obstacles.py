@@ -124,6 +124,9 @@ class Obstacles:
         margin: contacts are gathered within this distance [m] (plus what the body travels in dt).
         bounce_threshold: impacts slower than this [m/s] do not bounce (resting contact).
         modal: include the modes in the contact response (impacts excite vibration).
+
+    The effect is fixed once made: its obstacles and coefficients are read into the contact kernels' plan on
+    first use (make a new ``Obstacles`` to change them).
     """
 
     def __init__(self, obstacles, *, restitution: float = 0.3, friction: float = 0.5, iterations: int = 10,
