@@ -24,9 +24,21 @@ from modalfem.material import ALUMINIUM, BRASS, STEEL, Material
 from modalfem.mesh.core import Mesh
 from modalfem.modes import modes  # binds the function over the submodule name
 from modalfem.result import Certificate, ModalResult
-from modalfem.threads import set_threads, thread_count, threads
 
 __version__ = "0.1.0"
+
+_THREADS = ("set_threads", "thread_count", "threads")
+
+
+def __getattr__(name: str):
+    """``set_threads``, ``thread_count`` and ``threads`` (:mod:`modalfem._threads`) load numba, which loads
+    scipy, on first use only: ``import modalfem.runtime`` stays light (tested). The kernels import it
+    themselves."""
+    if name in _THREADS:
+        import importlib
+
+        return getattr(importlib.import_module("modalfem._threads"), name)
+    raise AttributeError(f"module 'modalfem' has no attribute {name!r}")
 
 __all__ = [
     "modes",

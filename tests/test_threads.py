@@ -10,8 +10,8 @@ import numba
 import pytest
 
 import modalfem
+from modalfem._threads import chunk_bounds, chunk_count, thread_count, threading_layer
 from modalfem.errors import InputError
-from modalfem.threads import chunk_bounds, chunk_count, thread_count, threading_layer
 
 
 def _child(code: str, **env) -> subprocess.CompletedProcess:
@@ -54,7 +54,7 @@ def test_set_threads_checks_its_argument_and_thread_count_restores():
 def test_the_threading_layer_is_a_thread_safe_one_where_it_exists():
     layer = threading_layer()
     assert layer in ("tbb", "omp", "workqueue")
-    from modalfem.threads import _has_omp, _preload_tbb
+    from modalfem._threads import _has_omp, _preload_tbb
 
     if _preload_tbb():
         assert layer == "tbb"

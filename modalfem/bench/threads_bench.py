@@ -142,7 +142,7 @@ def replay(case: str, n: int, repeats: int, *, warm: int, window: int) -> dict:
     Returns ``{"1": [ms/step, ...], "n": [...]}``."""
     import copy
 
-    from modalfem.threads import thread_count
+    from modalfem._threads import thread_count
 
     if case == "cloth":
         from modalfem.cloth import scenes
@@ -189,7 +189,7 @@ def probe(n: int, seconds: float = 1.0) -> float:
     """How many cores this process gets right now: CPU time / wall time of ``seconds`` of a trivially
     parallel compiled loop on ``n`` threads (``n`` on an idle machine; about 1 when other processes hold
     the other cores, e.g. other users' sessions, which the scheduler shares the cores with as groups)."""
-    from modalfem.threads import thread_count
+    from modalfem._threads import thread_count
 
     a = np.zeros(64)
     _probe_kernel(a, 10)
@@ -220,7 +220,7 @@ def kernel_times(n: int, repeats: int) -> dict:
     from modalfem.tet.kinematics import svd_rv_of_positions
     from modalfem.tet.model import tet_model
     from modalfem.tet.solver import TetSolver, TetState, _matvec
-    from modalfem.threads import thread_count
+    from modalfem._threads import thread_count
 
     setup = scenes.pile(64)
     for _ in range(60):
@@ -481,7 +481,7 @@ def command(argv: list[str]) -> int:
     ap.add_argument("--no-profile", action="store_true", help="skip the one-thread CPU profiles")
     a = ap.parse_args(argv)
     from modalfem.bench.cli import _machine, update_section
-    from modalfem.threads import _cores, threading_layer
+    from modalfem._threads import _cores, threading_layer
 
     n = a.threads or _cores()
     if n < 2:

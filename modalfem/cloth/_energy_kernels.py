@@ -9,7 +9,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from modalfem.threads import chunk_bounds, chunk_count
+from modalfem._threads import chunk_bounds, chunk_count
 
 __all__ = ["dihedral", "membrane_energy", "membrane_gradient", "membrane_hessian", "scatter_outer", "scatter_rows"]
 

@@ -11,7 +11,7 @@ pass over the matrix per iteration (product, projection and dot product together
 (update, residual norm) and the additive multilevel preconditioner (restriction up the aggregation
 levels, their block-Jacobi and coarsest solves, prolongation down with block Jacobi and the projection,
 dot product); ``aggregate`` and ``level_matrices`` build its levels. The passes over vertices run in
-parallel (:mod:`modalfem.threads`) on chunks of ``CHUNK`` vertices or more whose bounds depend on the
+parallel (:mod:`modalfem._threads`) on chunks of ``CHUNK`` vertices or more whose bounds depend on the
 vertex count only; dot products add the chunks' partial sums in chunk order, so a solve gives the same
 bits on any number of threads.
 """
@@ -21,8 +21,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from modalfem.threads import apply as _apply_threads
-from modalfem.threads import chunk_bounds, chunk_count
+from modalfem._threads import apply as _apply_threads
+from modalfem._threads import chunk_bounds, chunk_count
 
 #: vertices per chunk of the parallel loops (fewer chunks than threads on small cloths: a parallel
 #: launch costs more than a few hundred vertices' work)

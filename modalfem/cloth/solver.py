@@ -39,7 +39,7 @@ import scipy.sparse.linalg as spla
 
 from modalfem.cloth.model import ClothModel
 from modalfem.errors import InputError, SimulationError, SolverError
-from modalfem.threads import serial_blas
+from modalfem._threads import serial_blas
 
 #: relative residual of the smoothing solve: it only shapes the collision response (which goes through
 #: the collision pipeline again), so a looser tolerance than the implicit step's is enough; the

@@ -17,9 +17,9 @@ import math
 import numba
 import numpy as np
 
-from modalfem.threads import apply as _apply_threads
+from modalfem._threads import apply as _apply_threads
 from modalfem.collision._contour_kernels import contour_ok
-from modalfem.threads import MAX_CHUNKS, chunk_bounds, chunk_count
+from modalfem._threads import MAX_CHUNKS, chunk_bounds, chunk_count
 
 __all__ = ["query", "refit", "refit_triangles", "traverse"]
 
@@ -230,7 +230,7 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
     (2Pa,) / ``dirty_tris`` (m_a,) (empty: no filter): only pairs holding a flagged triangle of tree a.
 
     A serial walk to depth ``SPLIT_DEPTH`` lists node pairs in depth-first order; chunks of them are
-    walked, and their leaves tested, in parallel (:mod:`modalfem.threads`), and the chunks' pairs
+    walked, and their leaves tested, in parallel (:mod:`modalfem._threads`), and the chunks' pairs
     concatenated in order: the pairs, and their order, are those of one depth-first walk on any number
     of threads.
     """

@@ -13,9 +13,9 @@ import math
 import numba
 import numpy as np
 
-from modalfem.threads import apply as _apply_threads
+from modalfem._threads import apply as _apply_threads
 from modalfem.collision._distance_kernels import edge_edge_lb, point_triangle_lb
-from modalfem.threads import chunk_bounds, chunk_count
+from modalfem._threads import chunk_bounds, chunk_count
 
 __all__ = ["ccd_batch", "ccd_candidates"]
 
@@ -187,7 +187,7 @@ def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, 
     pairs without a ``movable`` ((N,) bool) vertex, pairs inside one zone (all four ``roots`` ((N,) int,
     empty: no zones) equal) and pairs whose primitives' trajectory boxes are farther apart than ``eta``
     [m] are skipped; the others get :func:`ccd_batch`'s test. Chunks of pairs run in parallel
-    (:mod:`modalfem.threads`); each query is independent, so the result does not depend on the thread count.
+    (:mod:`modalfem._threads`); each query is independent, so the result does not depend on the thread count.
 
     Returns:
         ``(idx, toi)``: (h,) indices into ``quads`` of the colliding pairs (ascending) and their (h,) times

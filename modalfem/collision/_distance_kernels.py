@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-from modalfem.threads import chunk_bounds, chunk_count
+from modalfem._threads import chunk_bounds, chunk_count
 
 __all__ = [
     "contact_frames",

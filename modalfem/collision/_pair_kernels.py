@@ -7,8 +7,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from modalfem.threads import apply as _apply_threads
-from modalfem.threads import chunk_bounds, chunk_count
+from modalfem._threads import apply as _apply_threads
+from modalfem._threads import chunk_bounds, chunk_count
 
 __all__ = ["drop_indexed", "drop_pairs", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
 
@@ -35,7 +35,7 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     pair comes from the triangle pair of its owners only. Boxes are the vertex boxes ``vlo``/``vhi``
     (N, 3) [m] (already grown by the margin), a triangle's or edge's the union of its vertices'. Pairs
     sharing a vertex are left out; with ``dirty`` ((N,) bool, empty: no filter) only pairs holding a
-    flagged vertex are kept. Chunks of ``tp`` run in parallel (:mod:`modalfem.threads`), their pairs
+    flagged vertex are kept. Chunks of ``tp`` run in parallel (:mod:`modalfem._threads`), their pairs
     concatenated in order: the same pairs in the same order on any number of threads.
 
     Returns:

@@ -18,7 +18,7 @@ from modalfem.collision.repulsion import (
 )
 from modalfem.collision.zones import UnionFind, rigid_zone_velocities
 from modalfem.errors import SimulationError
-from modalfem.threads import serial_blas
+from modalfem._threads import serial_blas
 
 __all__ = ["PIPELINE_DEPTH", "analytic_hits", "ccd_hits", "resolve"]
 

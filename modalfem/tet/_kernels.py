@@ -1,5 +1,5 @@
 """Compiled kernels of the tet solver (numba, compiled on first call, cached on disk), parallel over
-chunks of elements or rows (:mod:`modalfem.threads`) whose bounds depend on the problem size only:
+chunks of elements or rows (:mod:`modalfem._threads`) whose bounds depend on the problem size only:
 every value is computed by one thread in a fixed order, so results are bit-identical on any thread count.
 
 * ``hessians_upper``: projected element Hessians (upper triangles) and element forces from the analytic
@@ -16,8 +16,8 @@ import math
 import numba
 import numpy as np
 
-from modalfem.threads import apply as _apply_threads
-from modalfem.threads import chunk_bounds, chunk_count
+from modalfem._threads import apply as _apply_threads
+from modalfem._threads import chunk_bounds, chunk_count
 
 __all__ = ["csr_matvec", "gather_sum", "hessians_upper", "svd_of_positions", "svd_rv", "symmetrise", "unsigned"]
 

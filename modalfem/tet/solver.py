@@ -34,7 +34,7 @@ from modalfem.tet.energies import (
 from modalfem.tet.kinematics import scatter_vertices, svd_rv_of_positions
 from modalfem.tet.model import TetModel
 from modalfem.tet.precond import TwoLevel
-from modalfem.threads import serial_blas
+from modalfem._threads import serial_blas
 
 __all__ = ["LINEAR_SOLVERS", "StepInfo", "TetControl", "TetSolver", "TetState"]
 

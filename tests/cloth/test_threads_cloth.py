@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from modalfem.cloth import scenes
-from modalfem.threads import thread_count
+from modalfem._threads import thread_count
 
 pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 

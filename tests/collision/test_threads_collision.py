@@ -13,7 +13,7 @@ from modalfem.collision import _bvh_kernels, _distance_kernels
 from modalfem.collision._system import System
 from modalfem.collision.bvh import BroadPhaseBVH
 from modalfem.collision.ccd import ccd_pairs
-from modalfem.threads import thread_count
+from modalfem._threads import thread_count
 
 pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 

@@ -9,7 +9,7 @@ import pytest
 
 from modalfem.tet import energies as en
 from modalfem.tet import kinematics as kin
-from modalfem.threads import thread_count
+from modalfem._threads import thread_count
 
 CELLS = np.array([[0, 1, 2, 3]])
 TERMS = {

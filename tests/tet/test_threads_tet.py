@@ -13,7 +13,7 @@ from modalfem.mesh import box
 from modalfem.tet.effects import Gravity, Pins
 from modalfem.tet.model import tet_model
 from modalfem.tet.solver import TetSolver, TetState
-from modalfem.threads import thread_count
+from modalfem._threads import thread_count
 
 pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 
