@@ -76,14 +76,19 @@ def _number(name: str, value, unit: str, *, low: float | None = None, high: floa
     return x
 
 
-def _vec3(name: str, value, unit: str) -> tuple:
+def vec3(name: str, value, unit: str) -> np.ndarray:
+    """``value`` as a finite float64 3-vector, or ``InputError`` naming ``name`` and its unit."""
     try:
         a = np.asarray(value, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
         raise InputError(f"{name} must be 3 numbers [{unit}], got {value!r}") from None
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise InputError(f"{name} must be 3 finite numbers [{unit}], got {value!r}")
-    return tuple(float(v) for v in a)
+    return a
+
+
+def _vec3(name: str, value, unit: str) -> tuple:
+    return tuple(float(v) for v in vec3(name, value, unit))
 
 
 class _Effect:

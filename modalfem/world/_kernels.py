@@ -49,6 +49,17 @@ def _velocity(V, ptr, off, nd, jptr, J, c):
     return u0, u1, u2
 
 
+@numba.njit(cache=True, inline="always")
+def _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2):
+    """``V += W J_c^T (d0, d1, d2)``: the velocity change of an impulse [N s] at contact ``c``."""
+    for e in range(ptr[c], ptr[c + 1]):
+        m = nd[e]
+        base = jptr[e]
+        o = off[e]
+        for j in range(m):
+            V[o + j] += WJt[base + 3 * j] * d0 + WJt[base + 3 * j + 1] * d1 + WJt[base + 3 * j + 2] * d2
+
+
 @numba.njit(cache=True)
 def contact_velocities(V, ptr, off, nd, jptr, J):
     """Relative velocities (k, 3) [m/s] of the contacts at ``V``."""
@@ -114,12 +125,7 @@ def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, it
                 d2 += c2 - lam_t[c, 2]
                 lam_t[c, 0], lam_t[c, 1], lam_t[c, 2] = c0, c1, c2
             if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
-                for e in range(ptr[c], ptr[c + 1]):
-                    m = nd[e]
-                    base = jptr[e]
-                    o = off[e]
-                    for j in range(m):
-                        V[o + j] += WJt[base + 3 * j] * d0 + WJt[base + 3 * j + 1] * d1 + WJt[base + 3 * j + 2] * d2
+                _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2)
                 change = max(change, abs(d0) + abs(d1) + abs(d2))
             scale = max(scale, lam_n[c])
         if change <= 1e-10 * scale:
@@ -133,11 +139,5 @@ def apply_impulses(V, ptr, off, nd, jptr, WJt, lam):
     k = len(ptr) - 1
     for c in range(k):
         d0, d1, d2 = lam[c, 0], lam[c, 1], lam[c, 2]
-        if d0 == 0.0 and d1 == 0.0 and d2 == 0.0:
-            continue
-        for e in range(ptr[c], ptr[c + 1]):
-            m = nd[e]
-            base = jptr[e]
-            o = off[e]
-            for j in range(m):
-                V[o + j] += WJt[base + 3 * j] * d0 + WJt[base + 3 * j + 1] * d1 + WJt[base + 3 * j + 2] * d2
+        if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
+            _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2)

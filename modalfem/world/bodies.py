@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modalfem.effects import vec3
 from modalfem.errors import InputError
 
 __all__ = ["Cloth", "ClothState", "Modal", "Tet"]
@@ -27,15 +28,7 @@ def _name(name) -> str:
 
 
 def _vec(name: str, value, unit: str) -> np.ndarray | None:
-    if value is None:
-        return None
-    try:
-        a = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be 3 numbers [{unit}], got {value!r}") from None
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InputError(f"{name} must be 3 finite numbers [{unit}], got {value!r}")
-    return a
+    return None if value is None else vec3(name, value, unit)
 
 
 class Modal:

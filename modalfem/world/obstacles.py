@@ -16,19 +16,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from modalfem.effects import vec3
 from modalfem.errors import InputError
 
 __all__ = ["Box", "Ground", "Path", "Plane", "Sphere", "TriangleMesh"]
 
 
-def _vec(name: str, value, unit: str) -> np.ndarray:
-    try:
-        a = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be 3 numbers [{unit}], got {value!r}") from None
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InputError(f"{name} must be 3 finite numbers [{unit}], got {value!r}")
-    return a
+_vec = vec3
 
 
 class Path:
@@ -230,20 +224,16 @@ class Box(_Obstacle):
             raise InputError("box rotation must be a proper 3x3 rotation matrix")
         self.rotation = R
         self.path = _path(path)
+        self._rt = None
 
     def signed_distance(self, x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
-        p = (self._local(x, t) - self.center) @ self.rotation
-        q = np.abs(p) - self.half
-        sign = np.where(p < 0, -1.0, 1.0)
-        outside = np.maximum(q, 0.0)
-        dout = np.sqrt(np.einsum("ij,ij->i", outside, outside))
-        inside = dout == 0
-        gap = np.where(inside, q.max(axis=1), dout)
-        n_local = np.where(inside[:, None], 0.0, sign * outside / np.where(dout > 0, dout, 1.0)[:, None])
-        k = np.argmax(q, axis=1)
-        rows = np.flatnonzero(inside)
-        n_local[rows, k[rows]] = sign[rows, k[rows]]
-        return gap, n_local @ self.rotation.T
+        from modalfem.runtime.obstacles import (
+            Box as _RuntimeBox,  # one box distance for the whole package
+        )
+
+        if self._rt is None:
+            self._rt = _RuntimeBox(self.center, self.half, self.rotation)
+        return self._rt.signed_distance(np.ascontiguousarray(self._local(x, t)))
 
     def surface(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         c = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
