@@ -75,9 +75,9 @@ def test_replay_repeats_the_same_steps_on_both_counts():
 
 
 def test_probe_counts_the_cores_a_parallel_loop_gets():
-    from modalfem.bench.threads_bench import probe
-
     import os
+
+    from modalfem.bench.threads_bench import probe
 
     # CPU time over wall time of the process: a parallel loop gets at most the cores it may run on, and (even
     # on one thread) a threading layer's idle workers may spin for a while after a parallel region, so the
