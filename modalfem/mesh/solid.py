@@ -238,7 +238,9 @@ def _ftetwild(v, f, h, envelope):
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # holds modalfem/
         code = (f"import sys; sys.path.insert(0, {root!r}); from modalfem.mesh.solid import _ftetwild_worker; "
                 f"_ftetwild_worker({folder!r})")
-        child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        # in the temporary folder: fTetWild writes a __tracked_surface.stl into its working directory
+        child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                 cwd=folder)
         try:
             _, err = child.communicate()
         except BaseException:

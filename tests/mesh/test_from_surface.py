@@ -145,6 +145,14 @@ def test_ftetwild_volume_within_its_envelope():
     assert r.report.worst_quality >= QUALITY_BOUND
 
 
+def test_ftetwild_leaves_nothing_in_the_working_directory(tmp_path, monkeypatch):
+    # fTetWild writes a __tracked_surface.stl into its working directory: it runs in a temporary one
+    monkeypatch.chdir(tmp_path)
+    v, f = icosphere(1.0, 2)
+    tetrahedralize((v, f), h=0.5, method="ftetwild")
+    assert list(tmp_path.iterdir()) == []
+
+
 # ------------------------------------------------------------------ raw scans
 @pytest.mark.slow
 def test_scan_with_holes_nonmanifold_edges_flips_and_a_spike_becomes_solid():
