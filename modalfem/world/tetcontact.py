@@ -1,18 +1,15 @@
-"""Contact of tet bodies inside their implicit step: a one-sided quadratic penalty per contact.
+"""Contact of tet bodies with obstacles inside their implicit step: a one-sided quadratic penalty per contact.
 
 Each contact says "the point ``sum_j w_j x_j`` of the tet body stays at least ``dhat`` [m] on the free side of
 the plane through ``p`` with normal ``n``": energy ``0.5 k (dhat - g)^2`` for ``g = (sum_j w_j x_j - p) . n <
-dhat``, zero beyond. The planes are the other surfaces (obstacles, modal and tet bodies) at the step end,
-linearised at the closest points found at the step start. The stiffness of a contact is ``STIFFNESS m_eff /
-dt^2`` (m_eff its effective mass ``1 / sum_j w_j^2 / m_j``): the implicit step then stops an approach within
-the step, at any dt, and a body resting on it compresses the skin ``dhat`` by ``m g dt^2 / STIFFNESS`` per
-vertex's share of the weight. A contact already inside the skin at the step start is held there (its plane
-shifted to the start depth): a body placed on the ground is not thrown off; against another body the depth is
-kept at least dhat / 4 from its surface, so the surfaces never meet (an impact at v [m/s] sinks ~v dt / 6 into
-the skin). On an obstacle a resting body creeps into the skin by ``g dt^2 / STIFFNESS`` per step down to the
-surface, and rests ~``g dt^2 / STIFFNESS`` (0.3 um at dt = 1 ms) below it.
-The contact force ``k (dhat - g) n`` at the step end, times dt, is the impulse
-the other body receives back (equal and opposite).
+dhat``, zero beyond (the World uses one vertex per contact, ``w = (1, 0, 0)``). The planes are the obstacles'
+surfaces at the step end, linearised at the closest points found at the step start. The stiffness of a
+contact is ``STIFFNESS m_eff / dt^2`` (m_eff its effective mass ``1 / sum_j w_j^2 / m_j``): the implicit step
+then stops an approach within the step, at any dt, and a body resting on it compresses the skin ``dhat`` by
+``m g dt^2 / STIFFNESS`` per vertex's share of the weight. A contact already inside the skin at the step start
+is held there (its plane shifted to the start depth): a body placed on the ground is not thrown off. A resting
+body creeps into the skin by ``g dt^2 / STIFFNESS`` per step down to the surface, and rests ~``g dt^2 /
+STIFFNESS`` (0.3 um at dt = 1 ms) below it. Bodies meet each other in the World's solid contact solve, not here.
 """
 
 from __future__ import annotations

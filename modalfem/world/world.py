@@ -599,19 +599,17 @@ class World:
                 i = _vertex(name, p, len(s.x))
                 if np.isfinite(t["masses"][i]):
                     s.v[i] += J / t["masses"][i]
-            for vid, dv in ctx.kicks.pop(name, []):  # reactions of tet bodies stepped before this one
-                s.v[vid] += dv
             if t["wind"] is not None:
                 t["wind"].update(s.x, s.v, ctx.state_in.time)
-            links = self._tet_contacts(ctx, name, s) if t["penalty"] is not None else None
+            obstacles = self._tet_contacts(ctx, name, s) if t["penalty"] is not None else None
             out = s.copy()
             ctl = TetControl(*ctx.control.scripted[name]) if name in ctx.control.scripted else None
             try:
                 t["solver"].step(s, out, dt, control=ctl)
             except SimulationError as exc:
                 raise SimulationError(f"tet body {name!r}: {exc}") from None
-            if links is not None:
-                self._tet_reactions(ctx, name, s, out, links)
+            if obstacles is not None:
+                self._tet_friction(ctx, name, out, obstacles)
             ctx.out.bodies[name] = out
             ctx.start[name] = s  # the start the step used (strikes applied)
             ctx.done.add(name)
@@ -625,8 +623,9 @@ class World:
         return st.x[self._tet[name]["surface"]]
 
     def _tet_contacts(self, ctx, name: str, s) -> list:
-        """Set this step's penalty contacts of tet body ``name`` (start state ``s``); returns what each contact
-        pushes against: ``(kind, other, data)`` per contact (see ``_tet_reactions``)."""
+        """Set this step's penalty contacts of tet body ``name`` with the obstacles (start state ``s``); returns
+        the obstacle of each contact (for its friction, ``_tet_friction``). Bodies meet each other in the solid
+        contact solve, with impulses on both."""
         t = self._tet[name]
         c = t["contact"]
         dt, t1 = ctx.dt, ctx.state_in.time + ctx.dt
@@ -635,14 +634,13 @@ class World:
         xs = s.x[sv]
         vmax = float(np.sqrt(np.einsum("ij,ij->i", s.v, s.v)).max()) if len(s.v) else 0.0
         reach = dhat + c.margin + 2.0 * vmax * dt + 9.81 * dt * dt
-        verts, ws, ps, ns, links = [], [], [], [], []
+        verts, ps, ns, touched = [], [], [], []
 
-        def add_vertex(idx, p, n, link):
-            verts.append(np.stack([sv[idx], -np.ones(len(idx), np.int64), -np.ones(len(idx), np.int64)], 1))
-            ws.append(np.column_stack([np.ones(len(idx)), np.zeros(len(idx)), np.zeros(len(idx))]))
+        def add_vertex(idx, p, n, o):
+            verts.append(sv[idx])
             ps.append(p)
             ns.append(n)
-            links.extend(link)
+            touched.extend([o] * len(idx))
 
         for o in self.obstacles:
             r = reach + (0.0 if not o.moving else float(np.linalg.norm(o.path.velocity(ctx.state_in.time, dt))) * dt)
@@ -651,87 +649,61 @@ class World:
                 h = self._obstacle_surf[self.obstacles.index(o)].query(xs, Vo, r)
                 if len(h.point):
                     p = np.einsum("kj,kjd->kd", h.bary, Vo[o.triangles[h.triangle]])
-                    add_vertex(h.point, p, h.normal, [("obstacle", o, None)] * len(h.point))
+                    add_vertex(h.point, p, h.normal, o)
             else:
                 gap, n = o.signed_distance(xs, t1)
                 idx = np.flatnonzero(gap < r)
                 if len(idx):
                     n = np.asarray(n)[idx]
-                    add_vertex(idx, xs[idx] - gap[idx, None] * n, n, [("obstacle", o, None)] * len(idx))
-        # bodies meet each other in the solid contact solve (impulses on both); the penalty is for the obstacles
+                    add_vertex(idx, xs[idx] - gap[idx, None] * n, n, o)
         pen = t["penalty"]
         if not verts:
             pen.set(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), dhat)
             return []
-        V, W = np.concatenate(verts), np.concatenate(ws)
+        ids = np.concatenate(verts)
+        V = np.column_stack([ids, -np.ones((len(ids), 2), np.int64)])  # one vertex per contact
+        W = np.zeros((len(ids), 3))
+        W[:, 0] = 1.0
         P, N = np.concatenate(ps), np.concatenate(ns)
-        # a contact already inside the skin at the step start is held where it is (a push out of the skin would
-        # throw a body placed on the ground); against another body, one closer than dhat/4 is pushed to dhat/4, so
-        # the two surfaces never meet
-        g0 = np.einsum("cd,cd->c", np.einsum("cj,cjd->cd", W, s.x[np.where(V >= 0, V, 0)]) - P, N)
-        body = np.array([lk[0] != "obstacle" for lk in links])
-        g_ref = np.clip(g0, np.where(body, 0.25 * dhat, 0.0), dhat)
-        P = P - (dhat - g_ref)[:, None] * N
-        inv = np.where(V >= 0, 1.0 / t["masses"][np.where(V >= 0, V, 0)], 0.0)
-        meff_inv = np.einsum("cj,cj->c", W**2, inv)
-        ok = meff_inv > 0
-        k = np.where(ok, STIFFNESS / np.where(ok, meff_inv, 1.0) / dt**2, 0.0)
+        # a contact already inside the skin at the step start is held where it is: a push out of the skin would
+        # throw a body placed on the ground
+        g0 = np.einsum("cd,cd->c", s.x[ids] - P, N)
+        P = P - (dhat - np.clip(g0, 0.0, dhat))[:, None] * N
+        m = t["masses"][ids]
+        free = np.isfinite(m)
+        k = np.where(free, STIFFNESS * np.where(free, m, 0.0) / dt**2, 0.0)
         pen.set(V, W, P, N, k, dhat)
-        return links
+        return touched
 
-    def _tet_reactions(self, ctx, name: str, s, out, links: list) -> None:
-        """Friction on the tet's contacts and the equal and opposite impulses on the bodies it touched: the
-        penalty forces at the step end times dt (what the implicit step applied, to its Newton tolerance)."""
+    def _tet_friction(self, ctx, name: str, out, obstacles: list) -> None:
+        """Coulomb friction of the tet's obstacle contacts: the tangential velocity of a vertex relative to the
+        obstacle's surface shrinks by at most ``mu f dt / m`` (f the penalty force at the step end)."""
         t = self._tet[name]
         pen = t["penalty"]
+        mu = t["contact"].friction
         if not pen.count:
             return
-        dt = ctx.dt
         f = pen.forces(out.x)
         act = np.flatnonzero(f > 0)
-        Jn = (f[:, None] * dt) * pen.nrm
-        mu = t["contact"].friction
-        per = {}
+        ctx.report.contacts["tet"] = ctx.report.contacts.get("tet", 0) + len(act)
+        if mu <= 0:
+            return
         for c in act:
-            kind, other, data = links[c]
-            J = Jn[c].copy()  # what the tet received through this contact [N s]
-            single = pen.verts[c, 1] < 0
-            if mu > 0 and single:  # Coulomb friction of a vertex contact against the other surface's velocity
-                i = pen.verts[c, 0]
-                if np.isfinite(t["masses"][i]):
-                    vo = self._velocity_at(ctx, kind, other, data, out.x[i])
-                    rel = out.v[i] - vo
-                    vt = rel - pen.nrm[c] * (rel @ pen.nrm[c])
-                    sp = float(np.linalg.norm(vt))
-                    if sp > 0:
-                        cut = min(sp, mu * f[c] * dt / t["masses"][i])
-                        dv = -cut / sp * vt
-                        out.v[i] += dv
-                        out.x[i] += dt * dv
-                        J = J + t["masses"][i] * dv
-            if kind == "obstacle":
+            i = pen.verts[c, 0]
+            if not np.isfinite(t["masses"][i]):
                 continue
-            self._kick(ctx, kind, other, data, -J)
-            pt = data[2]
-            J0, L0 = per.get(other, (np.zeros(3), np.zeros(3)))
-            per[other] = (J0 + J, L0 + np.cross(pt, J))
-        for other, (J, L) in per.items():
-            ctx.report.exchanged.append((name, other, J, L))
-        ctx.report.contacts["tet"] = ctx.report.contacts.get("tet", 0) + int((f > 0).sum())
-
-    def _velocity_at(self, ctx, kind: str, other, data, x: np.ndarray) -> np.ndarray:
-        if kind == "obstacle":
-            return np.asarray(other.velocity(x[None], ctx.state_in.time, ctx.dt))[0]
-        if kind == "modal":
-            st = ctx.out.bodies[other]
-            return st.velocity + np.cross(self._modal[other]["body"].angular_velocity(st), x - st.position)
-        st = ctx.out.bodies[other] if other in ctx.done else ctx.state_in.bodies[other]
-        ids, w, _ = data
-        return np.einsum("j,jd->d", w, st.v[self._tet[other]["surface"][np.asarray(ids)]])
+            vo = np.asarray(obstacles[c].velocity(out.x[i][None], ctx.state_in.time, ctx.dt))[0]
+            rel = out.v[i] - vo
+            vt = rel - pen.nrm[c] * (rel @ pen.nrm[c])
+            sp = float(np.linalg.norm(vt))
+            if sp > 0:
+                dv = -min(sp, mu * f[c] * ctx.dt / t["masses"][i]) / sp * vt
+                out.v[i] += dv
+                out.x[i] += ctx.dt * dv
 
     def _kick(self, ctx, kind: str, other: str, data, J: np.ndarray) -> None:
-        """Impulse ``J`` (3,) [N s] on body ``other`` at its contact point: a modal body's rigid motion at the
-        step end (see ``_reaction``), a tet body's vertices (at its step end, or its start if not stepped)."""
+        """Impulse ``J`` (3,) [N s] on solid body ``other`` at its contact point, at its step end (see
+        ``_reaction``): a modal body's rigid motion, a tet body's vertices by their weights."""
         ids, w, pt = data
         if kind == "modal":
             st = ctx.out.bodies[other]
@@ -742,10 +714,7 @@ class World:
         vid = t["surface"][np.asarray(ids)]  # surface-local -> mesh vertex ids
         m = t["masses"][vid]
         dv = np.where(np.isfinite(m), 1.0, 0.0)[:, None] * (w / np.where(np.isfinite(m), m, 1.0))[:, None] * J
-        if other in ctx.done:
-            ctx.out.bodies[other].v[vid] += dv
-        else:
-            ctx.kicks.setdefault(other, []).append((vid, dv))
+        ctx.out.bodies[other].v[vid] += dv
 
     def _stage_tet_self(self, ctx) -> None:
         dt = ctx.dt
@@ -1093,7 +1062,6 @@ class _StepContext:
         self.dV = {}
         self.cloth_dv = {}
         self.impacts = {}
-        self.kicks = {}
         self.contacts = dict(state_in.contacts)  # kept unless the solid solve runs
         self.report = None
 
