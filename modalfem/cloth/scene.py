@@ -35,7 +35,7 @@ import numpy as np
 
 from modalfem.cloth.model import ClothModel, non_finite
 from modalfem.cloth.solver import ImplicitEuler, LinearSolveInfo
-from modalfem.cloth.wind import Wind
+from modalfem.cloth.wind import PressureWind, Wind
 from modalfem.errors import InputError, SimulationError
 
 __all__ = ["ClothScene", "StepStats"]
@@ -115,9 +115,7 @@ class ClothScene:
         if isinstance(gravity, fx.Gravity):  # the public effect, or a vector
             gravity = gravity.g
         if isinstance(wind, fx.Wind):
-            from modalfem.world.world import _cloth_wind
-
-            wind = _cloth_wind(wind)
+            wind = PressureWind(wind)
         self.gravity = None
         if gravity is not None:
             g = np.asarray(gravity, dtype=float)

@@ -17,7 +17,7 @@ import numpy as np
 
 from modalfem.errors import InputError
 
-__all__ = ["Wind"]
+__all__ = ["PressureWind", "Wind"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,10 +77,37 @@ class Wind:
         area = 0.5 * a2
         w = self._field(q.mean(axis=1), t)
         vt = v[triangles].mean(axis=1)
-        fn = self.drag * area * np.einsum("mi,mi->m", w - vt, n)
-        f_tri = (fn / 3.0)[:, None] * n
+        s = np.einsum("mi,mi->m", w - vt, n)  # relative normal air speed [m/s]
+        traction, stiffness = self._law(s)
+        f_tri = (traction * area * s / 3.0)[:, None] * n
         f = np.zeros_like(x, dtype=float)
         np.add.at(f, triangles.reshape(-1), np.repeat(f_tri, 3, axis=0))
-        nn = (self.drag * area / 9.0)[:, None, None] * n[:, :, None] * n[:, None, :]
+        nn = (stiffness * area / 9.0)[:, None, None] * n[:, :, None] * n[:, None, :]
         C = np.tile(nn, (1, 3, 3))
         return f, C
+
+    def _law(self, s: np.ndarray) -> tuple:
+        """Per triangle, the traction per relative normal speed [kg/(m^2 s)] (force ``traction A s n``) and its
+        derivative ``d(traction s) / ds``: both ``D`` for this linear law."""
+        return self.drag, self.drag
+
+
+class PressureWind(Wind):
+    """The quadratic law of ``modalfem.effects.Wind`` on a cloth: ``0.5 rho C A |s| s n`` per triangle (both
+    sides of the sheet), its velocity Jacobian ``rho C A |s| n n^T / 9`` per vertex pair implicit in the solve.
+
+    Args:
+        air: the ``modalfem.effects.Wind`` (velocity or field, density rho, drag coefficient C).
+    """
+
+    def __init__(self, air) -> None:
+        object.__setattr__(self, "velocity", np.zeros(3))
+        object.__setattr__(self, "drag", 1.0)
+        object.__setattr__(self, "air", air)
+
+    def _field(self, c: np.ndarray, t: float) -> np.ndarray:
+        return self.air.at(c, t)
+
+    def _law(self, s: np.ndarray) -> tuple:
+        k = self.air.density * self.air.drag * np.abs(s)
+        return 0.5 * k, k

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from modalfem import effects as fx
+from modalfem.cloth.wind import PressureWind
 from modalfem.errors import InputError, SimulationError
 from modalfem.world import _kernels
 from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
@@ -378,7 +379,7 @@ class World:
             elif isinstance(e, fx.Wind):
                 if wind is not None:
                     raise InputError(f"cloth {b.name!r} has two wind effects: give at most one per cloth")
-                wind = _cloth_wind(e)
+                wind = PressureWind(e)
             elif isinstance(e, fx.Damping):
                 model = dataclasses.replace(model, mass_damping=e.alpha, stiffness_damping=e.beta)
             else:
@@ -1263,34 +1264,6 @@ class _TetWind:
 
     def hessian_diagonal(self, x: np.ndarray, masses: np.ndarray):
         return None
-
-
-def _cloth_wind(wind: fx.Wind):
-    """The public ``Wind`` for a cloth: ``0.5 rho C A |s| s n`` per triangle, implicit in the velocities."""
-    from modalfem.cloth.wind import Wind as ClothWind
-
-    class _Quadratic(ClothWind):
-        def __init__(self, w: fx.Wind) -> None:
-            object.__setattr__(self, "velocity", np.zeros(3))
-            object.__setattr__(self, "drag", 1.0)
-            object.__setattr__(self, "air", w)
-
-        def forces(self, x, v, triangles, t=0.0):
-            q = x[triangles]
-            nrm = np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
-            a2 = np.linalg.norm(nrm, axis=1)
-            n = nrm / np.maximum(a2, 1e-300)[:, None]
-            area = 0.5 * a2
-            wv = self.air.at(q.mean(axis=1), t)
-            s = np.einsum("mi,mi->m", wv - v[triangles].mean(axis=1), n)
-            k = self.air.density * self.air.drag * area
-            f_tri = (0.5 * k * np.abs(s) * s / 3.0)[:, None] * n
-            f = np.zeros_like(x, dtype=float)
-            np.add.at(f, triangles.reshape(-1), np.repeat(f_tri, 3, axis=0))
-            nn = (k * np.abs(s) / 9.0)[:, None, None] * n[:, :, None] * n[:, None, :]
-            return f, np.tile(nn, (1, 3, 3))
-
-    return _Quadratic(wind)
 
 
 class _ObstacleMotion:
