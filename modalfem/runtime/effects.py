@@ -56,6 +56,20 @@ class Gravity:
         loads.force += solver.body.mass * self.g
 
 
+def windward_pressure(cr: np.ndarray, w_rel: np.ndarray, density: float, drag: float) -> np.ndarray:
+    """Wind forces (m, 3) [N] on the faces the air meets: ``0.5 rho C A s^2 (-n)`` with ``s = max(0, -(w - u) . n)``.
+
+    Args:
+        cr: (m, 3) ``2 A n`` of each face (the cross product of two edges; n outward) [m^2].
+        w_rel: (m, 3) air velocity relative to each face's centroid [m/s].
+        density: rho [kg/m^3]; drag: the pressure coefficient C [-].
+    """
+    area2 = np.sqrt(np.einsum("ij,ij->i", cr, cr))
+    n = cr / np.where(area2 > 0, area2, 1.0)[:, None]
+    s = np.maximum(0.0, -np.einsum("ij,ij->i", w_rel, n))
+    return (-0.25 * density * drag * area2 * s * s)[:, None] * n  # 0.5 rho C A s^2 (-n), A = area2 / 2
+
+
 class Wind:
     """Wind pressure on the windward triangles: p = 0.5 rho C ((w - u) . (-n))_+^2 along -n.
 
@@ -86,10 +100,7 @@ class Wind:
         cr = np.cross(x[t[:, 1]] - a, x[t[:, 2]] - a)  # 2 A_t n_t
         rc = (a + x[t[:, 1]] + x[t[:, 2]]) / 3.0 - state.position  # centroids from the centre of mass
         w_rel = self.velocity - (state.velocity + np.cross(body.angular_velocity(state), rc))
-        area2 = np.sqrt(np.einsum("ij,ij->i", cr, cr))
-        n = cr / np.where(area2 > 0, area2, 1.0)[:, None]
-        s = np.maximum(0.0, -np.einsum("ij,ij->i", w_rel, n))
-        F = (-0.25 * self.density * self.drag * area2 * s * s)[:, None] * n  # 0.5 rho C A s^2 (-n), A = area2 / 2
+        F = windward_pressure(cr, w_rel, self.density, self.drag)
         loads.force += F.sum(axis=0)
         loads.torque += np.cross(rc, F).sum(axis=0)
         Fv = np.zeros_like(x)

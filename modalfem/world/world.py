@@ -40,6 +40,7 @@ import numpy as np
 from modalfem import effects as fx
 from modalfem.cloth.wind import PressureWind
 from modalfem.errors import InputError, SimulationError
+from modalfem.runtime.effects import windward_pressure
 from modalfem.world import _kernels
 from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
@@ -1244,13 +1245,8 @@ class _TetWind:
         T = self.triangles
         a = xs[T[:, 0]]
         cr = np.cross(xs[T[:, 1]] - a, xs[T[:, 2]] - a)
-        area2 = np.sqrt(np.einsum("ij,ij->i", cr, cr))
-        n = cr / np.where(area2 > 0, area2, 1.0)[:, None]
-        c = xs[T].mean(axis=1)
-        u = vs[T].mean(axis=1)
-        s = np.einsum("ij,ij->i", self.wind.at(c, t) - u, n)
-        s = np.minimum(s, 0.0)  # air flowing into the face (outward normal against the flow)
-        F = (-0.25 * self.wind.density * self.wind.drag * area2 * s * s)[:, None] * n
+        w_rel = self.wind.at(xs[T].mean(axis=1), t) - vs[T].mean(axis=1)
+        F = windward_pressure(cr, w_rel, self.wind.density, self.wind.drag)  # the modal runtime's law
         f = np.zeros((len(x), 3))
         for k in range(3):
             np.add.at(f, sv[T[:, k]], F / 3.0)
