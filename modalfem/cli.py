@@ -104,6 +104,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_export_parser(sub)
     sub.add_parser("view", help="live mode explorer of a model file in the browser (see `modalfem view -h`)",
                    add_help=False).add_argument("args", nargs=argparse.REMAINDER)
+    sub.add_parser("run", help="simulate a scene file or example scene (see `modalfem run -h`, `--list`)",
+                   add_help=False).add_argument("args", nargs=argparse.REMAINDER)
+    sub.add_parser("plan", help="print the step plan of a scene (see `modalfem plan -h`)",
+                   add_help=False).add_argument("args", nargs=argparse.REMAINDER)
     return p
 
 
@@ -480,6 +484,11 @@ def main(argv: list[str] | None = None) -> int:
             from modalfem.view.cli import main as view_main
 
             return int(view_main(argv[1:]))
+        if argv[:1] in (["run"], ["plan"]):
+            from modalfem.scene.cli import plan_main, run_main
+
+            with _terminate_as_exit(), _one_line_warnings(debug):
+                return int((run_main if argv[0] == "run" else plan_main)([a for a in argv[1:] if a != "--debug"]))
         args = build_parser().parse_args(argv)
         if args.version:
             import modalfem

@@ -1,0 +1,325 @@
+"""``modalfem run``: simulate a scene and write what it asks for, all or nothing (or, after Ctrl-C, the frames
+so far, said so).
+
+The run builds the world (``build_scene``), then steps it ``duration / dt`` times; every ``1 / (frame_rate dt)``
+steps it hands the state to the ``Recorder`` (ParaView, video, glTF) and records energies, momenta and the
+exact intersection check for the summary. A progress line on stderr shows steps/s, simulated time and the
+ETA. Everything is written into a temporary folder next to ``--out`` that replaces it at the end; an error
+leaves nothing behind, Ctrl-C finishes the files with the frames so far and keeps them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from modalfem.errors import SceneError
+
+__all__ = ["RUN_FILES", "SUMMARY_FORMAT", "RunResult", "examples", "find_scene", "plan_scene", "run_scene"]
+
+#: the summary's layout identifier
+SUMMARY_FORMAT = "modalfem.run/1"
+#: what a run folder holds (an existing --out holding anything else is not replaced)
+RUN_FILES = frozenset({"summary.json", "scene.toml", "plan.txt", "paraview", "scene.pvd", "preview.gif",
+                       "preview.mp4", "sound", "scene.glb"})
+
+EXAMPLES = Path(__file__).parent / "examples"
+
+
+def examples() -> dict[str, tuple[Path, str]]:
+    """The example scenes shipped with modalfem: name -> (file, one-line description)."""
+    import tomllib
+
+    out = {}
+    for p in sorted(EXAMPLES.glob("*.toml")):
+        with open(p, "rb") as f:
+            d = tomllib.load(f)
+        out[p.stem] = (p, str(d.get("description", "")).strip().splitlines()[0] if d.get("description") else "")
+    return out
+
+
+def find_scene(name_or_path) -> Path:
+    """A scene file path, or the file of the example scene of that name.
+
+    Raises:
+        SceneError: neither a file nor an example (with a "did you mean" among the examples).
+    """
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    ex = examples()
+    if str(name_or_path) in ex:
+        return ex[str(name_or_path)][0]
+    from modalfem.scene.schema import did_you_mean
+
+    if p.suffix or os.sep in str(name_or_path):
+        raise SceneError(f"{name_or_path}: no such scene file")
+    raise SceneError(f"{name_or_path!r} is neither a scene file nor an example scene{did_you_mean(name_or_path, ex)}"
+                     f"; examples: {', '.join(ex)} (modalfem run --list)")
+
+
+def plan_scene(name_or_path, *, progress=None) -> str:
+    """The step plan of a scene: which stages run, in order, for which bodies (builds its world)."""
+    from modalfem.scene.build import build_scene
+    from modalfem.scene.load import load_scene
+
+    path = find_scene(name_or_path)
+    scene, base = load_scene(path)
+    built = build_scene(scene, base, label=path.name, progress=progress, check_start=False)
+    return built.world.describe_plan()
+
+
+@dataclass
+class RunResult:
+    """What a run did: the output folder, the summary (as written to summary.json), whether it was interrupted."""
+
+    out: Path
+    summary: dict
+    interrupted: bool
+
+
+class _Bar:
+    """One progress line: steps, steps/s, simulated time, ETA (redrawn on a terminal, every ~10 % otherwise)."""
+
+    def __init__(self, total: int, dt: float, *, quiet: bool, stream=None) -> None:
+        self.total, self.dt, self.quiet = total, dt, quiet
+        self.stream = stream or sys.stderr
+        try:
+            self.live = bool(self.stream.isatty())
+        except (AttributeError, ValueError):
+            self.live = False
+        self.t0 = time.perf_counter()
+        self.last = 0.0
+        self.next_tenth = 1
+
+    def __call__(self, done: int) -> None:
+        if self.quiet:
+            return
+        now = time.perf_counter()
+        final = done == self.total
+        if self.live and not final and now - self.last < 0.2:
+            return
+        if not self.live and not final and done * 10 < self.next_tenth * self.total:
+            return
+        self.last = now
+        self.next_tenth = done * 10 // self.total + 1
+        el = now - self.t0
+        rate = done / el if el > 0 else 0.0
+        eta = (self.total - done) / rate if rate > 0 else math.inf
+        fill = int(20 * done / self.total)
+        line = (f"[{'#' * fill}{'.' * (20 - fill)}] {done}/{self.total} steps  {rate:,.0f} steps/s  "
+                f"t = {done * self.dt:.3f} s  ETA {eta:.0f} s" if math.isfinite(eta) else "")
+        try:
+            self.stream.write(("\r" + line + "\x1b[K") if self.live else line + "\n")
+            if self.live and final:
+                self.stream.write("\n")
+            self.stream.flush()
+        except (OSError, ValueError):
+            pass
+
+    def say(self, msg: str) -> None:
+        if not self.quiet:
+            try:
+                self.stream.write(("\n" if self.live and self.last else "") + msg + "\n")
+                self.stream.flush()
+            except (OSError, ValueError):
+                pass
+
+
+def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps: int | None = None,
+              interrupt_after: int | None = None) -> RunResult:
+    """Run a scene file (or example name) into folder ``out``.
+
+    Args:
+        name_or_path: a scene file or the name of an example scene.
+        out: the output folder (replaced as a whole at the end; an existing one must be a run folder).
+        quiet: no progress output.
+        max_steps: stop after this many steps (tests; the summary says how far it got).
+        interrupt_after: raise KeyboardInterrupt after this many steps (tests of Ctrl-C).
+
+    Raises:
+        SceneError: a bad scene (one line with the file and key path); nothing is written.
+    """
+    from modalfem.output.staging import OutputSet, check_targets
+    from modalfem.scene.build import build_scene
+    from modalfem.scene.load import load_scene
+
+    path = find_scene(name_or_path)
+    scene, base = load_scene(path)
+    out = Path(out)
+    check_targets(out_dir=out, out_files=RUN_FILES)
+    say = (lambda m: None) if quiet else (lambda m: print(m, file=stream or sys.stderr, flush=True))
+    t_build = time.perf_counter()
+    built = build_scene(scene, base, label=path.name, progress=say)
+    t_build = time.perf_counter() - t_build
+    o = scene.outputs
+    recording = o.paraview or o.video != "none" or o.gltf or o.sound
+    interrupted = False
+    with OutputSet() as outputs:
+        folder = outputs.folder(out)
+        recorder = None
+        if recording:
+            from modalfem.scene.record import Recorder
+
+            recorder = Recorder(built.world, folder, paraview=o.paraview, video=None if o.video == "none" else o.video,
+                                video_size=tuple(o.video_size), gltf=o.gltf, sound=o.sound,
+                                frame_rate=scene.time.frame_rate, camera=o.camera.model_dump(exclude_none=True))
+        steps = built.steps if max_steps is None else min(built.steps, max_steps)
+        bar = _Bar(steps, built.dt, quiet=quiet, stream=stream)
+        log = _Log(built, scene)
+        state = built.state
+        world = built.world
+        strikes = list(built.strikes)
+        control = world.control()
+        done = 0
+        t_run = time.perf_counter()
+        try:
+            log.frame(state, 0, recorder)
+            for k in range(steps):
+                if interrupt_after is not None and k == interrupt_after:
+                    raise KeyboardInterrupt
+                control.clear()
+                t0 = state.time
+                while strikes and strikes[0][0] < t0 + built.dt * (1 - 1e-9):
+                    _, body, vertex, J = strikes.pop(0)
+                    control.add_impulse(body, vertex, J)
+                report = world.step(state, state, control, built.dt)
+                log.step(report)
+                done = k + 1
+                if done % built.frame_every == 0:
+                    log.frame(state, done, recorder)
+                bar(done)
+        except KeyboardInterrupt:
+            interrupted = True
+        wall = time.perf_counter() - t_run
+        files = recorder.finish(interrupted=interrupted) if recorder is not None else {}
+        summary = log.summary(path, state, done, steps, wall, t_build, files, interrupted)
+        (folder / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+        (folder / "scene.toml").write_bytes(path.read_bytes())
+        (folder / "plan.txt").write_text(world.describe_plan() + "\n")
+        outputs.commit()
+    frames = summary["frames"]
+    if interrupted:
+        bar.say(f"interrupted at t = {state.time:.4g} s after {done} of {steps} steps: the {frames} frames written so "
+                f"far are complete and valid in {out}/")
+    else:
+        bar.say(f"done: {done} steps in {wall:.1f} s ({done / max(wall, 1e-9):,.0f} steps/s), {frames} frames -> "
+                f"{out}/")
+    return RunResult(out, summary, interrupted)
+
+
+class _Log:
+    """Per-step and per-frame records for the summary."""
+
+    def __init__(self, built, scene) -> None:
+        self.built, self.scene = built, scene
+        self.world = built.world
+        self.names = [b.name for b in scene.bodies]
+        self.seconds: dict[str, float] = {}
+        self.contacts: dict[str, list] = {}
+        self.exchanged = np.zeros(3)
+        self.exchanged_abs = 0.0
+        self.times, self.energy = [], {n: [] for n in self.names}
+        self.momentum = {n: [] for n in self.names}
+        self.checks = []  # (time, count)
+        self.frame_count = 0
+        self.start = None
+
+    def step(self, report) -> None:
+        for k, v in report.seconds.items():
+            self.seconds[k] = self.seconds.get(k, 0.0) + v
+        for k, v in report.contacts.items():
+            self.contacts.setdefault(k, []).append(int(v))
+        for _a, _b, J, _ in report.exchanged:
+            self.exchanged_abs += float(np.linalg.norm(J))
+
+    def frame(self, state, step: int, recorder) -> None:
+        if recorder is not None:
+            recorder.frame(state)
+        self.frame_count += 1
+        self.times.append(state.time)
+        for n in self.names:
+            self.energy[n].append(self.world.energy(state, n)["total"])
+            self.momentum[n].append(self.world.momentum(state, n)[0].tolist())
+        every = self.scene.outputs.check_every
+        if every and (self.frame_count - 1) % every == 0:
+            hits = self.world.intersections(state)
+            self.checks.append((state.time, sum(k for _, _, k in hits), [[a, b, k] for a, b, k in hits]))
+
+    def summary(self, path: Path, state, done: int, steps: int, wall: float, t_build: float, files: dict,
+                interrupted: bool) -> dict:
+        from modalfem.output.summary import jsonable, versions
+
+        sc = self.scene
+        bodies = {}
+        for b in sc.bodies:
+            n = b.name
+            e = np.asarray(self.energy[n])
+            entry = {"kind": b.kind, "energy_start_J": e[0], "energy_end_J": e[-1], "energy_max_J": e.max(),
+                     "momentum_start": self.momentum[n][0], "momentum_end": self.momentum[n][-1],
+                     "vertices": len(self.world.surface(state, n)[0])}
+            if b.kind == "modal":
+                model = self.world.by_name[n].model
+                entry["model"] = self.built.cached.get(n)
+                entry["frequencies_hz"] = (model.omega / (2 * np.pi)).tolist()
+            bodies[n] = entry
+        sound = {}
+        for n in getattr(self.world, "_sounds", {}):
+            sound[n] = _peaks(self.world.sound(n), self.world.by_name[n].model, state.time)
+        return jsonable({
+            "format": SUMMARY_FORMAT,
+            "scene": sc.name or path.stem,
+            "file": str(path),
+            "schema": sc.schema_,
+            "interrupted": interrupted,
+            "plan": [str(s) for s in self.world.plan],
+            "time": {"dt": self.built.dt, "duration": sc.time.duration, "steps": steps, "steps_run": done,
+                     "simulated": state.time, "frame_rate": sc.time.frame_rate},
+            "frames": self.frame_count,
+            "frame_times": self.times,
+            "wall_seconds": {"build": t_build, "run": wall, "stages": self.seconds,
+                             "steps_per_second": done / wall if wall > 0 else None},
+            "contacts": {k: {"max": max(v), "mean": float(np.mean(v))} for k, v in self.contacts.items()},
+            "bodies": bodies,
+            "energy": {"times": self.times, "total_J": {n: self.energy[n] for n in self.names}},
+            "exchanged_impulse_Ns": self.exchanged_abs,
+            "intersections": {"checked_frames": len(self.checks), "total": sum(c for _, c, _ in self.checks),
+                              "found": [[t, c, pairs] for t, c, pairs in self.checks if c]},
+            "sound": sound,
+            "outputs": files,
+            "versions": versions(),
+        })
+
+
+def _peaks(snd, model, duration: float, count: int = 3) -> dict:
+    """The strongest spectral peaks [Hz] of a body's sound and how far each is from the nearest mode."""
+    x = np.asarray(snd.render(max(duration, 0.05)), dtype=np.float64)
+    rate = float(snd.sample_rate)
+    out = {"sample_rate": rate, "samples": len(x), "peak_pa": float(np.max(np.abs(x))) if len(x) else 0.0}
+    if len(x) < 64 or not np.any(x):
+        out["peaks_hz"] = []
+        return out
+    spec = np.abs(np.fft.rfft(x * np.hanning(len(x))))
+    freqs = np.fft.rfftfreq(len(x), 1.0 / rate)
+    found = []
+    s = spec.copy()
+    bin_hz = rate / len(x)
+    for _ in range(count):
+        i = int(np.argmax(s))
+        if s[i] <= 0:
+            break
+        found.append(float(freqs[i]))
+        lo, hi = max(0, i - 5), i + 6
+        s[lo:hi] = 0
+    f_modes = model.omega / (2 * np.pi)
+    out["peaks_hz"] = found
+    out["bin_hz"] = bin_hz
+    out["nearest_mode_hz"] = [float(f_modes[np.argmin(np.abs(f_modes - f))]) for f in found]
+    return out
