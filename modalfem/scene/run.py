@@ -299,8 +299,9 @@ class _Log:
 
 
 def _peaks(snd, model, duration: float, count: int = 3) -> dict:
-    """The strongest spectral peaks [Hz] of a body's sound and how far each is from the nearest mode."""
-    x = np.asarray(snd.render(max(duration, 0.05)), dtype=np.float64)
+    """The strongest spectral peaks [Hz] of a body's sound (the scene's time and 1 s of ringing after it, Hann
+    window, 1 Hz bins) and the model frequency nearest to each."""
+    x = np.asarray(snd.render(duration + 1.0), dtype=np.float64)  # the scene and 1 s of ringing after it
     rate = float(snd.sample_rate)
     out = {"sample_rate": rate, "samples": len(x), "peak_pa": float(np.max(np.abs(x))) if len(x) else 0.0}
     if len(x) < 64 or not np.any(x):
@@ -308,16 +309,12 @@ def _peaks(snd, model, duration: float, count: int = 3) -> dict:
         return out
     spec = np.abs(np.fft.rfft(x * np.hanning(len(x))))
     freqs = np.fft.rfftfreq(len(x), 1.0 / rate)
-    found = []
-    s = spec.copy()
     bin_hz = rate / len(x)
-    for _ in range(count):
-        i = int(np.argmax(s))
-        if s[i] <= 0:
-            break
-        found.append(float(freqs[i]))
-        lo, hi = max(0, i - 5), i + 6
-        s[lo:hi] = 0
+    # local maxima of the magnitude (a strong line's skirt is not one), strongest first, at least 1e-4 of the
+    # strongest (quieter ones are the window's leakage floor)
+    inner = spec[1:-1]
+    peaks = np.flatnonzero((inner >= spec[:-2]) & (inner > spec[2:]) & (inner >= 1e-4 * spec.max())) + 1
+    found = [float(freqs[i]) for i in peaks[np.argsort(spec[peaks])[::-1]][:count]]
     f_modes = model.omega / (2 * np.pi)
     out["peaks_hz"] = found
     out["bin_hz"] = bin_hz
