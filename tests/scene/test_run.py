@@ -8,7 +8,13 @@ import pytest
 
 from modalfem.cli import main
 from modalfem.errors import SceneError
-from modalfem.scene import build_scene, find_scene, load_scene, run_scene, scene_from_text
+from modalfem.scene import (
+    build_scene,
+    find_scene,
+    load_scene,
+    run_scene,
+    scene_from_text,
+)
 from modalfem.scene.build import _gusty
 from modalfem.world.world import World
 
