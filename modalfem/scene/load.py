@@ -108,6 +108,12 @@ def _tag(member) -> str | None:
 
 def _walk(loc: tuple):
     """The printable key path of pydantic location ``loc`` (union tags dropped) and the model it ends in."""
+    out, model, _ = _walk_type(loc)
+    return out, model
+
+
+def _walk_type(loc: tuple):
+    """``_walk`` and the (unwrapped) type at ``loc``."""
     t, out, model = Scene, "", Scene
     for el in loc:
         t = _unwrap(t)
@@ -140,13 +146,21 @@ def _walk(loc: tuple):
     t = _unwrap(t)
     if isinstance(t, type) and issubclass(t, BaseModel):
         model = t
-    return out, model
+    return out, model, t
+
+
+def _union_tags(loc: tuple) -> list:
+    """The tags of the tagged union at ``loc`` (pydantic does not list them when the tag key is missing)."""
+    t = _walk_type(loc)[2]
+    if typing.get_origin(t) not in (typing.Union, UnionType):
+        return []
+    return [tag for tag in (_tag(m) for m in typing.get_args(t)) if tag is not None]
 
 
 def _field_info(loc: tuple):
     """The pydantic FieldInfo of the last key of ``loc``, if it is a model field."""
-    while loc and isinstance(loc[-1], int):  # an element of a list: the list's description
-        loc = loc[:-1]
+    while loc and (isinstance(loc[-1], int) or _walk(loc)[0] == _walk(loc[:-1])[0]):
+        loc = loc[:-1]  # an element of a list (the list's description), or a union member's tag
     _, model = _walk(tuple(loc[:-1]))
     key = loc[-1] if loc else None
     if isinstance(key, str) and isinstance(model, type) and issubclass(model, BaseModel):
@@ -169,7 +183,7 @@ def _describe(err: dict, data) -> str:
     if kind in ("union_tag_invalid", "union_tag_not_found"):
         ctx = err.get("ctx", {})
         field = ctx.get("discriminator", "'kind'").strip("'")
-        tags = re.findall(r"'([^']*)'", ctx.get("expected_tags", ""))
+        tags = re.findall(r"'([^']*)'", ctx.get("expected_tags", "")) or _union_tags(loc)
         top = next((k for k in reversed([el for el in loc if isinstance(el, str)]) if k in _WHAT), "")
         what = _WHAT.get(top, field)
         where = f"{path}.{field}" if path else field
@@ -182,9 +196,11 @@ def _describe(err: dict, data) -> str:
     msg = err["msg"]
     if kind == "value_error":
         msg = msg.removeprefix("Value error, ")
+    elif kind in ("model_type", "model_attributes_type", "dict_type"):
+        msg = "must be a table"  # not pydantic's "a valid dictionary or instance of <class>"
     else:
         msg = msg[0].lower() + msg[1:]
-        msg = msg.replace("input should be", "must be")
+        msg = msg.replace("input should be", "must be").replace(" after validation", "")
     info = _field_info(loc)
     unit = f" ({info.description})" if info is not None and info.description and kind not in ("value_error",) else ""
     got = err.get("input")
