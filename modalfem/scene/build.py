@@ -14,6 +14,7 @@ import hashlib
 import json
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -106,14 +107,19 @@ def build_scene(scene, base: Path, *, label: str = "scene", progress=None, check
             effects.append(fx.EFFECTS[e.kind](**kw))
         except ModalfemError as exc:
             fail(f"effects[{i}]", _first_line(exc))
-    try:
-        world = mw.World(bodies=bodies, obstacles=obstacles, effects=effects)
-    except ModalfemError as exc:
-        raise SceneError(f"{label}: {_first_line(exc)}") from None
+    # warnings of the world's construction (e.g. the cloth pipeline's "starts in intersection") are held until
+    # the start check passed: a scene it refuses gets its one error line, not a warning line before it
+    with warnings.catch_warnings(record=True) as held:
+        try:
+            world = mw.World(bodies=bodies, obstacles=obstacles, effects=effects)
+        except ModalfemError as exc:
+            raise SceneError(f"{label}: {_first_line(exc)}") from None
     state = world.state()
     names = [b.name for b in scene.bodies]
     if check_start:
         _check_start(world, state, scene, names, fail)
+    for w in held:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     strikes = []
     for i, ev in enumerate(scene.events):
         if ev.kind == "strike":
