@@ -74,7 +74,14 @@ def _material_kind(v) -> str:
     return "preset" if isinstance(v, str) else "table"
 
 
-SolidMaterial = Annotated[Union[Annotated[str, AfterValidator(_preset), Tag("preset")], Annotated[Solid, Tag("table")]],
+def _preset_names(schema: dict) -> None:  # the JSON Schema lists the presets, so editors flag a misspelt one too
+    from modalfem.material import MATERIALS
+
+    schema["enum"] = sorted(MATERIALS)
+
+
+SolidMaterial = Annotated[Union[Annotated[str, AfterValidator(_preset), Field(json_schema_extra=_preset_names),
+                                          Tag("preset")], Annotated[Solid, Tag("table")]],
                           Discriminator(_material_kind),
                           Field(description="a preset name (steel, aluminium, brass) or a table "
                                             "{E [Pa], nu [-], rho [kg/m^3]}")]
