@@ -3,7 +3,8 @@ chunks of elements or rows (:mod:`modalfem._threads`) whose bounds depend on the
 every value is computed by one thread in a fixed order, so results are bit-identical on any thread count.
 
 * ``hessians_upper``: projected element Hessians (upper triangles) and element forces from the analytic
-  eigensystem of an isotropic density (the formulas of :func:`modalfem.tet.energies.element_hessians`).
+  eigensystem of an isotropic density (the formulas of :func:`modalfem.tet.energies.element_hessians`);
+  ``element_forces`` the forces alone.
 * ``csr_matvec``: ``y = A x`` for a CSR matrix, rows in parallel.
 * ``gather_sum``: ``out[p] = sum(values[order[ptr[p]:ptr[p + 1]]])``, the assembly's scatter written as
   a gather (no write conflicts), and ``symmetrise`` its completion from upper triangles.
@@ -19,7 +20,7 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["csr_matvec", "gather_sum", "hessians_upper", "svd_of_positions", "svd_rv", "symmetrise", "unsigned"]
+__all__ = ["csr_matvec", "element_forces", "gather_sum", "hessians_upper", "svd_of_positions", "svd_rv", "symmetrise", "unsigned"]
 
 _apply_threads()
 
@@ -32,19 +33,21 @@ _PJ = (2, 2, 1)
 
 
 @numba.njit(cache=True, parallel=True)
-def hessians_upper(Ut, Vt, D2, lam, gt, vol, d1, H, f, forces: bool) -> None:
-    """Projected element Hessians and forces (see module docstring), element index last.
+def hessians_upper(Ut, Vt, D2, lam, gt, vol, d1, H, f, forces: bool, project: bool) -> None:
+    """Element Hessians (projected, or exact) and forces (see module docstring), element index last.
 
     Args:
         Ut, Vt: U and V of the rotation-variant SVD (3, 3, m).
-        D2: projected d^2 psi / d sigma^2 (m, 3, 3) [Pa].
-        lam: clamped twist and flip eigenvalues (m, 6) [Pa].
+        D2: d^2 psi / d sigma^2 (m, 3, 3) [Pa] (projected by the caller, if wanted).
+        lam: twist and flip eigenvalues (m, 6) [Pa].
         gt: shape-function gradients (4, 3, m) [1/m].
         vol: rest volumes (m,) [m^3].
         d1: d psi / d sigma (m, 3) [Pa] (read only with ``forces``).
         H: out, (78, m) upper triangles [N/m] in the order of ``np.triu_indices(12)``.
         f: out with ``forces``, (4, 3, m) [N]: ``V0 U diag(d1) V^T grad_a``.
         forces: compute ``f``.
+        project: clamp negative twist and flip eigenvalues at 0 (else they are kept: the exact Hessian
+            when ``D2`` is not projected either).
     """
     m = Ut.shape[2]
     chunks = chunk_count(m, ELEMENT_CHUNK)
@@ -56,11 +59,11 @@ def hessians_upper(Ut, Vt, D2, lam, gt, vol, d1, H, f, forces: bool) -> None:
         Gv = np.empty((3, 3))
         R = np.empty((3, 9))
         for e in range(start, stop):
-            _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, b, c, K, Gv, R)
+            _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, project, b, c, K, Gv, R)
 
 
 @numba.njit(cache=True)
-def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, b, c, K, Gv, R) -> None:
+def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, project, b, c, K, Gv, R) -> None:
     V0 = vol[e]
     for a in range(3):  # grad_a . v_q for vertices 1..3
         for q in range(3):
@@ -89,6 +92,8 @@ def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, b, c, K, Gv, R) -> N
             c[p, r] = V0 * (D2[e, p, 0] * b[0, r] + D2[e, p, 1] * b[1, r] + D2[e, p, 2] * b[2, r])
     for k in range(6):
         w = 0.5 * V0 * lam[e, k]
+        if project and w < 0.0:
+            w = 0.0
         for r in range(9):
             c[3 + k, r] = w * b[3 + k, r]
     for r in range(9):  # block of vertices 1..3
@@ -113,6 +118,30 @@ def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, b, c, K, Gv, R) -> N
         for s in range(r, 9):
             H[pos, e] = K[r, s]
             pos += 1
+
+
+@numba.njit(cache=True, parallel=True)
+def element_forces(Ut, Vt, d1, gt, vol, f) -> None:
+    """Element forces alone, ``f[a, :, e] = V0 U diag(d1) V^T grad_a`` (4, 3, m) [N] (as ``hessians_upper``
+    with ``forces``, summed in another order), element index last; arguments as there."""
+    m = Ut.shape[2]
+    chunks = chunk_count(m, ELEMENT_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        P = np.empty((3, 3))
+        for e in range(start, stop):
+            for i in range(3):
+                for j in range(3):
+                    P[i, j] = (Ut[i, 0, e] * d1[e, 0] * Vt[j, 0, e] + Ut[i, 1, e] * d1[e, 1] * Vt[j, 1, e]
+                               + Ut[i, 2, e] * d1[e, 2] * Vt[j, 2, e])
+            V0 = vol[e]
+            for i in range(3):
+                s0 = 0.0
+                for a in range(1, 4):
+                    t = V0 * (P[i, 0] * gt[a, 0, e] + P[i, 1] * gt[a, 1, e] + P[i, 2] * gt[a, 2, e])
+                    f[a, i, e] = t
+                    s0 += t
+                f[0, i, e] = -s0
 
 
 def unsigned(index: np.ndarray) -> np.ndarray:

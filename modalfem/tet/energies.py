@@ -312,10 +312,9 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
     d2 = d.d2
     lam = np.concatenate([d.twist, d.flip], axis=1)
     if project:
-        lam = np.maximum(lam, 0.0)
         d2 = _project_d2(d2)
     H = _hessians_upper(np.moveaxis(U, 0, -1), np.moveaxis(V, 0, -1), d2, lam,
-                        np.moveaxis(grad, 0, -1), vol)
+                        np.moveaxis(grad, 0, -1), vol, project=bool(project))
     if upper:
         return H
     full = np.empty((12, 12, m))
@@ -325,8 +324,9 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
 
 
 def element_forces_and_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndarray,
-                                vol: np.ndarray, *, element_last: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Element forces and projected Hessians in one pass (what an implicit step needs), element index last.
+                                vol: np.ndarray, *, element_last: bool = False,
+                                project: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Element forces and (projected) Hessians in one pass (what an implicit step needs), element index last.
 
     Args:
         U, V: rotations of the rotation-variant SVD (m, 3, 3), or (3, 3, m) with ``element_last``
@@ -335,23 +335,26 @@ def element_forces_and_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, gr
         grad: shape-function gradients (m, 4, 3) [1/m], or (4, 3, m) with ``element_last``.
         vol: rest volumes (m,) [m^3].
         element_last: the layout of ``U``, ``V`` and ``grad`` (saves their transposes).
+        project: project each element Hessian to positive semi-definite (twist and flip eigenvalues
+            clamped at 0, the 3x3 block ``d2`` replaced by its positive part); False: the exact Hessians,
+            which are indefinite where an element's geometric stiffness is negative (compression).
 
     Returns:
         ``(f, H)``: ``f`` (4, 3, m) [N] with ``f[a, :, e] = V0 P grad_a`` (the energy gradient w.r.t. vertex
         a of element e; ``P = U diag(d psi / d sigma) V^T``), and ``H`` (78, m) [N/m] the upper triangles
-        of the projected element Hessians as ``element_hessians(..., project=True, upper=True)``.
+        of the element Hessians as ``element_hessians(..., project=project, upper=True)``.
     """
     if not element_last:
         U, V, grad = np.moveaxis(U, 0, -1), np.moveaxis(V, 0, -1), np.moveaxis(grad, 0, -1)
     m = U.shape[-1]
-    lam = np.maximum(np.concatenate([d.twist, d.flip], axis=1), 0.0)
-    d2 = _project_d2(d.d2)
+    lam = np.concatenate([d.twist, d.flip], axis=1)
+    d2 = _project_d2(d.d2) if project else d.d2
     f = np.empty((4, 3, m))
-    H = _hessians_upper(U, V, d2, lam, grad, vol, d.d1, f)
+    H = _hessians_upper(U, V, d2, lam, grad, vol, d.d1, f, project=bool(project))
     return f, H
 
 
-def _hessians_upper(Ut, Vt, d2, lam, gt, vol, d1=None, f=None) -> np.ndarray:
+def _hessians_upper(Ut, Vt, d2, lam, gt, vol, d1=None, f=None, *, project: bool = True) -> np.ndarray:
     """Upper triangles (78, m) of the element Hessians from the (projected) eigensystem; with
     ``d1 = d psi / d sigma`` (m, 3) also the element forces into ``f`` (4, 3, m).
 
@@ -372,5 +375,5 @@ def _hessians_upper(Ut, Vt, d2, lam, gt, vol, d1=None, f=None) -> np.ndarray:
                             np.ascontiguousarray(d2, dtype=float), np.ascontiguousarray(lam, dtype=float),
                             np.ascontiguousarray(gt, dtype=float), np.ascontiguousarray(vol, dtype=float),
                             np.ascontiguousarray(d1, dtype=float) if forces else np.zeros((0, 3)), H,
-                            f if forces else np.zeros((4, 3, 0)), forces)
+                            f if forces else np.zeros((4, 3, 0)), forces, project)
     return H

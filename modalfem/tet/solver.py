@@ -5,12 +5,15 @@ One step minimises the incremental potential (Newton with a backtracking line se
     E(x) = 1/(2 h^2) |x - x_n - h v_n|_M^2 + Phi(x) + 1/(2 h) |x - x_n|_D^2,
 
 ``Phi`` the elastic energy plus the opt-in potentials, ``D = alpha M + beta K(x_n)`` Rayleigh damping;
-then ``v_{n+1} = (x_{n+1} - x_n) / h``. Newton starts at ``x_n``, so ``newton_max=1`` is the classic
-linearised step (Baraff-Witkin). ``integrator="bdf2"`` (optional, second order, much less numerical
+then ``v_{n+1} = (x_{n+1} - x_n) / h``. ``newton_max=1`` is the classic linearised step from ``x_n``
+(Baraff-Witkin); full Newton starts at the predicted ``x_n + h (v_n + dv_prev)`` when its potential is lower
+(``dv_prev`` the previous step's velocity change), and an iteration that follows a small full step reuses
+that step's matrix (``REUSE_BELOW``). ``integrator="bdf2"`` (optional, second order, much less numerical
 damping) uses the same potential with ``h -> 2h/3``, ``x_n -> (4 x_n - x_{n-1}) / 3`` and
 ``v_n -> (4 v_n - v_{n-1}) / 3`` once a previous step of the same dt is known (backward Euler before).
-Element Hessians are projected to positive semi-definite, so the system matrix ``M / h^2 + H`` is SPD:
-solved by CG with a two-level preconditioner (default, ``modalfem.tet.precond``), Jacobi-PCG, or SuperLU.
+Newton uses the exact element Hessians and falls back to ones projected to positive semi-definite
+(the system matrix ``M / h^2 + H`` then SPD) when a solve meets negative curvature (``projection``). Solved
+by CG with a two-level preconditioner (default, ``modalfem.tet.precond``), Jacobi-PCG, or SuperLU.
 Pinned (``Pins``) and scripted (``TetControl``) vertices are eliminated (identity rows).
 """
 
@@ -39,6 +42,11 @@ from modalfem._threads import serial_blas
 __all__ = ["LINEAR_SOLVERS", "StepInfo", "TetControl", "TetSolver", "TetState"]
 
 LINEAR_SOLVERS = ("cg", "splu", "spsolve")
+#: a Newton iteration whose full step moved no vertex more than this many times the tolerance is followed by
+#: one that reuses its matrix (forces only: no Hessians, no assembly, no preconditioner set-up). The
+#: Hessian's change over such a step is O(step), so the reused solve still contracts the error by a factor
+#: O(step) per iteration; on the 10k-tet benchmark bar this saves the assembly of the last iteration.
+REUSE_BELOW = 300.0
 
 
 @dataclass
@@ -84,9 +92,11 @@ class StepInfo:
     """What one step did.
 
     Attributes:
-        newton_iterations: Newton iterations (linear solves) taken.
+        newton_iterations: Newton iterations (linear solves) taken, a redone one included.
         linear_iterations: total CG iterations (0 for direct solves).
         converged: the Newton step fell below the tolerance.
+        projected: the step fell back to projected element Hessians (``projection="on_demand"``: the exact
+            ones were indefinite), or used them throughout (``"always"``).
         assembly_s, solve_s, total_s: wall time [s] in energy/gradient/Hessian evaluation, in linear
             solves, and in the whole step.
     """
@@ -94,6 +104,8 @@ class StepInfo:
     newton_iterations: int = 0
     linear_iterations: int = 0
     converged: bool = False
+    predicted: bool = False
+    projected: bool = False
     assembly_s: float = 0.0
     solve_s: float = 0.0
     total_s: float = 0.0
@@ -118,7 +130,8 @@ def _pcg(A, b: np.ndarray, prec, rtol: float, maxiter: int, x0: np.ndarray | Non
          ) -> tuple[np.ndarray, int]:
     """Preconditioned conjugate gradients (``prec(r)`` applies M^-1) from ``x0`` (default 0).
 
-    Returns ``(x, iterations)``. (A 3x3 block-Jacobi preconditioner was measured too: the same iteration
+    Returns ``(x, iterations, definite)``; ``definite`` is False when CG stopped at a direction ``p`` with
+    ``p^T A p <= 0`` before reaching the tolerance (``A`` is not positive definite). (A 3x3 block-Jacobi preconditioner was measured too: the same iteration
     counts as Jacobi on the benchmark bar.)
     """
     Ap = np.empty_like(b)
@@ -133,23 +146,23 @@ def _pcg(A, b: np.ndarray, prec, rtol: float, maxiter: int, x0: np.ndarray | Non
     rz = float(r @ z)
     stop = (rtol * float(np.linalg.norm(b))) ** 2
     if float(r @ r) <= stop:  # already solved (e.g. b = 0: every DOF held, nothing to move)
-        return x, 0
+        return x, 0, True
     for it in range(1, maxiter + 1):
         _matvec(A, p, Ap)
         pAp = float(p @ Ap)
         if not pAp > 0.0:  # a zero search direction (exactly solved) or lost definiteness: stop here
-            return x, it
+            return x, it, not float(p @ p) > 0.0
         alpha = rz / pAp
         x += alpha * p
         r -= alpha * Ap
         if float(r @ r) <= stop:
-            return x, it
+            return x, it, True
         z = prec(r)
         rz_new = float(r @ z)
         p *= rz_new / rz
         p += z
         rz = rz_new
-    return x, maxiter
+    return x, maxiter, True
 
 
 class TetSolver:
@@ -167,15 +180,23 @@ class TetSolver:
         cg_rtol: relative residual of the CG solves [-] (1e-3 keeps the linearised step within ~1 um of
             a 1e-6 solve on the 10k-tet benchmark bar, in ~15 iterations instead of ~30).
         integrator: ``"backward_euler"`` (default) or ``"bdf2"``.
+        projection: ``"on_demand"`` (default): Newton uses the exact element Hessians, and only when a
+            solve meets negative curvature (CG finds a direction with ``p^T A p <= 0``) or its result does
+            not descend is that iteration, and the rest of the step, redone with projected ones;
+            ``"always"``: every element Hessian projected to positive semi-definite. Projection clamps
+            the negative geometric stiffness of compressed elements (the inner side of a bent bar), which
+            turns Newton's quadratic convergence linear: on the 10k-tet benchmark bar ~3.7 instead of ~4.8
+            iterations per step at tol 1e-6, to the same minimiser. The damping matrix ``K(x_n)`` of
+            ``RayleighDamping`` is always projected.
         coarse_lag: the two-level preconditioner's coarse space (its sparse products and the inverse
             of the coarse matrix) serves up to this many solves, >= 1; it is rebuilt sooner when the held
             DOFs change or CG needs over 1.5x the iterations of the solve right after the rebuild.
             (A lagged coarse space is still SPD: CG reaches the same tolerance.)
 
-    Per step the solver caches (results do not depend on the caches beyond CG tolerance and roundoff):
-    the SVD of the last evaluated positions (a linearised step's line search ends where the next step
-    starts: one SVD per step), the previous step's velocity change (the next CG starts from
-    ``h (v_n + dv_prev)``), and the coarse space.
+    Per step the solver caches (results do not depend on the caches beyond CG and Newton tolerance and
+    roundoff): the SVD of the last evaluated positions (a step's line search ends where the next step
+    starts), the previous step's velocity change (the next step's prediction ``x_n + h (v_n + dv_prev)``:
+    Newton's start, or the first CG's for ``newton_max=1``), the last matrix, and the coarse space.
 
     Raises:
         InputError: unknown effect or solver, bad numbers, pinned vertex out of range.
@@ -183,7 +204,7 @@ class TetSolver:
 
     def __init__(self, model: TetModel, *, effects=(), newton_max: int = 8, tol: float = 1e-6,
                  linear_solver: str = "cg", cg_rtol: float = 1e-3, integrator: str = "backward_euler",
-                 preconditioner: str = "twolevel", coarse_lag: int = 4) -> None:
+                 preconditioner: str = "twolevel", coarse_lag: int = 4, projection: str = "on_demand") -> None:
         if preconditioner not in ("twolevel", "jacobi"):
             raise InputError(f"unknown preconditioner {preconditioner!r}; choose 'twolevel' or 'jacobi'")
         if integrator not in ("backward_euler", "bdf2"):
@@ -194,6 +215,9 @@ class TetSolver:
         if int(coarse_lag) < 1:
             raise InputError(f"coarse_lag must be >= 1, got {coarse_lag!r}")
         self.coarse_lag = int(coarse_lag)
+        if projection not in ("on_demand", "always"):
+            raise InputError(f"unknown projection {projection!r}; choose 'on_demand' or 'always'")
+        self.projection = projection
         if int(newton_max) < 1:
             raise InputError(f"newton_max must be >= 1, got {newton_max!r}")
         if not (float(tol) > 0 and float(cg_rtol) > 0):
@@ -244,11 +268,11 @@ class TetSolver:
         self.barrier = any(isinstance(t, VolumeBarrierDensity) for t in self.element_terms)
 
     # ------------------------------------------------------------------ energies
-    def _elastic(self, x: np.ndarray, order: int, *, upper: bool = False):
+    def _elastic(self, x: np.ndarray, order: int, *, upper: bool = False, project: bool = True):
         """Sum of element terms at ``x``: (energy [J], gradient (n, 3) [N] or None, blocks or None).
 
         ``blocks`` are the projected element Hessians (m, 12, 12), or their upper triangles (78, m) with
-        ``upper``.
+        ``upper``; with ``upper`` and not ``project`` the exact (possibly indefinite) Hessians.
         The SVD of the last evaluated ``x`` is kept: a linearised step's line search ends where the next
         step starts, so a step costs one SVD instead of two.
         """
@@ -266,8 +290,15 @@ class TetSolver:
         E = float(m.rest_volumes @ d.psi) if np.all(np.isfinite(d.psi)) else math.inf
         if order == 0 or not math.isfinite(E):
             return E, None, None
-        if order >= 2 and upper:  # forces and Hessians in one pass, element index last
-            f, H = element_forces_and_hessians(U, V, d, self._grad_t, m.rest_volumes, element_last=True)
+        if upper:  # forces (and Hessians) in one pass, element index last
+            from modalfem.tet import _kernels
+
+            if order >= 2:
+                f, H = element_forces_and_hessians(U, V, d, self._grad_t, m.rest_volumes, element_last=True,
+                                                   project=project)
+            else:
+                f, H = np.empty((4, 3, m.cell_count)), None
+                _kernels.element_forces(U, V, np.ascontiguousarray(d.d1), self._grad_t, m.rest_volumes, f)
             g = np.bincount(self._force_index, weights=f.ravel(), minlength=3 * m.point_count).reshape(-1, 3)
             return E, g, H
         U, V = np.moveaxis(U, -1, 0), np.moveaxis(V, -1, 0)
@@ -293,12 +324,13 @@ class TetSolver:
         out["total"] = sum(out.values())
         return out
 
-    def _incremental(self, x, xn, xhat, h, D, order: int):
-        """Incremental potential at ``x``: (E, gradient (3n,), Hessian data or None)."""
+    def _incremental(self, x, xn, xhat, h, D, order: int, project: bool = True):
+        """Incremental potential at ``x``: (E, gradient (3n,), Hessian data or None); ``project``: element
+        Hessians projected to positive semi-definite (else exact)."""
         m = self.model
         dx = (x - xhat).ravel()
         E = 0.5 / h**2 * float(self.mass_dofs @ (dx * dx))
-        Ee, ge, He = self._elastic(x, order, upper=True)
+        Ee, ge, He = self._elastic(x, order, upper=True, project=project)
         E += Ee
         if D is not None:
             w = (x - xn).ravel()
@@ -309,14 +341,17 @@ class TetSolver:
         if order == 0 or not math.isfinite(E):
             return E, None, None
         g = self.mass_dofs * dx / h**2 + ge.ravel()
-        diag = self.mass_dofs / h**2
         for t in self.vertex_terms:
             g += t.gradient(x, m.masses).ravel()
+        if D is not None:
+            g += Dw / h
+        if order == 1:
+            return E, g, None
+        diag = self.mass_dofs / h**2
+        for t in self.vertex_terms:
             hd = t.hessian_diagonal(x, m.masses)
             if hd is not None:
                 diag = diag + hd.ravel()
-        if D is not None:
-            g += Dw / h
         data = self.pattern.assemble(He, diag, upper=True)
         for t in self.vertex_terms:  # a term's couplings between DOFs of one tetrahedron (contact normals)
             entries = t.hessian_entries(x, m.masses) if hasattr(t, "hessian_entries") else None
@@ -402,27 +437,55 @@ class TetSolver:
         lin_tol = self.tol * self.model.size
         if fixed.all():  # every vertex pinned or scripted: the body follows its pins, nothing to solve
             info.converged = True
-        for _ in range(0 if fixed.all() else self.newton_max):
+        project = info.projected = self.projection == "always"
+        iterations = 0
+        # the first CG starts from the predicted displacement h (v_n + the previous step's velocity change)
+        guess = None
+        if not fixed.all():
+            guess = -(xhat - x).ravel()  # -(x_n + h v_n - x): the first step is close to it
+            prev = self._previous
+            if prev is not None and prev[2] == h and np.array_equal(prev[0], x0):
+                guess -= h * prev[1]  # and the velocity keeps changing as in the previous step
+            guess[fixed_dofs] = 0.0
+            if self.newton_max > 1 and np.any(guess):
+                # full Newton starts at the prediction when its incremental potential is lower than at x_n
+                # (x_n first: the previous step's line search ended there, its SVD is cached; the
+                # prediction's SVD then serves the first iteration)
+                ta = time.perf_counter()
+                xp = x - guess.reshape(-1, 3)
+                E_start = self._incremental(x, xn, xhat, h, D, 0)[0]
+                if self._incremental(xp, xn, xhat, h, D, 0)[0] < E_start:
+                    x, guess = xp, None
+                    info.predicted = True
+                info.assembly_s += time.perf_counter() - ta
+        reuse = False  # this iteration solves with the previous iteration's matrix (see REUSE_BELOW)
+        while iterations < (0 if fixed.all() else self.newton_max):
             ta = time.perf_counter()
-            E, g, data = self._incremental(x, xn, xhat, h, D, 2)
+            E, g, data = self._incremental(x, xn, xhat, h, D, 1 if reuse else 2, project)
             info.assembly_s += time.perf_counter() - ta
             if not math.isfinite(E):
                 raise SimulationError("the step starts with a non-positive element volume, which the "
                                       "VolumeBarrier forbids" if self.barrier else "non-finite energy")
             g[fixed_dofs] = 0.0
             ts = time.perf_counter()
-            guess = None
-            if info.newton_iterations == 0:
-                guess = -(xhat - x).ravel()  # -(x_n + h v_n - x): the first step is close to it
-                prev = self._previous
-                if prev is not None and prev[2] == h and np.array_equal(prev[0], x0):
-                    guess -= h * prev[1]  # and the velocity keeps changing as in the previous step
-                guess[fixed_dofs] = 0.0
-            A = self.pattern.apply_dirichlet(data, fixed_dofs, copy=False)  # data is not used again
-            p = -self._solve(A, g, info, guess, x=x, free=~fixed_dofs)
+            if reuse:
+                p, definite = self._resolve(g, info)
+            else:
+                A = self.pattern.apply_dirichlet(data, fixed_dofs, copy=False)  # data is not used again
+                p, definite = self._solve(A, g, info, guess if info.newton_iterations == 0 else None, x=x,
+                                          free=~fixed_dofs)
+            p = -p
             info.solve_s += time.perf_counter() - ts
             info.newton_iterations += 1
             slope = float(g @ p)
+            if not (definite and slope < 0) and (reuse or not project):
+                # the exact Hessians are indefinite here (or the reused matrix does not give a descent
+                # direction): redo this iteration with a fresh matrix, projected unless it was the reuse
+                project = info.projected = project or not reuse
+                reuse = False
+                continue
+            reused, reuse = reuse, False
+            iterations += 1
             ta = time.perf_counter()
             alpha, accepted = 1.0, False
             if slope < 0:
@@ -441,9 +504,13 @@ class TetSolver:
                                   or 0.0 <= -slope <= 64 * np.finfo(float).eps * abs(E))
                 break
             x = xt
-            if alpha * float(np.abs(p).max(initial=0.0)) <= lin_tol:
+            step = alpha * float(np.abs(p).max(initial=0.0))
+            if step <= lin_tol:
                 info.converged = True
                 break
+            # near the minimiser the Hessian hardly changes: the next iteration solves with this one
+            # (its forces only; never twice in a row)
+            reuse = not reused and alpha == 1.0 and step <= REUSE_BELOW * lin_tol
         if not np.all(np.isfinite(x)):
             raise SimulationError("the step produced non-finite positions")
         state_out.v = (x - xn) / h
@@ -456,7 +523,8 @@ class TetSolver:
         return info
 
     def _solve(self, data: np.ndarray, g: np.ndarray, info: StepInfo, guess: np.ndarray | None = None, *,
-               x: np.ndarray | None = None, free: np.ndarray | None = None) -> np.ndarray:
+               x: np.ndarray | None = None, free: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+        """``(A^-1 g, definite)``; ``definite`` False when CG met a direction of non-positive curvature."""
         A = self.pattern.matrix(data)
         if self.linear_solver == "cg":
             diag = self.pattern.diagonal(data)
@@ -471,11 +539,26 @@ class TetSolver:
                 def prec(r):
                     return inv * r
 
-            x, it = _pcg(A, g, prec, self.cg_rtol, 10 * len(g), guess)
+            self._system = (A, prec)
+            x, it, definite = _pcg(A, g, prec, self.cg_rtol, 10 * len(g), guess)
             info.linear_iterations += it
             if self.twolevel is not None:  # (solves since the rebuild, its iterations, the last iterations)
                 self._lag = (0, it, it) if self.twolevel.rebuilt else (self._lag[0] + 1, self._lag[1], it)
-            return x
+            return x, definite
         if self.linear_solver == "splu":
-            return spla.splu(A.tocsc()).solve(g)
-        return spla.spsolve(A.tocsc(), g)
+            lu = spla.splu(A.tocsc())
+            self._system = (A, lu)
+            return lu.solve(g), True
+        self._system = (A, None)
+        return spla.spsolve(A.tocsc(), g), True
+
+    def _resolve(self, g: np.ndarray, info: StepInfo) -> tuple[np.ndarray, bool]:
+        """``_solve`` with the matrix (and preconditioner or factors) of the last ``_solve``."""
+        A, prec = self._system
+        if self.linear_solver == "cg":
+            x, it, definite = _pcg(A, g, prec, self.cg_rtol, 10 * len(g))
+            info.linear_iterations += it
+            return x, definite
+        if self.linear_solver == "splu":
+            return prec.solve(g), True
+        return spla.spsolve(A.tocsc(), g), True

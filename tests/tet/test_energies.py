@@ -217,3 +217,31 @@ def test_element_last_layout_gives_the_same_forces_and_hessians():
     np.testing.assert_array_equal(st, s)
     np.testing.assert_array_equal(ft, f)
     np.testing.assert_array_equal(Ht, H)
+
+
+def test_exact_hessians_in_one_pass_match_the_unprojected_ones():
+    """``project=False`` keeps the negative twist / flip curvature (compressed elements): the upper triangles
+    are those of ``element_hessians(project=False)``, which differ from the projected ones there."""
+    grad, vol, F = _deformed(4, 6, 23)
+    U, s, V = kin.svd_rv(F)
+    d = TERMS["stable"].derivs(s, 2)
+    assert (np.concatenate([d.twist, d.flip], axis=1) < 0).any()  # the case has negative curvature
+    _, H = en.element_forces_and_hessians(U, V, d, grad, vol, project=False)
+    np.testing.assert_array_equal(H, en.element_hessians(U, V, d, grad, vol, project=False, upper=True))
+    _, Hp = en.element_forces_and_hessians(U, V, d, grad, vol, project=True)
+    assert not np.array_equal(H, Hp)
+
+
+def test_forces_alone_match_the_forces_of_the_one_pass_kernel():
+    from modalfem.tet import _kernels
+
+    grad, vol, F = _deformed(5, 7, 29)
+    Ut, s, Vt = kin.svd_rv_t(np.moveaxis(F, 0, -1))
+    d = TERMS["stable"].derivs(s, 2)
+    gt = np.ascontiguousarray(np.moveaxis(grad, 0, -1))
+    f_ref, _ = en.element_forces_and_hessians(Ut, Vt, d, gt, vol, element_last=True)
+    f = np.empty_like(f_ref)
+    _kernels.element_forces(np.ascontiguousarray(Ut), np.ascontiguousarray(Vt), np.ascontiguousarray(d.d1), gt,
+                            vol, f)
+    # the same sums in another order: equal to a few roundoffs of the largest force
+    np.testing.assert_allclose(f, f_ref, rtol=0, atol=16 * np.finfo(float).eps * np.abs(f_ref).max())

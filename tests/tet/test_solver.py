@@ -329,3 +329,76 @@ def test_bad_step_inputs_say_what_is_wrong(model, what, message):
     with pytest.raises(SimulationError, match=message):
         solver.step(s, s, 0.01, control=control)
     np.testing.assert_array_equal(s.x, before)
+
+
+def _bent_bar_steps(projection: str, steps: int, tol: float):
+    mesh = box(size=(0.6, 0.1, 0.1), cells=(12, 2, 2))
+    m = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
+    solver = TetSolver(m, effects=[fx.Gravity(), fx.Pins(mesh.tag_points("x0"))], projection=projection,
+                       tol=tol, cg_rtol=1e-10)
+    s = TetState.at_rest(m)
+    infos = [solver.step(s, s, 1.0 / 30.0) for _ in range(steps)]
+    return m, s, infos
+
+
+def test_exact_hessians_reach_the_projected_minimiser_in_fewer_newton_iterations():
+    """A clamped bar bending under gravity: its compressed side has negative geometric stiffness, which
+    projection clamps (linear convergence); the exact Hessians (``on_demand``) converge quadratically to the
+    same positions. Each step stops within about ``tol * size`` of its minimiser (less: the last update is
+    taken), and an error carried by the velocity grows at most linearly per step, so after k steps the two
+    runs differ by at most ~k^2 tol size each."""
+    steps, tol = 5, 1e-8
+    m, exact, i_exact = _bent_bar_steps("on_demand", steps, tol)
+    _, proj, i_proj = _bent_bar_steps("always", steps, tol)
+    assert all(i.converged for i in i_exact + i_proj)
+    assert not any(i.projected for i in i_exact) and all(i.projected for i in i_proj)
+    assert sum(i.newton_iterations for i in i_exact) < sum(i.newton_iterations for i in i_proj)
+    sag = m.rest_points[:, 2] - exact.x[:, 2]
+    assert sag.max() > 100 * steps**2 * tol * m.size  # the difference bound below is far below the motion
+    np.testing.assert_allclose(exact.x, proj.x, rtol=0, atol=2 * steps**2 * tol * m.size)
+
+
+def test_indefinite_exact_hessians_fall_back_to_projected_ones(model):
+    """Strongly compressed and with a long step (little inertia), the exact Hessians are indefinite: the
+    step redoes its iteration with projected ones and ends where ``projection="always"`` ends."""
+    out = {}
+    for projection in ("on_demand", "always"):
+        s = TetState.at_rest(model)
+        s.x[:, 0] *= 0.4
+        s.x[:, 1] *= 0.7
+        solver = TetSolver(model, projection=projection, tol=1e-10, cg_rtol=1e-10, newton_max=50)
+        info = solver.step(s, s, 1.0)
+        assert info.converged and info.projected
+        out[projection] = s.x
+    np.testing.assert_allclose(out["on_demand"], out["always"], rtol=0, atol=4e-10 * model.size)
+
+
+def test_reused_matrix_iterations_reach_the_same_positions(model, monkeypatch):
+    """Iterations solving with the previous iteration's matrix (``REUSE_BELOW``) end within the Newton
+    tolerance of steps that assemble a fresh Hessian every iteration."""
+    from modalfem.tet import solver as solver_module
+
+    out = {}
+    for below in (solver_module.REUSE_BELOW, 0.0):
+        monkeypatch.setattr(solver_module, "REUSE_BELOW", below)
+        s = TetState.at_rest(model)
+        s.v[:, 2] = np.linspace(-1.0, 1.0, len(s.v))  # a shearing start
+        solver = TetSolver(model, effects=[fx.Gravity()], tol=1e-9, cg_rtol=1e-10)
+        calls = []
+
+        def counted(*a, calls=calls, orig=solver._resolve):
+            calls.append(1)
+            return orig(*a)
+
+        monkeypatch.setattr(solver, "_resolve", counted)
+        infos = [solver.step(s, s, 0.01) for _ in range(4)]
+        assert all(i.converged for i in infos)
+        assert (len(calls) > 0) == (below > 0)
+        out[below] = s.x
+    a, b = out.values()
+    np.testing.assert_allclose(a, b, rtol=0, atol=2 * 4**2 * 1e-9 * model.size)
+
+
+def test_bad_projection_is_refused(model):
+    with pytest.raises(InputError, match="projection"):
+        TetSolver(model, projection="sometimes")
