@@ -134,6 +134,7 @@ def create_function_space(mesh, *, degree: int = 2, comm=None, shape: int | None
     Raises:
         InputError: degree is not 1 or 2.
     """
+    import dolfinx.cpp.graph
     import dolfinx.fem
     import dolfinx.mesh
     import ufl
@@ -144,7 +145,9 @@ def create_function_space(mesh, *, degree: int = 2, comm=None, shape: int | None
         cells, x = np.asarray(mesh.cells, dtype=np.int64), np.asarray(mesh.points, dtype=np.float64)
     else:
         cells, x = np.empty((0, 4), dtype=np.int64), np.empty((0, 3), dtype=np.float64)
-    dmesh = dolfinx.mesh.create_mesh(comm, cells, x, domain)
+    # cells as an AdjacencyList: dolfinx 0.5 tries the numpy array first, and the TypeError pybind11 raises
+    # for it formats the arrays' reprs (5-10 ms at any size) before create_mesh retries with this
+    dmesh = dolfinx.mesh.create_mesh(comm, dolfinx.cpp.graph.AdjacencyList_int64(cells), x, domain)
     element = ("Lagrange", degree) if shape is None else ufl.VectorElement("Lagrange", ufl.tetrahedron, degree)
     V = dolfinx.fem.FunctionSpace(dmesh, element)
 
