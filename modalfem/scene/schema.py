@@ -143,8 +143,8 @@ class ForkMesh(_Table):
 
 
 Generated = Annotated[Union[BoxMesh, PlateMesh, RodMesh, BellMesh, ForkMesh], Field(discriminator="generator")]
-def _mesh_kind(v) -> str:
-    return "generator" if isinstance(v, dict) and "generator" in v else "file"
+def _mesh_kind(v) -> str:  # a dict when validating, a model when serialising (model_dump)
+    return "generator" if (isinstance(v, dict) and "generator" in v) or hasattr(v, "generator") else "file"
 
 
 SolidMesh = Annotated[Union[Annotated[MeshFile, Tag("file")], Annotated[Generated, Tag("generator")]],
