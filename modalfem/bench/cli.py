@@ -369,6 +369,9 @@ def _modes(argv: list[str]) -> int:
 
     date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     machine = _machine()
+    loads = [res["load_1min"] for res in results.values() if "load_1min" in res]
+    if loads:  # 2 cores: a load above ~1 means other work shared them
+        machine += f"; 1-minute load average {min(loads):.1f}-{max(loads):.1f} when the cases started"
     if a.save_raw:
         raw = {"command": command, "date": date, "machine": machine, "versions": versions,
                "rungs": [{"degree": r.degree, "cells": list(r.cells)} for r in rungs],

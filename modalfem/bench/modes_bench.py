@@ -292,11 +292,42 @@ def _versions() -> dict:
     except Exception:  # noqa: BLE001, S110 - best effort (optional library, probe, sampling)
         pass
     v["BLAS (libblas.so.3)"] = blas
+    v["MKL"] = _mkl_version()
     # Debian 12's OpenBLAS misdetects recent Intel cores as "Prescott" (SSE3); setup pins the type
     v["OPENBLAS_CORETYPE"] = os.environ.get("OPENBLAS_CORETYPE", "autodetected")
     threads = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS") if k in os.environ}
     v["BLAS threads"] = ", ".join(f"{k}={x}" for k, x in threads.items()) or "library default"
     return v
+
+
+#: mkl_cbwr_get_auto_branch() codes (mkl_cbwr.h) -> the instruction set of the kernels MKL runs here
+_MKL_BRANCHES = {3: "COMPATIBLE (generic)", 4: "SSE2", 6: "SSSE3", 7: "SSE4.1", 8: "SSE4.2", 9: "AVX", 10: "AVX2",
+                 11: "AVX-512 MIC", 12: "AVX-512", 13: "AVX-512 MIC E1", 14: "AVX-512 E1"}
+
+
+def _mkl_version() -> str:
+    """MKL's version and the code path it picks on this CPU: PARDISO's numeric factorisation and solves
+    run MKL's own kernels, chosen per CPU (on AMD CPUs MKL has taken slower paths than on Intel ones),
+    while the orderings and the rest of the solve do not depend on it."""
+    import ctypes
+
+    from modalfem.eigen.pardiso import _library
+
+    lib = _library()
+    if lib is None:
+        return "not loaded"
+    try:
+        buf = ctypes.create_string_buffer(512)
+        lib.MKL_Get_Version_String.restype = None
+        lib.MKL_Get_Version_String.argtypes = [ctypes.c_char_p, ctypes.c_int]
+        lib.MKL_Get_Version_String(buf, 512)
+        text = buf.value.decode(errors="replace")
+        version = text.split("Version", 1)[1].split("-", 1)[0].strip() if "Version" in text else text
+        lib.mkl_cbwr_get_auto_branch.restype = ctypes.c_int
+        branch = int(lib.mkl_cbwr_get_auto_branch())
+    except (AttributeError, IndexError, OSError):
+        return "loaded (version unknown)"
+    return f"{version}, code path {_MKL_BRANCHES.get(branch, str(branch))}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -326,7 +357,8 @@ def run_case(case: str, rung: Rung | None, *, timeout: float, k: int = K_MODES, 
     """Run ``case`` on ``rung`` in a fresh ``python -m modalfem.bench.modes_bench`` process.
 
     The child is killed (its whole process group) after ``timeout`` seconds. Returns the child's
-    measurements plus ``process`` (child wall seconds, interpreter start and imports included);
+    measurements plus ``process`` (child wall seconds, interpreter start and imports included) and
+    ``load_1min`` (the 1-minute load average when it started);
     on timeout ``{"timeout": timeout, "rss_seen_mb": ...}`` (RSS sampled by the parent), on failure
     ``{"error": ...}``. ``rung=None`` runs ``--case info`` (versions).
     """
@@ -340,6 +372,7 @@ def run_case(case: str, rung: Rung | None, *, timeout: float, k: int = K_MODES, 
             cmd += ["--degree", str(rung.degree), "--cells", *map(str, rung.cells)]
         env = dict(os.environ)
         env.setdefault("PYTHONUNBUFFERED", "1")
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
         t0 = time.perf_counter()
         with open(err_path, "w") as err:
             proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, start_new_session=True)
@@ -382,6 +415,8 @@ def run_case(case: str, rung: Rung | None, *, timeout: float, k: int = K_MODES, 
                 tail = [ln for ln in f.read().splitlines() if ln.strip()][-1:] or ["no output"]
             out = {"error": f"child exited {proc.returncode}: {tail[0][:300]}"}
         out["process"] = wall
+        if load is not None:
+            out["load_1min"] = load  # 1-minute load average when the case started
         return out
 
 
