@@ -60,6 +60,7 @@ in the next steps, returning the momentum (numbers in tests/runtime/test_contact
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass
 
@@ -152,6 +153,12 @@ def _write_record(contacts: Contacts, record: list) -> None:
         contacts.effect = np.zeros(0, dtype=np.int64)
         contacts.obstacle = np.zeros(0, dtype=np.int64)
         contacts.normal, contacts.gap, contacts.impulses = np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+        return
+    if len(record) == 1:  # one part: from one contact search, one entry per (vertex, effect, obstacle) already
+        v, e, o, n, g, j = record[0]
+        contacts.vertex, contacts.effect, contacts.obstacle = (a.astype(np.int64) for a in (v, e, o))
+        contacts.normal, contacts.gap = n.reshape(-1, 3), g
+        contacts.impulses = np.asarray(j, dtype=np.float64)
         return
     v, e, o, n, g, j = (np.concatenate([p[i] for p in record]) for i in range(6))
     v, e, o = v.astype(np.int64), e.astype(np.int64), o.astype(np.int64)
@@ -250,33 +257,66 @@ def find_contacts(solver, state, effects, dt=None, *, accel=None) -> Contacts:
         accel: acceleration of the centre of mass from the loads (3,) [m/s^2] or None; widens the
             margin by |a| dt^2 (twice the distance it adds over dt).
     """
-    from modalfem.runtime import _contact_kernels as K
+    from modalfem.runtime import _contact_body_kernels as KB
     body = solver.body
     plan = _plan(effects)
-    R = state.rotation()
+    R = _rotation(state)
     reach = 0.0
     if dt is not None:
-        w = R @ (body.inertia_inv @ (R.T @ state.angular_momentum))
-        speed = float(np.sqrt(state.velocity @ state.velocity) + np.sqrt(w @ w) * body.radius)
+        v, L = state.velocity, state.angular_momentum
+        speed = math.sqrt(float(v @ v))
+        if L[0] != 0.0 or L[1] != 0.0 or L[2] != 0.0:
+            w = R @ (body.inertia_inv @ (R.T @ L))
+            speed += math.sqrt(float(w @ w)) * body.radius
         reach = 2.0 * speed * float(dt)
         if accel is not None:
-            reach += float(np.sqrt(accel @ accel)) * float(dt) ** 2
+            reach += math.sqrt(float(accel @ accel)) * float(dt) ** 2
     margin = plan.margin + reach
-    vs, og = K.candidates(plan.kinds, plan.params, body.rest, R, state.position, deformation_bound(body, state.q),
-                          margin)
-    gap, nrm = K.gaps_of(_world(body, state, vs, R), og, plan.kinds, plan.params)
-    sel = gap < margin[og]
-    og = og[sel]
-    return Contacts(vs[sel], nrm[sel], gap[sel], plan.effect[og], list(effects), obstacle=plan.obstacle[og])
+    q = state.q
+    vs, og, gap, nrm = KB.find(plan.kinds, plan.params, margin, body.rest, vertex_modes(body), q, _skip(body, q), R,
+                               state.position, deformation_bound(body, q))
+    c = Contacts(vs, nrm, gap, plan.effect[og], list(effects), obstacle=plan.obstacle[og])
+    c._found = (_fingerprint(state), None if dt is None else float(dt), accel)
+    return c
+
+
+def _fingerprint(state) -> np.ndarray:
+    """The pose, velocities and modes of a state in one array (to recognise contacts found at it)."""
+    return np.concatenate((state.position, state.orientation, state.velocity, state.angular_momentum, state.q))
+
+
+def _fresh(contacts: Contacts, state, dt: float, accel) -> bool:
+    """``contacts`` were found by ``find_contacts`` at exactly this state, for a step dt [s] and the load
+    acceleration ``accel`` (to rounding), and not changed since."""
+    found = getattr(contacts, "_found", None)
+    if found is None or found[1] != dt or contacts.impulses is not None:
+        return False
+    a = found[2]
+    if (a is None) != (accel is None) or (a is not None and not np.allclose(a, accel, rtol=1e-12, atol=0.0)):
+        return False
+    return bool(np.array_equal(found[0], _fingerprint(state)))
+
+
+_ROTATION: list = [b"", None]
+
+
+def _rotation(state) -> np.ndarray:
+    """``state.rotation()`` (3, 3), kept for the last orientation seen (do not modify the result)."""
+    key = state.orientation.tobytes()
+    if key != _ROTATION[0]:
+        _ROTATION[1] = state.rotation()
+        _ROTATION[0] = key
+    return _ROTATION[1]
 
 
 def _gaps(effects, contacts: Contacts, body, state):
     """Gaps (k,) [m] and normals (k, 3) of the contact vertices at ``state`` against the obstacle each
     contact belongs to."""
-    from modalfem.runtime import _contact_kernels as K
+    from modalfem.runtime import _contact_body_kernels as KB
     plan = _plan(effects)
-    x = _world(body, state, contacts.vertex, state.rotation())
-    return K.gaps_of(x, plan.first[contacts.effect] + contacts.obstacle, plan.kinds, plan.params)
+    q = state.q
+    return KB.gaps_at(contacts.vertex, plan.first[contacts.effect] + contacts.obstacle, plan.kinds, plan.params,
+                      body.rest, vertex_modes(body), q, _skip(body, q), _rotation(state), state.position)
 
 
 def _system(solver, state, contacts: Contacts, slow: float | None = None):
@@ -285,7 +325,7 @@ def _system(solver, state, contacts: Contacts, slow: float | None = None):
     from modalfem.runtime import _contact_kernels as K
     body = solver.body
     k = contacts.count
-    R = state.rotation()
+    R = _rotation(state)
     Iw_inv = R @ body.inertia_inv @ R.T
     plan = _plan(contacts.effects)
     modal = plan.modal[contacts.effect]
@@ -313,7 +353,7 @@ def normal_velocities(solver, state, contacts: Contacts) -> np.ndarray:
     if k == 0:
         return np.zeros(0)
     body = solver.body
-    R = state.rotation()
+    R = _rotation(state)
     Iw_inv = R @ body.inertia_inv @ R.T
     modal = _plan(contacts.effects).modal[contacts.effect]
     nm = body.mode_count if modal.any() else 0
@@ -364,11 +404,14 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None
     if k == 0:
         return
     body = solver.body
-    J, WJ, V, R, _, nm = _system(solver, state, contacts, dt if sustained else None)
     plan = _plan(contacts.effects)
     n = np.ascontiguousarray(contacts.normal, dtype=np.float64)
     gap = contacts.gap
     mu = plan.friction[contacts.effect]
+    if sustained and _rigid_response(body, plan, contacts, dt):
+        _resolve_rigid(body, state, contacts, plan, n, mu, dt, accel)
+        return
+    J, WJ, V, R, _, nm = _system(solver, state, contacts, dt if sustained else None)
     zeros = np.zeros(k, dtype=np.int64)
     msz = np.array([6 + nm])
     shift = np.zeros((k, 3))
@@ -409,49 +452,64 @@ def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None
     contacts.tangential = jt
 
 
+def _rigid_response(body, plan, contacts: Contacts, dt: float) -> bool:
+    """The sustained solve of a sub-step dt [s] acts on no mode: none modal, or all faster than 1 / dt."""
+    return body.mode_count == 0 or not (body.omega[0] <= 1.0 / dt and plan.modal[contacts.effect].any())
+
+
+def _resolve_rigid(body, state, contacts: Contacts, plan, n, mu, dt: float, accel) -> None:
+    """The sustained solve of ``resolve_contacts`` when no mode takes part: the compiled rigid-body solve
+    (``_contact_body_kernels.solve_rigid``) on V = (v, w), then the same energy guard."""
+    from modalfem.runtime import _contact_body_kernels as KB
+    k = contacts.count
+    R = _rotation(state)
+    Iw_inv = R @ body.inertia_inv @ R.T
+    q = state.q
+    r = KB.lever_arms(contacts.vertex, body.rest, vertex_modes(body), q, _skip(body, q), R)
+    a = np.zeros(3) if accel is None else np.asarray(accel, dtype=np.float64)
+    shift = np.empty((k, 3))
+    shift[:] = 0.5 * dt * a  # predicted end-of-step velocities without contact
+    target = 0.25 * dt * (n @ a) - 2.0 * contacts.gap / dt
+    V0 = np.concatenate((state.velocity, Iw_inv @ state.angular_momentum))
+    V = V0.copy()
+    lam = np.zeros((k, 3))
+    jt = np.zeros((k, 3))
+    lam_n = np.zeros(k)
+    KB.solve_rigid(r, float(body.mass), Iw_inv, V, n, target, mu, shift, plan.iterations, lam, jt, lam_n, True)
+    dv, dw = V[0:3] - V0[0:3], V[3:6] - V0[3:6]
+    Iw = R @ body.inertia @ R.T
+    Idw = Iw @ dw
+    work = float(body.mass * (dv @ state.velocity) + dw @ state.angular_momentum)
+    quad = float(body.mass * (dv @ dv) + dw @ Idw)
+    if work + 0.5 * quad > 1e-12 * quad:  # would add energy: keep the largest share that does not
+        scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
+        dv *= scale
+        Idw *= scale
+        lam_n *= scale
+        jt *= scale
+    state.velocity += dv
+    state.angular_momentum += Idw
+    contacts.impulses = lam_n
+    contacts.tangential = jt
+
+
 #: most sub-steps (impact events, friction stops) in one step; beyond, the rest of the step is one
 #: sustained-contact sub-step (which never adds energy either)
 MAX_EVENTS = 32
 
 
-def _crossings(gap, vn, an, thr, horizon):
+def _crossings(gap, vn, normal, accel, thr, horizon):
     """First downward zero crossings of the contacts' gaps ``gap + vn t + an t^2 / 2`` [m] in
-    (0, horizon] [s]: ``(t_fast, j, t_slow)``, the earliest crossing faster than the contact's bounce
-    threshold and its contact index ((None, -1) if none), and the earliest slower one (None if none).
-
-    The roots are taken in the cancellation-free form q = -(b + sign(b) sqrt(D)) / 2, t = q / a and
-    c / q (a = an / 2, b = vn, c = gap).
+    (0, horizon] [s] (an = normal . accel): ``(t_fast, j, t_slow)``, the earliest crossing faster than the
+    contact's bounce threshold and its contact index ((None, -1) if none), and the earliest slower one (None
+    if none). A contact touching or inside (gap <= 0) and not leaving faster than its threshold is a slow
+    crossing now (t = 0), for the sustained solve; a fast one at t = 0 is the impact solve's, not an event.
+    The roots are taken in the cancellation-free form q = -(b + sign(b) sqrt(D)) / 2, t = q / a and c / q
+    (a = an / 2, b = vn, c = gap); compiled (``_contact_body_kernels.crossings``).
     """
-    a, b, c = 0.5 * an, vn, gap
-    disc = b * b - 4.0 * a * c
-    ok = disc >= 0.0
-    sq = np.sqrt(np.where(ok, disc, 0.0))
-    q = -0.5 * (b + np.where(b >= 0.0, sq, -sq))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r1 = np.where(a != 0.0, q / a, np.where(b != 0.0, -c / b, np.inf))
-        r2 = np.where(q != 0.0, c / q, np.inf)
-    first = np.full(len(gap), np.inf)
-    speed = np.zeros(len(gap))
-    for r in (r1, r2):
-        with np.errstate(invalid="ignore"):
-            v = vn + an * r  # normal velocity at the crossing (r may be inf: masked below)
-        down = ok & np.isfinite(r) & (r > 0.0) & (r <= horizon) & (v < 0.0) & (r < first)
-        first = np.where(down, r, first)
-        speed = np.where(down, v, speed)
-    # touching or inside and not leaving faster than the threshold: a (slow) crossing now, for the
-    # sustained solve (with a rounding-size gap < 0 the quadratic may have no root at all)
-    below = (gap <= 0.0) & (vn <= thr)
-    first = np.where(below, 0.0, first)
-    speed = np.where(below, np.minimum(vn, 0.0), speed)
-    fast = np.isfinite(first) & (speed < -thr)
-    slow = np.isfinite(first) & ~fast
-    t_fast, j = None, -1
-    fast &= first > 0.0  # (a fast one at t = 0 is the impact solve's: not an event)
-    if fast.any():
-        j = int(np.flatnonzero(fast)[np.argmin(first[fast])])
-        t_fast = float(first[j])
-    t_slow = float(first[slow].min()) if slow.any() else None
-    return t_fast, j, t_slow
+    from modalfem.runtime import _contact_body_kernels as KB
+    t_fast, j, t_slow = KB.crossings(gap, vn, normal, accel, thr, float(horizon))
+    return (None if j < 0 else t_fast), j, (None if math.isnan(t_slow) else t_slow)
 
 
 def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> None:
@@ -482,18 +540,21 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
     body = solver.body
     effects = contacts.effects
     accel = np.zeros(3) if loads is None else loads.force / body.mass
+    plan = _plan(effects)
     record: list = []
 
     def keep(c: Contacts, gap) -> None:
         _accumulate(record, c, gap)
 
     t_left, events, forced, event_vertex = float(dt), 0, None, -1
+    # the contacts handed in are reused when found at this very state for this step (ModalSolver.advance)
+    reuse = contacts if _fresh(contacts, state, t_left, accel) else None
     while t_left > 1e-12 * dt:
-        c = find_contacts(solver, state, effects, t_left, accel=accel)
+        c = find_contacts(solver, state, effects, t_left, accel=accel) if reuse is None else reuse
+        reuse = None
         if c.count == 0:
             solver.advance_free(state, loads, t_left)
             break
-        plan = _plan(effects)
         slop = 0.1 * plan.margin[plan.first[c.effect] + c.obstacle]
         thr = plan.threshold[c.effect]
         vn = normal_velocities(solver, state, c)
@@ -506,7 +567,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
             vn = normal_velocities(solver, state, c)
         span = t_left if forced is None else forced
         forced = None
-        t_hit, j, t_slow = _crossings(c.gap, vn, c.normal @ accel, thr, span)
+        t_hit, j, t_slow = _crossings(c.gap, vn, c.normal, accel, thr, span)
         event_vertex = -1
         if t_hit is not None and events < MAX_EVENTS:
             event_vertex = int(c.vertex[j])
@@ -530,6 +591,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
             restore(state, saved)
             forced = stop * span
             events += 1
+            reuse = c  # the same state and t_left: the same contacts
             continue
         keep(mid, gap_mid)
         solver.advance_free(state, loads, 0.5 * span)
@@ -609,31 +671,14 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     The deformation is summed in float64 here; a float32 body's ``positions(precise=True)`` rounds it to
     float32 (~6e-8 of it), so a vertex is pushed to at least that rounding slack above the obstacle.
     """
-    from modalfem.runtime import _contact_kernels as K
+    from modalfem.runtime import _contact_body_kernels as KB
     body = solver.body
     plan = _plan(contacts.effects)
-    R = state.rotation()
-    bound = deformation_bound(body, state.q)
+    q = state.q
+    bound = deformation_bound(body, q)
     slack = 4.0 * (body.mode_count + 2) * float(np.finfo(body.shapes_t.dtype).eps) * bound
-    total = np.zeros(3)
-    zero = np.zeros(1) + slack
-    for _ in range(passes):
-        moved = False
-        for o in range(len(plan.kinds)):
-            kinds, params = plan.kinds[o:o + 1], plan.params[o:o + 1]
-            vs, _ = K.candidates(kinds, params, body.rest, R, state.position, bound, zero)
-            if not len(vs):
-                continue
-            x = K.world_positions(local_positions(body, state.q, vs), R, state.position)
-            gap, nrm = K.signed_distances(kinds[0], params[0], x)
-            i = int(np.argmin(gap))
-            if gap[i] < 0.5 * slack or gap[i] < 0.0:
-                shift = (slack - gap[i]) * nrm[i] * (1.0 + 1e-9)
-                state.position += shift
-                total += shift
-                moved = True
-        if not moved:
-            break
+    total = KB.push_shift(plan.kinds, plan.params, body.rest, vertex_modes(body), q, _skip(body, q),
+                          _rotation(state), state.position, bound, slack, int(passes))
     if accel is None or not total.any():
         return
     gain = -body.mass * float(np.asarray(accel, dtype=np.float64) @ total)  # [J]
