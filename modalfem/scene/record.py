@@ -26,7 +26,8 @@ import numpy as np
 from modalfem import effects as fx
 from modalfem.errors import InputError
 from modalfem.scene.record_gltf import GltfAnimation
-from modalfem.scene.record_video import Camera, FrameRenderer, GifStream, Mp4Stream, checker_patch, ffmpeg_exe, palette
+from modalfem.scene.record_video import (SHADOW, Camera, FrameRenderer, GifStream, Mp4Stream, checker_patch, downsample,
+                                         ffmpeg_exe, palette)
 from modalfem.scene.record_vtk import ParaviewSeries
 
 __all__ = ["SOUND_TAIL", "Recorder"]
@@ -166,6 +167,7 @@ class Recorder:
         self.camera = Camera(elev=opts["elev"], azim=opts["azim"], center=opts.get("center", fitted.center),
                              half_width=opts.get("half_width", fitted.half_width), size=self.video_size)
         self._obstacles, self._draw = [], []
+        self._grounds = [o.height for o in self.world.obstacles if o.kind == "ground"]
         renderer = FrameRenderer(self.camera)
         for name, o in named:
             if hasattr(o, "normal"):
@@ -183,6 +185,12 @@ class Recorder:
             self._anim.obstacles = self._obstacles
         if self.video is not None:
             self._renderer = renderer
+            if self.video == "mp4":  # drawn at twice the size and averaged: anti-aliased edges (a GIF keeps its palette)
+                W, H = self.video_size
+                self._renderer = FrameRenderer(Camera(elev=self.camera.elev, azim=self.camera.azim,
+                                                      center=self.camera.center, half_width=self.camera.half_width,
+                                                      size=(2 * W, 2 * H)))
+            self._renderer.set_static([(V, F, c) for o, V, F, c in self._draw if not o.moving])
             if self.video == "gif":
                 self._gif = GifStream(self.folder / "preview.gif", self.video_size, self.frame_rate)
             else:
@@ -230,16 +238,18 @@ class Recorder:
             self._series.write(self._count, state.time, bodies)
         t2 = time.perf_counter()
         if self.video is not None:
-            parts = [(V + o.offset(state.time) if o.moving else V, F, c) for o, V, F, c in self._draw]
-            parts += [(x, tris, self._renderer.shade(x, tris, self.world.by_name[n].kind))
-                      for n, (x, tris) in surfaces.items()]
+            parts = [(V + o.offset(state.time), F, c) for o, V, F, c in self._draw if o.moving]
+            for n, (x, tris) in surfaces.items():
+                parts.append((x, tris, self._renderer.shade(x, tris, self.world.by_name[n].kind)))
+                for h in self._grounds:
+                    parts.append((self._renderer.shadow(x, h), tris, np.full(len(tris), SHADOW, dtype=np.uint8)))
             image = self._renderer.draw(parts, f"t = {state.time:.3f} s")
             if self._gif is not None:
                 self._gif.write(image)
             else:
                 if self._pending is not None:
                     self._mp4.write(self._pending)
-                self._pending = self._palette[image]
+                self._pending = downsample(image, self._palette)
         t3 = time.perf_counter()
         if self._anim is not None:
             self._anim.add(state, surfaces)
@@ -269,11 +279,11 @@ class Recorder:
         out: dict[str, list[str]] = {"paraview": [], "video": [], "sound": [], "gltf": []}
         try:
             t0 = time.perf_counter()
+            if n == 0:  # interrupted before the first frame was complete: nothing to keep
+                self._discard()
             if self._series is not None:
                 self._say("writing the ParaView series")
-                out["paraview"] = self._series.finish(n) if n else []
-                if not n:
-                    (self.folder / "scene.pvd").unlink(missing_ok=True)
+                out["paraview"] = self._series.finish(n)
             t1 = time.perf_counter()
             if self._gif is not None:
                 self._gif.close(frames=n)
@@ -305,6 +315,22 @@ class Recorder:
         self.seconds["sound"] += t4 - t3
         self._result = out
         return out
+
+    def _discard(self) -> None:
+        """Remove everything the first (incomplete) frame started."""
+        import shutil
+
+        if self._mp4 is not None:
+            self._mp4.kill()
+            self._mp4 = None
+        if self._gif is not None:
+            self._gif.close()
+            self._gif = None
+        for name in ("preview.gif", "preview.mp4"):
+            (self.folder / name).unlink(missing_ok=True)
+        if self._series is not None:
+            shutil.rmtree(self._series.dir, ignore_errors=True)
+            self._series = None
 
     def _write_sound(self) -> list[str]:
         from modalfem.runtime.wav import write_wav

@@ -422,3 +422,23 @@ def test_a_given_camera_is_kept(tmp_path):
     rec.finish()
     assert rec.camera.describe() == cam
     assert struct.unpack("<HH", (tmp_path / "preview.gif").read_bytes()[6:10]) == SIZE
+
+
+@pytest.mark.parametrize("video", ["gif", "mp4"])
+def test_an_interrupt_inside_the_first_frame_leaves_nothing(tmp_path, monkeypatch, video):
+    from modalfem.scene import record_gltf
+
+    if video == "mp4":
+        pytest.importorskip("imageio_ffmpeg", reason="MP4 needs imageio-ffmpeg")
+
+    def add(self, state, surfaces):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(record_gltf.GltfAnimation, "add", add)
+    world = _world()
+    rec = Recorder(world, tmp_path, video_size=SIZE, video=video)
+    with pytest.raises(KeyboardInterrupt):
+        rec.frame(world.state())
+    assert (tmp_path / "paraview").is_dir()  # (ffmpeg creates the MP4 file when its first frame comes)
+    assert rec.finish(interrupted=True) == {"paraview": [], "video": [], "sound": [], "gltf": []}
+    assert rec.frame_count == 0 and not any(tmp_path.iterdir())
