@@ -226,9 +226,20 @@ class Recorder:
         return surfaces, bodies
 
     def frame(self, state) -> None:
-        """Record one output frame of ``state`` (a ``WorldState``; the first call is t = 0)."""
+        """Record one output frame of ``state`` (a ``WorldState``; the first call is t = 0).
+
+        Raises:
+            InputError: after ``finish``, or a file cannot be written (disk full, ...; one line).
+        """
         if self._result is not None:
             raise InputError("the recorder is finished: no more frames")
+        try:
+            self._frame(state)
+        except OSError as exc:
+            raise InputError(f"cannot write output frame {self._count} in {str(self.folder)!r}: "
+                             f"{exc.strerror or exc}") from None
+
+    def _frame(self, state) -> None:
         t0 = time.perf_counter()
         surfaces, bodies = self._sample(state)
         if self.camera is None:
@@ -305,9 +316,11 @@ class Recorder:
                 self._say("rendering the sound")
                 out["sound"] = self._write_sound()
             t4 = time.perf_counter()
-        except BaseException:
+        except BaseException as exc:
             if self._mp4 is not None:
                 self._mp4.kill()
+            if isinstance(exc, OSError):
+                raise InputError(f"cannot finish the outputs in {str(self.folder)!r}: {exc.strerror or exc}") from None
             raise
         self.seconds["paraview"] += t1 - t0
         self.seconds["video"] += t2 - t1

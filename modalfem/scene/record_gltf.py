@@ -147,12 +147,18 @@ class GltfAnimation:
         i_time = b.add(times.reshape(-1, 1), component=_FLOAT, kind="SCALAR", target=None, min_max=True)
         doc = {"asset": {"version": "2.0", "generator": f"modalfem {getattr(modalfem, '__version__', '?')}"},
                "scene": 0, "scenes": [{"nodes": [0]}], "meshes": [],
-               "nodes": [{"name": "scene (z up)", "rotation": _Z_UP_TO_Y_UP, "children": []}],
-               "materials": [{"name": k, "doubleSided": k == "cloth",
-                              "pbrMetallicRoughness": {"baseColorFactor": c, "metallicFactor": 0.0,
-                                                       "roughnessFactor": 0.7}} for k, c in _COLOURS.items()]}
-        mat = {k: i for i, k in enumerate(_COLOURS)}
+               "nodes": [{"name": "scene (z up)", "rotation": _Z_UP_TO_Y_UP, "children": []}], "materials": []}
         samplers, channels = [], []
+
+        class _Materials(dict):  # a material per kind, made when first used
+            def __missing__(self, kind: str) -> int:
+                doc["materials"].append({"name": kind, "doubleSided": kind == "cloth",
+                                         "pbrMetallicRoughness": {"baseColorFactor": _COLOURS[kind],
+                                                                  "metallicFactor": 0.0, "roughnessFactor": 0.7}})
+                self[kind] = len(doc["materials"]) - 1
+                return self[kind]
+
+        mat = _Materials()
 
         def track(node: int, path: str, values: np.ndarray, kind: str) -> None:
             out = b.add(np.ascontiguousarray(values, dtype=np.float32), component=_FLOAT, kind=kind, target=None)

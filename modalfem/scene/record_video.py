@@ -393,8 +393,11 @@ class Mp4Stream:
                "-r", f"{frame_rate:.6g}", "-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "20",
                "-preset", "veryfast", "-movflags", "+faststart", str(self.path)]
         # own session: a terminal Ctrl-C interrupts the simulation, not the encoder, which is closed cleanly
-        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.PIPE, start_new_session=True)
+        try:
+            self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                          stderr=subprocess.PIPE, start_new_session=True)
+        except OSError as exc:
+            raise InputError(f"cannot start ffmpeg ({cmd[0]}): {exc.strerror or exc}") from None
 
     def write(self, rgb: np.ndarray) -> None:
         """Append frame ``rgb`` (H, W, 3) uint8."""

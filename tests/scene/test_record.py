@@ -442,3 +442,17 @@ def test_an_interrupt_inside_the_first_frame_leaves_nothing(tmp_path, monkeypatc
     assert (tmp_path / "paraview").is_dir()  # (ffmpeg creates the MP4 file when its first frame comes)
     assert rec.finish(interrupted=True) == {"paraview": [], "video": [], "sound": [], "gltf": []}
     assert rec.frame_count == 0 and not any(tmp_path.iterdir())
+
+
+def test_a_file_that_cannot_be_written_gets_one_line(tmp_path, monkeypatch):
+    from modalfem.scene import record_vtk
+
+    def full(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(record_vtk, "_write_vtu", full)
+    world = _world()
+    rec = Recorder(world, tmp_path, video=None, gltf=False, sound=False)
+    with pytest.raises(InputError, match="cannot write output frame 0 .*No space left on device") as e:
+        rec.frame(world.state())
+    assert "\n" not in str(e.value)
