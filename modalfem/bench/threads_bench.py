@@ -65,9 +65,9 @@ def _tet(cells, steps: int, threads: int, timeout: float) -> dict:
     return tet_bench._run_case(cells, "newton+cg", steps, timeout, threads=threads)
 
 
-#: kernels whose work runs in parallel chunks although they are not ``parallel=True`` themselves (``pcg``
-#: calls the parallel passes; its coarse-level solve, O(192^2) per iteration, is serial)
-_PARALLEL_CALLERS = {("modalfem.cloth._kernels", "pcg")}
+#: kernels whose work runs in parallel chunks although they are not ``parallel=True`` themselves (they call
+#: the parallel passes; the cloth ``pcg``'s coarse-level solve, O(192^2) per iteration, is serial)
+_PARALLEL_CALLERS = {("modalfem.cloth._kernels", "pcg"), ("modalfem.tet._kernels", "pcg_twolevel")}
 
 
 def _is_parallel(filename: str, name: str) -> bool:

@@ -5,7 +5,8 @@ every value is computed by one thread in a fixed order, so results are bit-ident
 * ``hessians_upper``: projected element Hessians (upper triangles) and element forces from the analytic
   eigensystem of an isotropic density (the formulas of :func:`modalfem.tet.energies.element_hessians`);
   ``element_forces`` the forces alone.
-* ``csr_matvec``: ``y = A x`` for a CSR matrix, rows in parallel.
+* ``csr_matvec``: ``y = A x`` for a CSR matrix, rows in parallel; ``pcg_twolevel`` the solver's whole
+  preconditioned CG (two-level or Jacobi) on such passes, dot products summed per chunk in chunk order.
 * ``gather_sum``: ``out[p] = sum(values[order[ptr[p]:ptr[p + 1]]])``, the assembly's scatter written as
   a gather (no write conflicts), and ``symmetrise`` its completion from upper triangles.
 """
@@ -20,7 +21,8 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["csr_matvec", "element_forces", "gather_sum", "hessians_upper", "svd_of_positions", "svd_rv", "symmetrise", "unsigned"]
+__all__ = ["csr_matvec", "element_forces", "gather_sum", "hessians_upper", "pcg_twolevel", "svd_of_positions", "svd_rv",
+           "symmetrise", "unsigned"]
 
 _apply_threads()
 
@@ -312,3 +314,138 @@ def _svd_element(e, F, V0t, warm, U, s, V, AV) -> None:
     s[e, 0] = n0
     s[e, 1] = w0 * AV[0, 1] + w1 * AV[1, 1] + w2 * AV[2, 1]
     s[e, 2] = u20 * AV[0, 2] + u21 * AV[1, 2] + u22 * AV[2, 2]
+
+
+@numba.njit(cache=True, parallel=True)
+def _dot(a, b, part) -> float:
+    """``a . b`` from per-chunk partial sums added in chunk order (the same bits on any thread count)."""
+    n = len(a)
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        t = 0.0
+        for i in range(start, stop):
+            t += a[i] * b[i]
+        part[ch] = t
+    s = 0.0
+    for ch in range(chunks):
+        s += part[ch]
+    return s
+
+
+@numba.njit(cache=True, parallel=True)
+def _precondition(r, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, cr, cz, z, part) -> float:
+    """``z = inv * r + P Ac_inv P^T r`` (no coarse part when ``Ac_inv`` is empty); returns ``r . z``."""
+    nc = len(cr)
+    if nc > 0:
+        cchunks = chunk_count(nc, 16)
+        for ch in numba.prange(cchunks):  # cr = P^T r
+            start, stop = chunk_bounds(nc, cchunks, ch)
+            for i in range(start, stop):
+                t = 0.0
+                for p in range(Tp[i], Tp[i + 1]):
+                    t += Td[p] * r[Ti[p]]
+                cr[i] = t
+        for ch in numba.prange(cchunks):  # cz = Ac_inv cr
+            start, stop = chunk_bounds(nc, cchunks, ch)
+            for i in range(start, stop):
+                t = 0.0
+                for j in range(nc):
+                    t += Ac_inv[i, j] * cr[j]
+                cz[i] = t
+    n = len(r)
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        t = 0.0
+        for i in range(start, stop):
+            zi = inv[i] * r[i]
+            if nc > 0:
+                c = 0.0
+                for p in range(Pp[i], Pp[i + 1]):
+                    c += Pd[p] * cz[Pi[p]]
+                zi += c
+            z[i] = zi
+            t += r[i] * zi
+        part[ch] = t
+    s = 0.0
+    for ch in range(chunks):
+        s += part[ch]
+    return s
+
+
+@numba.njit(cache=True, parallel=True)
+def _step_update(x, r, p, Ap, alpha, part) -> float:
+    """``x += alpha p``, ``r -= alpha Ap``; returns ``r . r``."""
+    n = len(x)
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        t = 0.0
+        for i in range(start, stop):
+            x[i] += alpha * p[i]
+            ri = r[i] - alpha * Ap[i]
+            r[i] = ri
+            t += ri * ri
+        part[ch] = t
+    s = 0.0
+    for ch in range(chunks):
+        s += part[ch]
+    return s
+
+
+@numba.njit(cache=True, parallel=True)
+def _direction(p, z, beta) -> None:
+    """``p = z + beta p``."""
+    n = len(p)
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            p[i] = z[i] + beta * p[i]
+
+
+@numba.njit(cache=True)
+def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, rtol: float,
+                 maxiter: int):
+    """Preconditioned CG for ``A x = b`` (CSR ``A``) with ``M^-1 r = inv * r + P Ac_inv P^T r`` (P and
+    P^T as CSR ``(Pp, Pi, Pd)``, ``(Tp, Ti, Td)``; Jacobi alone when ``Ac_inv`` is (0, 0)), compiled: every
+    product and vector update a pass in parallel chunks, dot products summed per chunk in chunk order.
+
+    ``x`` (len(b),) is the start when ``warm`` (else set to 0) and the solution on return. Stops when
+    ``|r| <= rtol |b|``. Returns ``(iterations, definite)``: ``definite`` False when a search direction
+    ``p != 0`` had ``p^T A p <= 0`` (``A`` not positive definite) before the tolerance was reached.
+    """
+    n = len(b)
+    part = np.empty(chunk_count(n, ROW_CHUNK))
+    r = np.empty(n)
+    Ap = np.empty(n)
+    z = np.empty(n)
+    nc = Ac_inv.shape[0]
+    cr = np.empty(nc)
+    cz = np.empty(nc)
+    if warm:
+        csr_matvec(indptr, indices, data, x, Ap)
+        for i in range(n):
+            r[i] = b[i] - Ap[i]
+    else:
+        for i in range(n):
+            x[i] = 0.0
+            r[i] = b[i]
+    stop = rtol * rtol * _dot(b, b, part)
+    if _dot(r, r, part) <= stop:  # already solved (e.g. b = 0: every DOF held, nothing to move)
+        return 0, True
+    rz = _precondition(r, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, cr, cz, z, part)
+    p = z.copy()
+    for it in range(1, maxiter + 1):
+        csr_matvec(indptr, indices, data, p, Ap)
+        pAp = _dot(p, Ap, part)
+        if not pAp > 0.0:  # a zero search direction (exactly solved) or lost definiteness: stop here
+            return it, not _dot(p, p, part) > 0.0
+        alpha = rz / pAp
+        if _step_update(x, r, p, Ap, alpha, part) <= stop:
+            return it, True
+        rz_new = _precondition(r, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, cr, cz, z, part)
+        _direction(p, z, rz_new / rz)
+        rz = rz_new
+    return maxiter, True

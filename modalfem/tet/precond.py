@@ -14,7 +14,41 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-__all__ = ["TwoLevel"]
+__all__ = ["Preconditioner", "TwoLevel"]
+
+
+class Preconditioner:
+    """``r -> inv * r + P Ac_inv P^T r`` (Jacobi alone without ``P``), callable, and in the form the compiled
+    CG (:func:`modalfem.tet._kernels.pcg_twolevel`) takes: :meth:`arrays`.
+
+    Args:
+        inv: inverse diagonal (N,).
+        P, Pt: prolongation (N, c) and its transpose, CSR (or None).
+        Ac_inv: inverse coarse matrix (c, c) (or None).
+    """
+
+    def __init__(self, inv: np.ndarray, P: sp.csr_matrix | None = None, Pt: sp.csr_matrix | None = None,
+                 Ac_inv: np.ndarray | None = None) -> None:
+        from modalfem.tet import _kernels
+
+        self.inv = np.ascontiguousarray(inv, dtype=float)
+        if P is None:
+            empty_i, empty_f = np.zeros(1, dtype=np.int64), np.zeros(0)
+            self._arrays = (self.inv, empty_i, empty_i, empty_f, empty_i, empty_i, empty_f, np.zeros((0, 0)))
+        else:
+            self._arrays = (self.inv, P.indptr, _kernels.unsigned(P.indices), P.data, Pt.indptr,
+                            _kernels.unsigned(Pt.indices), Pt.data, np.ascontiguousarray(Ac_inv))
+        self.P, self.Pt, self.Ac_inv = P, Pt, Ac_inv
+
+    def arrays(self) -> tuple:
+        """``(inv, P indptr, indices, data, P^T indptr, indices, data, Ac_inv)``."""
+        return self._arrays
+
+    def __call__(self, r: np.ndarray) -> np.ndarray:
+        out = self.inv * r
+        if self.P is not None:
+            out += self.P @ (self.Ac_inv @ (self.Pt @ r))
+        return out
 
 
 class TwoLevel:
@@ -80,21 +114,8 @@ class TwoLevel:
             coarse = self._coarse = (free.copy(), *self._coarse_space(A, x, free))
         _, P, Pt, Ac_inv = coarse
         if Ac_inv is None:
-            return lambda r: inv * r
-
-        from modalfem.tet import _kernels
-
-        coarse_r = np.empty(Pt.shape[0])
-        P_indices, Pt_indices = _kernels.unsigned(P.indices), _kernels.unsigned(Pt.indices)
-
-        def apply(r: np.ndarray) -> np.ndarray:
-            _kernels.csr_matvec(Pt.indptr, Pt_indices, Pt.data, r, coarse_r)
-            out = np.empty(P.shape[0])
-            _kernels.csr_matvec(P.indptr, P_indices, P.data, Ac_inv @ coarse_r, out)
-            out += inv * r
-            return out
-
-        return apply
+            return Preconditioner(inv)
+        return Preconditioner(inv, P, Pt, Ac_inv)
 
     def _coarse_space(self, A: sp.csr_matrix, x: np.ndarray, free: np.ndarray):
         """``(P, P^T, (P^T A P)^-1 or None)``.

@@ -103,3 +103,30 @@ def test_preconditioner_is_jacobi_plus_the_galerkin_coarse_solve():
     G = R.T @ Z
     np.testing.assert_allclose(G, G.T, rtol=1e-9, atol=1e-12 * np.abs(G).max())
     assert np.all(np.linalg.eigvalsh(0.5 * (G + G.T)) > 0)
+
+
+def test_compiled_cg_solves_to_its_tolerance_and_flags_negative_curvature():
+    """``solver._pcg`` (the compiled two-level CG): the residual it reports as reached is reached, the
+    callable and the compiled preconditioner are the same operator, and an indefinite matrix is flagged."""
+    from modalfem.tet.precond import Preconditioner
+    from modalfem.tet.solver import _pcg
+
+    mesh = box(size=(0.4, 0.1, 0.1), cells=(8, 2, 2))
+    K, M = assemble(mesh, MAT, degree=1)
+    A = (K + 1e4 * M).tocsr()
+    free = np.ones(A.shape[0], dtype=bool)
+    tl = TwoLevel(mesh.points, aggregates=4)
+    prec = tl.setup(A, A.diagonal(), mesh.points, free)
+    r = np.random.default_rng(3).standard_normal(A.shape[0])
+    z_ref = r / A.diagonal() + prec.P @ (prec.Ac_inv @ (prec.Pt @ r))
+    np.testing.assert_allclose(prec(r), z_ref, rtol=1e-13, atol=0)
+    b = np.random.default_rng(4).standard_normal(A.shape[0])
+    for p in (prec, Preconditioner(1.0 / A.diagonal())):
+        x, it, definite = _pcg(A, b, p, 1e-8, 10 * len(b))
+        assert definite and 0 < it < 10 * len(b)
+        assert np.linalg.norm(b - A @ x) <= 1e-8 * np.linalg.norm(b)
+        x2, it2, _ = _pcg(A, b, p, 1e-8, 10 * len(b), x0=x)  # started at the answer: nothing to do
+        assert it2 == 0 and np.array_equal(x2, x)
+    B = (K - 1e2 * sp.identity(A.shape[0])).tocsr()  # K's rigid modes make this indefinite
+    _, _, definite = _pcg(B, b, Preconditioner(np.ones(len(b))), 1e-12, 10 * len(b))
+    assert not definite
