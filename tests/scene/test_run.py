@@ -236,3 +236,13 @@ def test_frame_rate_is_derived_into_steps_per_frame(tmp_path):
     built = build_scene(s, base)
     assert built.steps == 100 and built.frame_every == round(1 / (30 * 1e-3)) == 33
     assert math.isclose(built.dt, 1e-3)
+
+
+def test_the_readme_scene_is_valid():
+    """The scene file shown in the README validates (so the example users copy works)."""
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    block = text.split("```toml\n", 1)[1].split("```", 1)[0]
+    s = scene_from_text(block, label="README.md")
+    assert [b.kind for b in s.bodies] == ["modal"] and [e.kind for e in s.events] == ["strike"]
