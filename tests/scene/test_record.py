@@ -456,3 +456,35 @@ def test_a_file_that_cannot_be_written_gets_one_line(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="cannot write output frame 0 .*No space left on device") as e:
         rec.frame(world.state())
     assert "\n" not in str(e.value)
+
+
+def test_the_default_camera_holds_every_body_and_the_ground_below_at_the_start(recorded):
+    world, s0 = recorded["world"], recorded["states"][0]
+    camera = recorded["rec"].camera.describe()
+    pts = np.concatenate([world.surface(s0, b.name)[0] for b in world.bodies])
+    p = _project(camera, pts, SIZE)
+    assert p.min() > 0 and np.all(p.max(0) < SIZE)
+    foot = pts.mean(0) * (1, 1, 0)  # the ground under the bodies
+    q = _project(camera, foot[None], SIZE)[0]
+    assert 0 < q[0] < SIZE[0] and 0 < q[1] < SIZE[1]
+    # the margin: the bodies fill most of the picture but touch no edge
+    span = (p.max(0) - p.min(0)) / SIZE
+    assert span.max() > 0.4
+
+
+def test_principal_targets_reproduce_a_low_rank_motion_with_its_rank_and_meet_the_tolerance():
+    from modalfem.scene.record_gltf import principal_targets
+
+    rng = np.random.default_rng(1)
+    modes = rng.normal(size=(2, 50, 3))
+    t = np.linspace(0, 1, 30)
+    D = np.einsum("fk,kvc->fvc", np.stack([np.sin(3 * t), t**2], 1), modes)
+    T, W, err = principal_targets(D, 1e-9)
+    assert len(T) == 2 and err <= 1e-9 and np.allclose(W @ T.reshape(2, -1), D.reshape(30, -1), atol=1e-12)
+    noisy = D + 1e-3 * rng.normal(size=D.shape)
+    T, W, err = principal_targets(noisy, 0.01)
+    resid = noisy - (W @ T.reshape(len(T), -1)).reshape(noisy.shape)
+    assert err <= 0.01 and np.isclose(np.linalg.norm(resid, axis=2).max(), err)
+    assert 2 <= len(T) < 30
+    T, W, err = principal_targets(np.zeros((4, 5, 3)), 1e-3)
+    assert T.shape == (0, 5, 3) and W.shape == (4, 0) and err == 0.0
