@@ -200,6 +200,8 @@ def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps:
             interrupted = True
         wall = time.perf_counter() - t_run
         files = recorder.finish(interrupted=interrupted) if recorder is not None else {}
+        if recorder is not None:  # a Ctrl-C between the recorder's frame and the log's: keep what both have
+            log.trim(recorder.frame_count)
         summary = log.summary(path, state, done, steps, wall, t_build, files, interrupted)
         (folder / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
         (folder / "scene.toml").write_bytes(path.read_bytes())
@@ -252,6 +254,15 @@ class _Log:
         if every and (self.frame_count - 1) % every == 0:
             hits = self.world.intersections(state)
             self.checks.append((state.time, sum(k for _, _, k in hits), [[a, b, k] for a, b, k in hits]))
+
+    def trim(self, frames: int) -> None:
+        """Keep the first ``frames`` frames' records."""
+        self.frame_count = min(self.frame_count, frames)
+        del self.times[self.frame_count:]
+        for n in self.names:
+            del self.energy[n][self.frame_count:]
+            del self.momentum[n][self.frame_count:]
+        self.checks = [c for c in self.checks if self.times and c[0] <= self.times[-1]]
 
     def summary(self, path: Path, state, done: int, steps: int, wall: float, t_build: float, files: dict,
                 interrupted: bool) -> dict:

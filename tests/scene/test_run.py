@@ -246,3 +246,47 @@ def test_the_readme_scene_is_valid():
     block = text.split("```toml\n", 1)[1].split("```", 1)[0]
     s = scene_from_text(block, label="README.md")
     assert [b.kind for b in s.bodies] == ["modal"] and [e.kind for e in s.events] == ["strike"]
+
+
+def test_ctrl_c_keeps_complete_frames_and_says_so(tmp_path):
+    """A real SIGINT to `modalfem run` during the steps: exit 130, one line saying the frames so far are valid,
+    the folder in place with a ParaView series and a GIF of exactly the frames the summary counts."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    import xml.etree.ElementTree as ET
+
+    from PIL import Image
+
+    text = (HEAD + time_block(duration=2.0, frame_rate=100.0) + BLOCK.format(z=3.0)
+            + '[[effects]]\nkind = "gravity"\n[outputs]\nvideo = "gif"\ngltf = false\nsound = false\n'
+            + "video_size = [160, 90]\n")
+    p = write(tmp_path, text)
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "modalfem", "run", str(p), "--out", str(out)],
+                            stderr=subprocess.PIPE, text=True, env=env)
+    lines = []
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        lines.append(line)
+        if "steps/s" in line:
+            proc.send_signal(signal.SIGINT)
+            break
+    rest = proc.communicate(timeout=240)[1]
+    err = (rest or "").strip().splitlines()
+    assert proc.returncode == 130, lines + err
+    assert len([e for e in err if "interrupted" in e]) == 1 and "valid" in err[-1], err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] and 0 < s["time"]["steps_run"] < 2000
+    assert s["frames"] >= 1 + 200 // 10
+    refs = [d.get("file") for d in ET.parse(out / "scene.pvd").getroot().iter("DataSet")]
+    times = sorted({float(d.get("timestep")) for d in ET.parse(out / "scene.pvd").getroot().iter("DataSet")})
+    assert len(times) == s["frames"] and all((out / f).is_file() for f in refs)
+    assert Image.open(out / "preview.gif").n_frames == s["frames"]
+    assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]  # no temporaries left
