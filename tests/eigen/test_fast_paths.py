@@ -65,3 +65,29 @@ def test_fast_path_gives_the_reference_modes(make_box, steel, assemble_km, monke
     K, M = assemble_km(mesh, steel, degree=2)
     allowed = _bounds(ref, K, M) + _bounds(fast, K, M)
     assert np.all(np.abs(fast.eigenvalues - ref.eigenvalues) <= allowed), (fast.eigenvalues - ref.eigenvalues, allowed)
+
+
+def test_small_problem_runs_its_dense_work_on_one_openblas_thread(beam, steel, monkeypatch):
+    """Below PARDISO's one-thread size the shift estimate and the labels hold OpenBLAS on one thread
+    (and give the previous count back afterwards); above it they leave OpenBLAS alone."""
+    import sys
+
+    from modalfem.eigen.blas_threads import openblas_threads
+
+    if not openblas_threads():
+        pytest.skip("no OpenBLAS loaded in this process")
+    mm = sys.modules["modalfem.modes"]
+    seen = []
+    real = mm._labels
+
+    def spy(*args, **kwargs):
+        seen.append(openblas_threads())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mm, "_labels", spy)
+    before = openblas_threads()
+    modes(beam, steel, k=3, fixed="x0", backend="skfem")
+    assert seen[-1] == [1] * len(before) and openblas_threads() == before
+    monkeypatch.setattr(pardiso, "SERIAL_BELOW", 0)  # now "large": OpenBLAS keeps its count
+    modes(beam, steel, k=3, fixed="x0", backend="skfem")
+    assert seen[-1] == before
