@@ -113,13 +113,14 @@ def measure(*, quick: bool = False, repeat: int = 3) -> dict:
             ("GIF preview 640 x 360", {"video": "gif"}),
             ("glTF animation (scene.glb)", {"gltf": True}),
             ("sound (WAV per body + mix)", {"sound": True})]
-    try:
-        from modalfem.scene.record_video import ffmpeg_exe
+    from modalfem.errors import InputError
+    from modalfem.scene.record_video import ffmpeg_exe
 
+    try:
         ffmpeg_exe()
         rows.insert(2, ("MP4 preview 640 x 360 (drawn at 1280 x 720, averaged)", {"video": "mp4"}))
-    except Exception:  # noqa: BLE001 - the MP4 row is left out without imageio-ffmpeg (said in the section)
-        pass
+    except InputError:
+        pass  # no imageio-ffmpeg: the MP4 row is left out and the section says why
     _replay(world, states[:2], 1, **{**off, **rows[1][1]})  # warm the compiled rasteriser (disk cache)
     for label, opt in rows:
         cases[label] = _replay(world, states, repeat, **{**off, **opt})
@@ -142,9 +143,9 @@ def render(result: dict, *, command: str, date: str, machine: str, load: tuple) 
     """The markdown section."""
     tri = ", ".join(f"{n} {result['vertices'][n]} vertices / {t} triangles" for n, t in result["triangles"].items())
     lines = [SECTION, "",
-             f"`{command}` ({date}; {machine}; load average (1 min) {load[0]:.2f} before, {load[1]:.2f} after). "
-             f"{result['frames']} frames (30 frames/s over {result['seconds']:g} s of the world of tutorials/world.py: "
-             f"{tri}, the ground), each writer alone, fastest of the replays; side by side in one run.", "",
+             (f"`{command}` ({date}; {machine}; load average (1 min) {load[0]:.2f} before, {load[1]:.2f} after). "
+              f"{result['frames']} frames (30 frames/s over {result['seconds']:g} s of the world of tutorials/world.py: "
+              f"{tri}, the ground), each writer alone, fastest of the replays; side by side in one run."), "",
              "| writer | ms/frame (finish included) | ms/frame (frames only) | bytes/frame |", "|---|---|---|---|"]
     gif = None
     for label, (total, frames, size) in result["cases"].items():

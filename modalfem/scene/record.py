@@ -26,8 +26,17 @@ import numpy as np
 from modalfem import effects as fx
 from modalfem.errors import InputError
 from modalfem.scene.record_gltf import GltfAnimation
-from modalfem.scene.record_video import (SHADOW, Camera, FrameRenderer, GifStream, Mp4Stream, checker_patch, downsample,
-                                         ffmpeg_exe, palette)
+from modalfem.scene.record_video import (
+    SHADOW,
+    Camera,
+    FrameRenderer,
+    GifStream,
+    Mp4Stream,
+    checker_patch,
+    downsample,
+    ffmpeg_exe,
+    palette,
+)
 from modalfem.scene.record_vtk import ParaviewSeries
 
 __all__ = ["SOUND_TAIL", "Recorder"]

@@ -28,8 +28,16 @@ import numpy as np
 
 from modalfem.atomic import write_atomic
 from modalfem.errors import InputError
+from modalfem.output.gltf import (
+    _ARRAY_BUFFER,
+    _ELEMENT_ARRAY_BUFFER,
+    _FLOAT,
+    _UINT16,
+    _UINT32,
+    _Builder,
+    modal_surface,
+)
 from modalfem.runtime.rotation import quat_to_matrix
-from modalfem.output.gltf import _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER, _FLOAT, _UINT16, _UINT32, _Builder, modal_surface
 
 __all__ = ["MAX_TARGETS", "TOLERANCE", "GltfAnimation", "principal_targets"]
 
@@ -81,14 +89,6 @@ def _unit_weights(base: np.ndarray, targets: np.ndarray, weights: np.ndarray):
     T = targets[keep]
     base = base + np.einsum("k,kvc->vc", lo, T)
     return base, T * span[:, None, None], (weights[:, keep] - lo) / span
-
-
-def _normals(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    A = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
-    N = np.zeros_like(x)
-    for c in range(3):
-        np.add.at(N, tris[:, c], A)
-    return N / np.maximum(np.linalg.norm(N, axis=1), 1e-300)[:, None]
 
 
 class GltfAnimation:
@@ -190,7 +190,7 @@ class GltfAnimation:
                 track(n, "rotation", quat[:, [1, 2, 3, 0]], "VEC4")
                 if len(T):
                     track(n, "weights", W.reshape(-1), "SCALAR")
-                self.report[name] = {"morph": "modes", "targets": int(len(T)), "max_error_m": 0.0}
+                self.report[name] = {"morph": "modes", "targets": len(T), "max_error_m": 0.0}
             else:
                 X = np.array(self.deforming[name][:F], dtype=np.float64)
                 tris = self.triangles[name]
@@ -203,7 +203,7 @@ class GltfAnimation:
                     track(n, "weights", W.reshape(-1), "SCALAR")
                 else:
                     track(n, "translation", np.zeros((F, 3)), "VEC3")
-                self.report[name] = {"morph": "principal components", "targets": int(len(T)),
+                self.report[name] = {"morph": "principal components", "targets": len(T),
                                      "max_error_m": err, "tolerance_m": TOLERANCE * size}
         for name, o, patch in self.obstacles:
             V, Fo = patch if patch is not None else o.surface(0.0)

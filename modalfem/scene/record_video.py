@@ -123,10 +123,10 @@ def _rasterise(p, tris, colour, depth, image):  # pragma: no cover - compiled
         if abs(area) < 1e-12:
             continue
         inv = 1.0 / area
-        xmin = max(int(math.floor(min(x0, min(x1, x2)))), 0)
-        xmax = min(int(math.ceil(max(x0, max(x1, x2)))), W - 1)
-        ymin = max(int(math.floor(min(y0, min(y1, y2)))), 0)
-        ymax = min(int(math.ceil(max(y0, max(y1, y2)))), H - 1)
+        xmin = max(math.floor(min(x0, min(x1, x2))), 0)
+        xmax = min(math.ceil(max(x0, max(x1, x2))), W - 1)
+        ymin = max(math.floor(min(y0, min(y1, y2))), 0)
+        ymax = min(math.ceil(max(y0, max(y1, y2))), H - 1)
         col = colour[k]
         for y in range(ymin, ymax + 1):
             yc = y + 0.5
@@ -305,7 +305,7 @@ class GifStream:
         self._pal = palette()
         self._prev: np.ndarray | None = None
         self.offsets: list[int] = []  # file length after each complete frame
-        self._f = open(self.path, "wb")
+        self._f = open(self.path, "wb")  # noqa: SIM115 - open across frames, closed by close()
         W, H = size
         head = b"GIF89a" + struct.pack("<HHBBB", W, H, 0xF7, 0, 0) + self._pal.tobytes()
         head += b"\x21\xff\x0bNETSCAPE2.0\x03\x01\x00\x00\x00"  # loop forever

@@ -325,9 +325,8 @@ def test_the_glb_has_one_animation_at_the_frame_times_that_replays_every_body(re
 
 # ----------------------------------------------------------------------------- interrupts and bad input
 def _check_consistent(folder, files, frames):
-    from PIL import Image
-
     import pygltflib
+    from PIL import Image
 
     rows, times = _pvd(folder / "scene.pvd")
     assert len(times) == frames
