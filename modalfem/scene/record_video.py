@@ -110,6 +110,10 @@ class Camera:
         return cls(elev=elev, azim=azim, center=c, half_width=half * (1.0 + 2.0 * margin), size=size)
 
 
+#: barycentric slack of the pixel test (closes cracks between triangles sharing an edge)
+EDGE = 1e-7
+
+
 @numba.njit(cache=True)
 def _rasterise(p, tris, colour, depth, image):  # pragma: no cover - compiled
     """Flat triangles ``tris`` (k, 3) over projected points ``p`` (n, 3) into ``image`` with ``depth``."""
@@ -128,14 +132,29 @@ def _rasterise(p, tris, colour, depth, image):  # pragma: no cover - compiled
         ymin = max(math.floor(min(y0, min(y1, y2))), 0)
         ymax = min(math.ceil(max(y0, max(y1, y2))), H - 1)
         col = colour[k]
+        # barycentric weights are linear along a row: w_i = c_i + d_i x (x the pixel column); each row visits
+        # only the columns where all three are >= 0 (a thin diagonal triangle's box is mostly empty)
+        d0, d1 = (y1 - y2) * inv, (y2 - y0) * inv
+        d2 = -d0 - d1
         for y in range(ymin, ymax + 1):
             yc = y + 0.5
-            for x in range(xmin, xmax + 1):
-                xc = x + 0.5
-                w0 = ((x1 - xc) * (y2 - yc) - (x2 - xc) * (y1 - yc)) * inv
-                w1 = ((x2 - xc) * (y0 - yc) - (x0 - xc) * (y2 - yc)) * inv
+            c0 = ((x1 - 0.5) * (y2 - yc) - (x2 - 0.5) * (y1 - yc)) * inv
+            c1 = ((x2 - 0.5) * (y0 - yc) - (x0 - 0.5) * (y2 - yc)) * inv
+            c2 = 1.0 - c0 - c1
+            lo, hi = float(xmin), float(xmax)
+            for ci, di in ((c0, d0), (c1, d1), (c2, d2)):
+                if di > 0.0:
+                    lo = max(lo, (-EDGE - ci) / di)
+                elif di < 0.0:
+                    hi = min(hi, (-EDGE - ci) / di)
+                elif ci < -EDGE:
+                    hi = lo - 1.0
+            if not lo <= hi:
+                continue
+            for x in range(math.ceil(lo), math.floor(hi) + 1):
+                w0, w1 = c0 + d0 * x, c1 + d1 * x
                 w2 = 1.0 - w0 - w1
-                if w0 < -1e-7 or w1 < -1e-7 or w2 < -1e-7:
+                if w0 < -EDGE or w1 < -EDGE or w2 < -EDGE:
                     continue
                 z = w0 * z0 + w1 * z1 + w2 * z2
                 if z > depth[y, x]:
