@@ -24,8 +24,9 @@ import numba
 import numpy as np
 
 from modalfem.runtime._contact_kernels import _rigid_gaps, _signed
+from modalfem.runtime._contact_kernels import normal_velocities as _normal_velocities
 
-__all__ = ["TOLERANCE", "crossings", "find", "gaps_at", "lever_arms", "push_shift", "solve_rigid"]
+__all__ = ["TOLERANCE", "crossings", "find", "gaps_at", "lever_arms", "normal_velocities", "push_shift", "resolve_rigid", "solve_rigid"]
 
 #: ``solve_rigid`` does not apply an update that changes its contact's velocity by at most this share of the
 #: problem's velocity scale (|v| + |w| max|r| + the largest target and load shift), and stops after a sweep
@@ -36,14 +37,29 @@ __all__ = ["TOLERANCE", "crossings", "find", "gaps_at", "lever_arms", "push_shif
 TOLERANCE = 1e-12
 
 
+@numba.njit(cache=True)
+def _active(skip):
+    """Indices of the modes not skipped (as int64 array)."""
+    n = 0
+    for m in range(skip.shape[0]):
+        if not skip[m]:
+            n += 1
+    out = np.empty(n, dtype=np.int64)
+    n = 0
+    for m in range(skip.shape[0]):
+        if not skip[m]:
+            out[n] = m
+            n += 1
+    return out
+
+
 @numba.njit(cache=True, inline="always")
-def _world(j, rest, vm, q, skip, R, c):
-    """World position ``c + R (X_j + Phi_j q)`` of vertex j (float64 sums, as ``local_positions`` +
-    ``world_positions``)."""
+def _world(j, rest, vm, q, act, R, c):
+    """World position ``c + R (X_j + Phi_j q)`` of vertex j over the modes ``act`` (``_active``; float64 sums
+    in mode order, as ``local_positions`` + ``world_positions``)."""
     a0, a1, a2 = 0.0, 0.0, 0.0
-    for m in range(q.shape[0]):
-        if skip[m]:
-            continue
+    for t in range(act.shape[0]):
+        m = act[t]
         qm = q[m]
         a0 += float(vm[j, m, 0]) * qm
         a1 += float(vm[j, m, 1]) * qm
@@ -63,6 +79,7 @@ def find(kinds, params, margins, rest, vm, q, skip, R, c, bound):
     within ``margins[o]``. Returns ``(vertex, obstacle, gap, normal)``: (k,) int64, (k,) int64, (k,) [m],
     (k, 3), obstacle-major.
     """
+    act = _active(skip)
     nv = rest.shape[0]
     no = kinds.shape[0]
     g = np.empty(nv)
@@ -76,7 +93,7 @@ def find(kinds, params, margins, rest, vm, q, skip, R, c, bound):
         lim = margins[o] + bound
         for j in range(nv):
             if g[j] < lim:
-                x0, x1, x2 = _world(j, rest, vm, q, skip, R, c)
+                x0, x1, x2 = _world(j, rest, vm, q, act, R, c)
                 d, a, b, e = _signed(kinds[o], params[o], x0, x1, x2)
                 if d < margins[o]:
                     vs[n] = j
@@ -139,6 +156,7 @@ def push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes):
     positions; if the deepest is closer than ``slack / 2`` (or inside), the body moves along its normal
     to ``slack`` above. Stops after a pass that moved nothing.
     """
+    act = _active(skip)
     nv = rest.shape[0]
     g = np.empty(nv)
     total = np.zeros(3)
@@ -151,7 +169,7 @@ def push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes):
             found = False
             for j in range(nv):
                 if g[j] < lim:
-                    x0, x1, x2 = _world(j, rest, vm, q, skip, R, c)
+                    x0, x1, x2 = _world(j, rest, vm, q, act, R, c)
                     d, a, b, e = _signed(kinds[o], params[o], x0, x1, x2)
                     if not found or d < best:
                         best, bn0, bn1, bn2 = d, a, b, e
@@ -325,11 +343,12 @@ def solve_rigid(r, mass, Iw_inv, V, n, target, mu, shift, iters, lam, jt, lam_n,
 def gaps_at(vertex, obstacle, kinds, params, rest, vm, q, skip, R, c):
     """Gaps (k,) [m] and normals (k, 3) of the deformed vertices ``vertex`` at the pose (R, c), each against
     its own obstacle ``obstacle[i]`` (index into kinds / params)."""
+    act = _active(skip)
     k = vertex.shape[0]
     gap = np.empty(k)
     nrm = np.empty((k, 3))
     for i in range(k):
-        x0, x1, x2 = _world(vertex[i], rest, vm, q, skip, R, c)
+        x0, x1, x2 = _world(vertex[i], rest, vm, q, act, R, c)
         o = obstacle[i]
         d, a, b, e = _signed(kinds[o], params[o], x0, x1, x2)
         gap[i] = d
@@ -340,9 +359,92 @@ def gaps_at(vertex, obstacle, kinds, params, rest, vm, q, skip, R, c):
 @numba.njit(cache=True)
 def lever_arms(vertex, rest, vm, q, skip, R):
     """``R (X_j + Phi_j q)`` (k, 3) [m]: the deformed vertices relative to the centre of mass, world."""
+    act = _active(skip)
     k = vertex.shape[0]
     out = np.empty((k, 3))
     zero = np.zeros(3)
     for i in range(k):
-        out[i, 0], out[i, 1], out[i, 2] = _world(vertex[i], rest, vm, q, skip, R, zero)
+        out[i, 0], out[i, 1], out[i, 2] = _world(vertex[i], rest, vm, q, act, R, zero)
     return out
+
+
+@numba.njit(cache=True)
+def _conjugate(R, M):
+    """``R M R^T`` (3, 3)."""
+    out = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            s = 0.0
+            for c in range(3):
+                s += R[a, c] * (M[c, 0] * R[b, 0] + M[c, 1] * R[b, 1] + M[c, 2] * R[b, 2])
+            out[a, b] = s
+    return out
+
+
+@numba.njit(cache=True)
+def resolve_rigid(vertex, rest, vm, q, skip, R, inertia, inertia_inv, mass, velocity, L, n, gap, mu, accel, dt, iters,
+                  lam_n, jt):
+    """The sustained contact solve of one body with no mode taking part, in one call (see
+    ``contact.resolve_contacts``): lever arms of the deformed contact vertices, end-of-step targets
+    ``0.25 dt n . a - 2 gap / dt`` with the load shift ``a dt / 2``, ``solve_rigid`` from the uniform guess,
+    and the energy guard (impulses scaled back to the largest share that adds no kinetic energy); changes
+    ``velocity`` [m/s] and ``L`` [kg m^2/s] in place and writes the normal (k,) and friction (k, 3) impulses
+    [N s] into ``lam_n`` and ``jt``.
+
+    Args:
+        vertex: (k,) contact vertices; rest, vm, q, skip: the body's rest positions (nv, 3) [m] about the
+            centre of mass, vertex-major modes, modal coordinates and skipped modes; R (3, 3) body -> world.
+        inertia, inertia_inv: (3, 3) body-axes inertia [kg m^2] and its inverse; mass [kg].
+        n: (k, 3) normals; gap: (k,) mid-step gaps [m]; mu: (k,) friction; accel: (3,) load acceleration
+            [m/s^2]; dt: the sub-step [s]; iters: sweeps.
+    """
+    k = vertex.shape[0]
+    Iw_inv = _conjugate(R, inertia_inv)
+    Iw = _conjugate(R, inertia)
+    r = lever_arms(vertex, rest, vm, q, skip, R)
+    shift = np.empty((k, 3))
+    target = np.empty(k)
+    for i in range(k):
+        shift[i, 0], shift[i, 1], shift[i, 2] = 0.5 * dt * accel[0], 0.5 * dt * accel[1], 0.5 * dt * accel[2]
+        an = n[i, 0] * accel[0] + n[i, 1] * accel[1] + n[i, 2] * accel[2]
+        target[i] = 0.25 * dt * an - 2.0 * gap[i] / dt
+    V0 = np.empty(6)
+    V0[0:3] = velocity
+    for a in range(3):
+        V0[3 + a] = Iw_inv[a, 0] * L[0] + Iw_inv[a, 1] * L[1] + Iw_inv[a, 2] * L[2]
+    V = V0.copy()
+    lam = np.zeros((k, 3))
+    lam_n[:] = 0.0
+    jt[:, :] = 0.0
+    solve_rigid(r, mass, Iw_inv, V, n, target, mu, shift, iters, lam, jt, lam_n, True)
+    dv = V[0:3] - V0[0:3]
+    dw = V[3:6] - V0[3:6]
+    Idw = np.empty(3)
+    for a in range(3):
+        Idw[a] = Iw[a, 0] * dw[0] + Iw[a, 1] * dw[1] + Iw[a, 2] * dw[2]
+    work = mass * (dv[0] * velocity[0] + dv[1] * velocity[1] + dv[2] * velocity[2]) + (
+        dw[0] * L[0] + dw[1] * L[1] + dw[2] * L[2])
+    quad = mass * (dv[0] * dv[0] + dv[1] * dv[1] + dv[2] * dv[2]) + (dw[0] * Idw[0] + dw[1] * Idw[1] + dw[2] * Idw[2])
+    if work + 0.5 * quad > 1e-12 * quad:  # would add energy: keep the largest share that does not
+        scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
+        dv *= scale
+        Idw *= scale
+        lam_n *= scale
+        jt *= scale
+    for a in range(3):
+        velocity[a] += dv[a]
+        L[a] += Idw[a]
+
+
+@numba.njit(cache=True)
+def normal_velocities(vertex, rest, vm, q, skip, modal, R, nm, n, v, w, qdot):
+    """``n . (J_j V)`` (k,) [m/s] of the contact vertices at the deformed positions ``X_j + Phi_j q`` (body
+    axes, computed here): ``_contact_kernels.normal_velocities`` without a separate positions pass."""
+    act = _active(skip)
+    k = vertex.shape[0]
+    local = np.empty((k, 3))
+    zero = np.zeros(3)
+    eye = np.eye(3)
+    for i in range(k):
+        local[i, 0], local[i, 1], local[i, 2] = _world(vertex[i], rest, vm, q, act, eye, zero)
+    return _normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot)

@@ -436,8 +436,8 @@ def solve(ba, bb, J, WJ, Jb, WJb, V, off, msz, n, target, mu, shift, iters, lam,
 @numba.njit(cache=True)
 def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
     """``n . (J_j V)`` (k,) [m/s] of one body's contact vertices without storing rows: the same products
-    summed in the same order as ``rows`` + ``contact_velocities`` (bit-identical), so event decisions are
-    the same whichever computes them (r = R local; modal columns over the first ``nm`` modes where
+    summed in the same order as ``rows`` + ``contact_velocities`` (bit-identical but for the sign of a zero:
+    modes with ``qdot`` exactly 0 are skipped), so event decisions are the same whichever computes them (r = R local; modal columns over the first ``nm`` modes where
     ``modal``)."""
     k = vertex.shape[0]
     out = np.empty(k)
@@ -467,6 +467,8 @@ def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
             u1 += jr[1, 3 + c] * w[c]
             u2 += jr[2, 3 + c] * w[c]
         for mm in range(nm):
+            if qdot[mm] == 0.0:  # adds an exact zero (a mode at rest: most of them for a body lying still)
+                continue
             if modal[i]:
                 p0 = float(vm[j, mm, 0])
                 p1 = float(vm[j, mm, 1])
