@@ -4,9 +4,11 @@ For every example scene (or the scene files given), the scene runs with all its 
 effect kind in turn (every ``[[effects]]`` entry of that kind removed; a gust event goes with the wind it adds
 to), and finally with all effects again: the two all-effects runs bracket the others, and their difference is
 the noise of the measurement. Each case runs in a fresh child process (its own imports, JIT caches loaded the
-same way): the world is built as ``modalfem run`` builds it (modal modes from the model cache), a few warm-up
-steps run on a copy of the start state, then ``steps`` steps run from t = 0 with the scene's strikes applied
-as ``modalfem run`` applies them, outputs off (no recorder, no per-frame checks: only ``World.step``).
+same way): the world is built as ``modalfem run`` builds it (modal modes from the model cache), then ``steps``
+steps run from t = 0 with the scene's strikes applied as ``modalfem run`` applies them, outputs off (no
+recorder, no per-frame checks: only ``World.step``), ``repeats`` times from copies of the start state; the
+fastest repetition counts (the first one compiles or loads the kernels of every code path the scene reaches,
+e.g. contact kernels first called at the first impact, which warm-up steps before it would miss).
 
 Reported per case: steps/s, ms per step, the step plan's stages (with the effects each evaluates) and which
 stages disappeared without the effect (a stage whose only user was that effect is not compiled into the plan
@@ -49,12 +51,14 @@ def _ablated(scene, drop: str | None):
     return Scene.model_validate(d)
 
 
-def run_case(path, *, drop: str | None, steps: int, warmup: int) -> dict:
-    """Build scene file ``path`` without effect kind ``drop`` and time ``steps`` world steps (this process).
+def run_case(path, *, drop: str | None, steps: int, repeats: int) -> dict:
+    """Build scene file ``path`` without effect kind ``drop`` and time ``steps`` world steps (this process),
+    ``repeats`` times from copies of the start state.
 
     Returns:
-        dict: ``steps``, ``wall`` [s], ``stages`` (stage name -> total [s]), ``plan`` (stage strings),
-        ``stage_names``, ``effects`` (kinds left), ``build`` [s], ``simulated`` [s].
+        dict: ``steps``, ``wall`` [s] (fastest repetition), ``walls`` [s] (all), ``stages`` (stage name -> total
+        [s], of the fastest), ``plan`` (stage strings), ``stage_names``, ``effects`` (kinds left), ``build`` [s],
+        ``simulated`` [s].
     """
     from modalfem.scene.build import build_scene
     from modalfem.scene.load import load_scene
@@ -67,25 +71,25 @@ def run_case(path, *, drop: str | None, steps: int, warmup: int) -> dict:
     t_build = time.perf_counter() - t0
     world, dt = built.world, built.dt
     control = world.control()
-    warm = built.state.copy()
-    for _ in range(warmup):  # JIT caches, first-call allocations; on a copy, so the timed run starts at t = 0
-        world.step(warm, warm, None, dt)
     steps = min(steps, built.steps)
-    state, strikes = built.state, list(built.strikes)
-    stages: dict = {}
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        control.clear()
-        while strikes and strikes[0][0] < state.time + dt * (1 - 1e-9):
-            _, body, vertex, J = strikes.pop(0)
-            control.add_impulse(body, vertex, J)
-        report = world.step(state, state, control, dt)
-        for k, v in report.seconds.items():
-            stages[k] = stages.get(k, 0.0) + v
-    wall = time.perf_counter() - t0
-    return {"steps": steps, "wall": wall, "stages": stages, "plan": [_stage_text(s) for s in world.plan],
-            "stage_names": [s.name for s in world.plan], "effects": sorted({e.kind for e in scene.effects}),
-            "build": t_build, "simulated": state.time}
+    runs = []
+    for _ in range(max(1, repeats)):
+        state, strikes = built.state.copy(), list(built.strikes)
+        stages: dict = {}
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            control.clear()
+            while strikes and strikes[0][0] < state.time + dt * (1 - 1e-9):
+                _, body, vertex, J = strikes.pop(0)
+                control.add_impulse(body, vertex, J)
+            report = world.step(state, state, control, dt)
+            for k, v in report.seconds.items():
+                stages[k] = stages.get(k, 0.0) + v
+        runs.append((time.perf_counter() - t0, stages, state.time))
+    wall, stages, simulated = min(runs, key=lambda r: r[0])
+    return {"steps": steps, "wall": wall, "walls": [r[0] for r in runs], "stages": stages,
+            "plan": [_stage_text(s) for s in world.plan], "stage_names": [s.name for s in world.plan],
+            "effects": sorted({e.kind for e in scene.effects}), "build": t_build, "simulated": simulated}
 
 
 def _stage_text(stage) -> str:
@@ -94,14 +98,14 @@ def _stage_text(stage) -> str:
 
 def _child(argv: list[str]) -> int:
     spec = json.loads(argv[0])
-    out = run_case(spec["path"], drop=spec["drop"], steps=spec["steps"], warmup=spec["warmup"])
+    out = run_case(spec["path"], drop=spec["drop"], steps=spec["steps"], repeats=spec["repeats"])
     print(json.dumps(out))
     return 0
 
 
 # ---------------------------------------------------------------------------------------------- parent side
-def _in_child(path: Path, drop: str | None, steps: int, warmup: int, timeout: float) -> dict:
-    spec = json.dumps({"path": str(path), "drop": drop, "steps": steps, "warmup": warmup})
+def _in_child(path: Path, drop: str | None, steps: int, repeats: int, timeout: float) -> dict:
+    spec = json.dumps({"path": str(path), "drop": drop, "steps": steps, "repeats": repeats})
     t0 = time.perf_counter()
     try:
         r = subprocess.run([sys.executable, "-m", "modalfem.bench.scene_bench", "--child", spec],
@@ -128,7 +132,7 @@ def scene_effects(path) -> list[str]:
     return kinds
 
 
-def measure(paths, *, steps: int, warmup: int, timeout: float = 1800.0) -> list[dict]:
+def measure(paths, *, steps: int, repeats: int, timeout: float = 1800.0) -> list[dict]:
     """Run the ablation of every scene file in ``paths``; one dict per scene (see ``render``)."""
     out = []
     for path in map(Path, paths):
@@ -137,13 +141,14 @@ def measure(paths, *, steps: int, warmup: int, timeout: float = 1800.0) -> list[
         results = []
         for i, (label, drop) in enumerate(cases):
             _log(f"[bench scene] {path.stem}: {label} ({i + 1}/{len(cases)}) ...")
-            r = _in_child(path, drop, steps, warmup, timeout)
+            r = _in_child(path, drop, steps, repeats, timeout)
             r.update(case=label, drop=drop)
             if "error" in r:
                 _log(f"[bench scene] {path.stem}: {label}: ERROR {r['error']}")
             else:
+                reps = ", ".join(f"{1e3 * w / r['steps']:.3f}" for w in r["walls"])
                 _log(f"[bench scene] {path.stem}: {label}: {r['steps'] / r['wall']:,.1f} steps/s, "
-                     f"{1e3 * r['wall'] / r['steps']:.3f} ms/step")
+                     f"{1e3 * r['wall'] / r['steps']:.3f} ms/step (repetitions: {reps} ms/step)")
             results.append(r)
         out.append({"scene": path.stem, "file": str(path), "effects": kinds, "cases": results})
     return out
@@ -168,8 +173,9 @@ def summarise(scene: dict) -> dict:
         ms = _ms(r)
         cost = None if ms is None or base is None else base - ms
         gone = [s for s in full["stage_names"] if s not in r.get("stage_names", [])] if full and ms is not None else []
+        own = sum(1e3 * full["stages"].get(s, 0.0) / full["steps"] for s in gone) if gone else None
         rows.append({"effect": r["drop"], "ms": ms, "cost": cost, "pct": None if cost is None else 100 * cost / base,
-                     "gone": gone})
+                     "gone": gone, "own": own})
     return {"base": base, "noise": noise, "rows": rows, "full": full}
 
 
@@ -180,11 +186,16 @@ def render(scenes: list[dict], *, command: str, date: str, machine: str, load: t
              f"{threads}).", "",
              "Each scene with all its effects, then without each effect kind in turn (a gust goes with its wind), "
              "then with all effects again; every case in a fresh process, the world built as `modalfem run` builds "
-             "it, warm-up steps on a copy of the start state, then the same steps from t = 0 with the scene's "
-             "strikes, outputs off (only `World.step` is timed). Cost of an effect = ms/step with all effects "
+             "it, then the same steps from t = 0 with the scene's strikes, outputs off (only `World.step` is timed), "
+             "repeated from copies of the start state: the fastest repetition counts (the first compiles or loads "
+             "the kernels of every code path the scene reaches). Removing an effect changes the motion too (without "
+             "gravity nothing lands, so no contacts are solved): a cost is what the scene spends because of the "
+             "effect, its own stage and its consequences in the others. Cost of an effect = ms/step with all effects "
              "(mean of the first and last run) - ms/step without it; the two all-effects runs differ by the "
              "noise shown, so a cost within it is not resolved. 'stages gone' lists the plan's stages that were "
-             "not compiled without the effect (it was their only user): an absent effect costs no stage call.", ""]
+             "not compiled without the effect (it was their only user): an absent effect costs no stage call; "
+             "'in them' is what those stages took per step with all effects (first run), so the rest of the cost "
+             "is spent inside the stages the effect shares.", ""]
     for sc in scenes:
         s = summarise(sc)
         cases = sc["cases"]
@@ -202,22 +213,23 @@ def render(scenes: list[dict], *, command: str, date: str, machine: str, load: t
             lines.append(f"Plan with all effects: {'; '.join(s['full']['plan'])}. Stage times (first run, per "
                          f"step): {per}.")
         lines.append("")
-        hdr = ["case", "steps/s", "ms/step", "stages (effects each evaluates)", "stages gone", "cost ms/step",
-               "cost % of step"]
+        hdr = ["case", "steps/s", "ms/step", "stages (effects each evaluates)", "stages gone", "in them ms/step",
+               "cost ms/step", "cost % of step"]
         lines.append("| " + " | ".join(hdr) + " |")
         lines.append("|" + "|".join("---" for _ in hdr) + "|")
         costs = {row["effect"]: row for row in s["rows"]}
         for r in cases:
             if "error" in r:
-                lines.append(f"| {r['case']} | error: {r['error']} | | | | | |")
+                lines.append(f"| {r['case']} | error: {r['error']} | | | | | | |")
                 continue
             ms = _ms(r)
             row = costs.get(r["drop"]) if r["drop"] else None
             cost = "" if row is None or row["cost"] is None else f"{row['cost']:+.3f}"
             pct = "" if row is None or row["pct"] is None else f"{row['pct']:+.1f} %"
             gone = "" if row is None else (", ".join(row["gone"]) or "none")
+            own = "" if row is None or row["own"] is None else f"{row['own']:.3f}"
             lines.append(f"| {r['case']} | {r['steps'] / r['wall']:,.1f} | {ms:.3f} | {'; '.join(r['plan'])} | "
-                         f"{gone} | {cost} | {pct} |")
+                         f"{gone} | {own} | {cost} | {pct} |")
         lines.append("")
     return "\n".join(lines).rstrip("\n") + "\n"
 
@@ -228,7 +240,7 @@ def _threads() -> str:
 
 
 def command(argv: list[str]) -> int:
-    """``modalfem bench scene [SCENE ...] [--out BENCHMARKS.md] [--steps N] [--warmup N] [--quick]``."""
+    """``modalfem bench scene [SCENE ...] [--out BENCHMARKS.md] [--steps N] [--repeats N] [--quick]``."""
     if argv[:1] == ["--child"]:
         return _child(argv[1:])
     ap = argparse.ArgumentParser(prog="modalfem bench scene",
@@ -238,16 +250,16 @@ def command(argv: list[str]) -> int:
                                                                "example scene)")
     ap.add_argument("--out", default="BENCHMARKS.md", help="markdown file whose scene section is replaced")
     ap.add_argument("--steps", type=int, default=1000, help="steps per case (at most the scene's own; 1000)")
-    ap.add_argument("--warmup", type=int, default=10, help="untimed warm-up steps on a copy of the start (10)")
-    ap.add_argument("--quick", action="store_true", help="5 steps, 2 warm-up steps (smoke test)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed repetitions per case, the fastest counts (3)")
+    ap.add_argument("--quick", action="store_true", help="5 steps, 2 repetitions (smoke test)")
     ap.add_argument("--no-write", action="store_true", help="print the section only, do not touch --out")
     a = ap.parse_args(argv)
     from modalfem.bench.cli import _machine, update_section
     from modalfem.scene.run import examples, find_scene
 
-    steps, warmup = (5, 2) if a.quick else (a.steps, a.warmup)
-    if steps < 1 or warmup < 0:
-        print("modalfem: error: --steps must be >= 1 and --warmup >= 0", file=sys.stderr)
+    steps, repeats = (5, 2) if a.quick else (a.steps, a.repeats)
+    if steps < 1 or repeats < 1:
+        print("modalfem: error: --steps and --repeats must be >= 1", file=sys.stderr)
         return 2
     try:
         paths = [find_scene(s) for s in a.scenes] if a.scenes else [p for p, _ in examples().values()]
@@ -255,7 +267,7 @@ def command(argv: list[str]) -> int:
         print(f"modalfem: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
     load0 = os.getloadavg()[0]
-    scenes = measure(paths, steps=steps, warmup=warmup)
+    scenes = measure(paths, steps=steps, repeats=repeats)
     cmd = "python -m modalfem bench scene" + ("" if not argv else " " + shlex.join(argv))
     date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     section = render(scenes, command=cmd, date=date, machine=_machine(), load=(load0, os.getloadavg()[0]),

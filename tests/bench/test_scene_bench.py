@@ -72,8 +72,9 @@ def test_cost_is_the_difference_to_the_mean_of_the_bracketing_full_runs():
     assert rows["gravity"]["gone"] == []
     text = sb.render([scene], command="c", date="d", machine="m", load=(0.5, 0.6), threads="t")
     assert text.startswith(sb.SECTION + "\n")
-    assert "| without sound | 833.3 | 1.200 | modal step | sound | +0.900 | +42.9 % |" in text
-    assert "| without gravity | 666.7 | 1.500 | modal step; sound | none | +0.600 | +28.6 % |" in text
+    assert rows["sound"]["own"] == pytest.approx(1e3 * 1e-4 / 100) and rows["gravity"]["own"] is None
+    assert "| without sound | 833.3 | 1.200 | modal step | sound | 0.001 | +0.900 | +42.9 % |" in text
+    assert "| without gravity | 666.7 | 1.500 | modal step; sound | none |  | +0.600 | +28.6 % |" in text
     assert "noise 0.200 ms/step (9.5 %)" in text
 
 
@@ -107,7 +108,7 @@ def test_quick_run_has_a_row_per_effect_and_the_stages_each_effect_alone_needs(t
     assert names == [sb.ALL, "without gravity", "without contact", "without self-collision", "without damping",
                      "without wind", sb.ALL]
     cells = {r.split("|")[1].strip(): [c.strip() for c in r.split("|")[2:-1]] for r in rows[1:-1]}
-    for name, (rate, ms, plan, gone, cost, pct) in cells.items():
+    for name, (rate, ms, plan, gone, own, cost, pct) in cells.items():
         assert float(rate.replace(",", "")) > 0 and float(ms) > 0, name
         assert cost and pct.endswith("%"), name
     # the world's plan: a tet body's self-collision stage exists only for self-collision; the deformable
