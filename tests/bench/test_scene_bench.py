@@ -119,3 +119,14 @@ def test_quick_run_has_a_row_per_effect_and_the_stages_each_effect_alone_needs(t
     assert cells["without gravity"][3] == "none" and "gravity" not in cells["without gravity"][2]
     assert cells["without damping"][3] == "none"
     assert "damping" not in cells["without damping"][2] and "damping" in rows[0]
+
+
+def test_registered_and_a_bad_scene_is_one_line(tmp_path, capsys):
+    from modalfem.bench import cli as bench_cli
+
+    assert "scene" in bench_cli.available()
+    out = tmp_path / "B.md"
+    assert bench_cli.main(["scene", "bell-dorp", "--quick", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("modalfem: error: ") and "did you mean 'bell-drop'" in err[0]
+    assert not out.exists()
