@@ -1,9 +1,10 @@
 """``modalfem bench ...``: benchmark commands that write sections of ``BENCHMARKS.md``.
 
-``modalfem bench modes [--out BENCHMARKS.md] [--max-dofs N] [--peer-timeout S] [--quick]`` runs the
-clamped-cantilever ladder (``modalfem.bench.modes_bench``) for ours and the two peers, each case in a
-fresh subprocess, prints progress on stderr and the markdown section on stdout, and replaces the
-section ``## Modes: cantilever ladder`` of ``--out`` atomically (other sections are kept).
+``modalfem bench modes [--out BENCHMARKS.md] [--max-dofs N] [--peer-timeout S] [--repeat N] [--quick]``
+runs the clamped-cantilever ladder (``modalfem.bench.modes_bench``) for ours and the two peers, each case
+in a fresh subprocess (small rungs ``--repeat`` times, interleaved, the median run shown), prints progress
+on stderr and the markdown section on stdout, and replaces the section ``## Modes: cantilever ladder``
+of ``--out`` atomically (other sections are kept).
 """
 
 from __future__ import annotations
@@ -118,7 +119,7 @@ def _pct(f, ref) -> str:
 
 
 def render(results: dict, rungs, versions: dict, *, command: str, date: str, machine: str,
-           peer_timeout: float, f_timo: float, f_eb: float) -> str:
+           peer_timeout: float, f_timo: float, f_eb: float, repeat_note: str = "") -> str:
     """The markdown section (starts with ``SECTION``)."""
     p2 = [r for r in rungs if r.degree == 2]
     ref_pts, source = [], None
@@ -157,9 +158,10 @@ def render(results: dict, rungs, versions: dict, *, command: str, date: str, mac
              "from 3D elasticity by a few tenths of a percent, so that column floors at that model error. "
              f"'err vs 3D ref' uses {ref_note}. Ours meshes with `modalfem.mesh.box`, the peers with their own "
              "generators (dolfinx `create_box`, scikit-fem `MeshTet.init_tensor`): same hexahedra and DOF "
-             "counts, but a different 6-tetrahedra split, so f1 differs a little on coarse meshes.")
+             "counts, but a different 6-tetrahedra split, so f1 differs a little on coarse meshes."
+             + (f" {repeat_note}" if repeat_note else ""))
     L.append("")
-    hdr = ["P", "cells", "DOFs", "case", "setup s", "eigen s", "cert s", "total s", "process s",
+    hdr = ["P", "cells", "DOFs", "case", "setup s", "eigen s", "cert s", "total s", "total range s", "process s",
            "peak RSS MB", "f1 Hz", "err vs Timoshenko", "err vs 3D ref", "certified", "total / ours-fenicsx"]
     L.append("| " + " | ".join(hdr) + " |")
     L.append("|" + "|".join("---" for _ in hdr) + "|")
@@ -181,7 +183,9 @@ def render(results: dict, rungs, versions: dict, *, command: str, date: str, mac
             row = [f"P{r.degree}", r.label, str(res.get("dofs", r.dofs)), f"`{c}`",
                    _time_cell(res, "setup"), _time_cell(res, "eigen"),
                    _s(res.get("certificate")) if "total" in res and mb.CASES[c][1] else "-",
-                   _time_cell(res, "total"), _s(res.get("process")) if "skipped" not in res else "-",
+                   _time_cell(res, "total"),
+                   "{:.2f}-{:.2f}".format(*res["total_range"]) if "total_range" in res else "-",
+                   _s(res.get("process")) if "skipped" not in res else "-",
                    rss_txt, "n/a" if f1 is None else f"{f1:.4f}",
                    _pct(f1, f_timo), _pct(f1, f_ref), ok,
                    "1.00x" if c == "ours-fenicsx" and "total" in res else _ratio(res, ours)]
@@ -313,6 +317,10 @@ def _modes(argv: list[str]) -> int:
                     help="kill one of our cases after S seconds (default max(600, peer timeout))")
     ap.add_argument("--quick", action="store_true", help="tiny ladder (P1 and P2 20x2x2), no JIT warm-up")
     ap.add_argument("--cases", nargs="+", choices=list(mb.CASES), default=list(mb.CASES))
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="runs of every case on rungs up to --repeat-max-dofs, interleaved; the median total is "
+                         "shown (default 3)")
+    ap.add_argument("--repeat-max-dofs", type=int, default=25_000, help="largest rung repeated (default 25000)")
     ap.add_argument("--save-raw", metavar="JSON", help="also save the raw measurements to JSON")
     ap.add_argument("--from-raw", metavar="JSON", help=argparse.SUPPRESS)  # re-render saved measurements
     a = ap.parse_args(argv)
@@ -343,20 +351,24 @@ def _modes(argv: list[str]) -> int:
 
     results: dict = {}
     timed_out_at: dict = {}
+    runs: dict = {}  # (case, rung) -> every run's result, when the rung is repeated
     for r in rungs:
-        for c in a.cases:
+        repeats = max(1, a.repeat) if r.dofs <= a.repeat_max_dofs else 1
+        for rep, c in [(rep, c) for rep in range(repeats) for c in a.cases]:  # repeats interleaved
             is_ours = mb.CASES[c][1]
-            tag = f"[bench modes] P{r.degree} {r.label} ({r.dofs} DOFs) {c}"
+            tag = f"[bench modes] P{r.degree} {r.label} ({r.dofs} DOFs) {c}" + (f" run {rep + 1}" if rep else "")
             if c in mb.NEEDS_FENICSX and not fenicsx:
                 results[(c, r)] = {"skipped": "FEniCSx not installed"}
                 continue
             if (c, r.degree) in timed_out_at:
-                results[(c, r)] = {"skipped": f"timed out at {timed_out_at[(c, r.degree)]}"}
+                if (c, r) not in runs:  # (a repeat keeps the runs it has)
+                    results[(c, r)] = {"skipped": f"timed out at {timed_out_at[(c, r.degree)]}"}
                 _log(f"{tag}: skipped (timed out at a smaller rung)")
                 continue
             _log(f"{tag} ...")
             res = mb.run_case(c, r, timeout=ours_timeout if is_ours else a.peer_timeout)
-            results[(c, r)] = res
+            runs.setdefault((c, r), []).append(res)
+            results[(c, r)] = _median_run(runs[(c, r)])
             if "timeout" in res:
                 timed_out_at[(c, r.degree)] = r.label
                 _log(f"{tag}: > {res['timeout']:.0f} s (timeout, killed)")
@@ -369,7 +381,7 @@ def _modes(argv: list[str]) -> int:
 
     date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     machine = _machine()
-    loads = [res["load_1min"] for res in results.values() if "load_1min" in res]
+    loads = [res["load_1min"] for rs in runs.values() for res in rs if "load_1min" in res]
     if loads:  # 2 cores: a load above ~1 means other work shared them
         machine += f"; 1-minute load average {min(loads):.1f}-{max(loads):.1f} when the cases started"
     if a.save_raw:
@@ -381,9 +393,29 @@ def _modes(argv: list[str]) -> int:
     return _finish(a, command, date, machine, versions, rungs, results, t_start)
 
 
+def _median_run(results: list[dict]) -> dict:
+    """The run with the median total among those that finished (the last run when none did), with
+    ``runs`` (how many) and ``total_range`` (fastest and slowest total) added when there were several."""
+    done = sorted((r for r in results if "total" in r and "error" not in r), key=lambda r: r["total"])
+    if not done:
+        return results[-1]
+    out = dict(done[(len(done) - 1) // 2])
+    if len(results) > 1:
+        out["runs"] = len(results)
+        out["total_range"] = [done[0]["total"], done[-1]["total"]]
+    return out
+
+
 def _finish(a, command, date, machine, versions, rungs, results, t_start) -> int:
+    repeated = [r for r in rungs if any(res.get("runs", 1) > 1 for (c, q), res in results.items() if q == r)]
+    note = ""
+    if repeated:
+        n = max(res.get("runs", 1) for res in results.values())
+        note = (f"Rungs up to {max(q.dofs for q in repeated)} DOFs ran every case {n} times, "
+                "interleaved (ours, peers, ours, ...): the row is the run with the median total; 'total range' "
+                "gives the fastest and slowest total.")
     section = render(results, rungs, versions, command=command, date=date, machine=machine,
-                     peer_timeout=a.peer_timeout,
+                     peer_timeout=a.peer_timeout, repeat_note=note,
                      f_timo=mb.timoshenko_cantilever_hz(), f_eb=mb.euler_bernoulli_cantilever_hz())
     update_section(a.out, section)
     print(section)

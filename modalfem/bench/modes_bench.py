@@ -415,7 +415,7 @@ def run_case(case: str, rung: Rung | None, *, timeout: float, k: int = K_MODES, 
                 tail = [ln for ln in f.read().splitlines() if ln.strip()][-1:] or ["no output"]
             out = {"error": f"child exited {proc.returncode}: {tail[0][:300]}"}
         out["process"] = wall
-        if load is not None:
+        if load is not None and rung is not None:
             out["load_1min"] = load  # 1-minute load average when the case started
         return out
 

@@ -259,7 +259,8 @@ class PardisoLDLT:
         if ordering == "auto":
             ordering = "amd" if A.shape[0] < AMD_BELOW else "metis-parallel"
         if ordering not in _ORDERINGS:
-            raise SolverError(f"unknown PARDISO ordering {ordering!r}; use one of auto, {', '.join(sorted(_ORDERINGS))}")
+            raise SolverError(f"unknown PARDISO ordering {ordering!r}; use one of auto, "
+                              f"{', '.join(sorted(_ORDERINGS))}")
         if pivoting not in _PIVOTING:
             raise SolverError(f"unknown PARDISO pivoting {pivoting!r}; use one of {sorted(_PIVOTING)}")
         #: requested pivoting, and the one the last numeric factorisation used

@@ -123,6 +123,8 @@ def test_bench_modes_quick_writes_a_wellformed_section(tmp_path):
             assert abs(err_t) < 2.0, row
         if case.startswith("ours"):
             assert _num(row["cert s"]) >= 0 and row["certified"] == "yes", row
+        lo, hi = (_num(x) for x in row["total range s"].split("-"))  # the quick rungs run 3 times
+        assert lo <= _num(row["total s"]) <= hi, row
     assert {c for c, _ in seen} == cases
     assert len({r for _, r in seen}) == len(mb.ladder(quick=True))
 
