@@ -21,7 +21,7 @@ from modalfem._threads import apply as _apply_threads
 from modalfem.collision._contour_kernels import contour_ok
 from modalfem._threads import MAX_CHUNKS, chunk_bounds, chunk_count
 
-__all__ = ["query", "refit", "refit_triangles", "traverse"]
+__all__ = ["query", "refit", "refit_boxes", "refit_triangles", "traverse"]
 
 _HALF_PI = 0.5 * math.pi - 1e-9
 
@@ -491,3 +491,37 @@ def refit_triangles(ids: np.ndarray, tri: np.ndarray, vlo: np.ndarray, vhi: np.n
             for c in range(3):
                 lo[node, c] = min(lo[2 * node, c], lo[2 * node + 1, c])
                 hi[node, c] = max(hi[2 * node, c], hi[2 * node + 1, c])
+
+
+@numba.njit(cache=True)
+def refit_boxes(tri: np.ndarray, x: np.ndarray, margin: float, P: int, slot_tri: np.ndarray):
+    """Static boxes of a tree at positions ``x`` (n, 3) [m] grown by ``margin``, without normal cones (for
+    :func:`query`, which does not cull): one serial pass over the triangles and the nodes.
+
+    Returns:
+        ``(tri_lo, tri_hi, lo, hi, slo, shi)`` as :func:`refit`.
+    """
+    m, L = len(tri), slot_tri.shape[1]
+    tri_lo, tri_hi = np.empty((m, 3)), np.empty((m, 3))
+    for f in range(m):
+        i, j, k = tri[f, 0], tri[f, 1], tri[f, 2]
+        for c in range(3):
+            tri_lo[f, c] = min(x[i, c], x[j, c], x[k, c]) - margin
+            tri_hi[f, c] = max(x[i, c], x[j, c], x[k, c]) + margin
+    lo, hi = np.full((2 * P, 3), np.inf), np.full((2 * P, 3), -np.inf)
+    slo, shi = np.full((3, P, L), np.inf), np.full((3, P, L), -np.inf)
+    for leaf in range(P):
+        node = P + leaf
+        for r in range(L):
+            f = slot_tri[leaf, r]
+            if f < 0:
+                continue
+            for c in range(3):
+                slo[c, leaf, r], shi[c, leaf, r] = tri_lo[f, c], tri_hi[f, c]
+                lo[node, c] = min(lo[node, c], tri_lo[f, c])
+                hi[node, c] = max(hi[node, c], tri_hi[f, c])
+    for a in range(P - 1, 0, -1):
+        for c in range(3):
+            lo[a, c] = min(lo[2 * a, c], lo[2 * a + 1, c])
+            hi[a, c] = max(hi[2 * a, c], hi[2 * a + 1, c])
+    return tri_lo, tri_hi, lo, hi, slo, shi

@@ -173,6 +173,18 @@ class BroadPhaseBVH:
          self.cone_angle) = _bvh_kernels.refit(self.triangles, x0, x1, float(margin), sm, self.P, self.slot_tri,
                                                self.nonempty)
 
+    def refit_boxes(self, x: np.ndarray, *, margin: float = 0.0) -> None:
+        """Static boxes at positions x (n, 3) [m] grown by ``margin`` [m], without normal cones: enough for
+        :meth:`query` (which does not cull), several times cheaper than :meth:`refit` on small trees. The cones
+        are set to "no bound", so a traversal after it culls nothing (and misses nothing).
+        """
+        x = np.ascontiguousarray(x, dtype=float)
+        self._x0 = self._x1 = x
+        (self.tri_lo, self.tri_hi, self.lo, self.hi, self._slo, self._shi) = _bvh_kernels.refit_boxes(
+            self.triangles, x, float(margin), self.P, self.slot_tri)
+        self.cone_axis = np.zeros((2 * self.P, 3))
+        self.cone_angle = np.full(2 * self.P, np.pi)
+
     def refit_triangles(self, ids: np.ndarray, vlo: np.ndarray, vhi: np.ndarray) -> None:
         """Set the boxes of triangles ``ids`` to the union of their vertices' boxes and refit their
         ancestors only (normal cones are left as they are: :meth:`query` does not cull). Call

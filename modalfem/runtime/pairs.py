@@ -231,7 +231,7 @@ class ContactGroup:
                 if np.all(box[a][0] - r <= box[b][1]) and np.all(box[b][0] - r <= box[a][1]):
                     close.append((a, b))
             for i in sorted({i for p in close for i in p}):
-                self._tree(i).refit(world[i], margin=0.0)
+                self._tree(i).refit_boxes(world[i])
             for a, b in close:
                 for va, vb in ((a, b), (b, a)):
                     part = self._pair_contacts(va, vb, world, box, reach)
@@ -406,7 +406,7 @@ class ContactGroup:
                 world[i] = K.world_positions(local_positions(bodies[i], st.q, np.arange(bodies[i].vertex_count)),
                                              st.rotation(), st.position)
                 box[i] = (world[i].min(axis=0), world[i].max(axis=0))
-                self._tree(i).refit(world[i], margin=0.0)
+                self._tree(i).refit_boxes(world[i])
             reach = np.full(len(bodies), 1.5 * self.margin)  # query half-size 2 margin: deeper vertices not judged
             again = []
             for a, b in todo:

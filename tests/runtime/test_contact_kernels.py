@@ -173,3 +173,24 @@ def test_contacts_found_at_the_state_are_reused_and_give_the_same_step(small_mod
     (a, calls_reuse), (b, calls_search) = runs[True], runs[False]
     assert all(np.array_equal(x, y) for x, y in zip(a[:-1], b[:-1]))
     assert calls_reuse < calls_search  # (collide itself calls find_contacts through the module too)
+
+
+def test_box_only_refit_gives_the_boxes_and_query_of_the_full_refit():
+    """BroadPhaseBVH.refit_boxes (the pairs' refit: no normal cones) against refit on the same positions."""
+    from modalfem.collision.bvh import BroadPhaseBVH
+    from modalfem.mesh import box
+    from modalfem.mesh.surface import boundary_surface
+
+    surf = boundary_surface(box(size=(0.1, 0.05, 0.02), cells=(6, 3, 2)))
+    tri, x0 = surf.triangles, surf.vertices
+    rng = np.random.default_rng(5)
+    x = x0 + 1e-3 * rng.normal(size=x0.shape)
+    a, b = BroadPhaseBVH(tri, x0, leaf_size=4), BroadPhaseBVH(tri, x0, leaf_size=4)
+    a.refit(x, margin=1e-4)
+    b.refit_boxes(x, margin=1e-4)
+    for name in ("tri_lo", "tri_hi", "lo", "hi", "_slo", "_shi"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    p = x[rng.integers(0, len(x), 50)]
+    qa, qb = a.query(p - 2e-3, p + 2e-3), b.query(p - 2e-3, p + 2e-3)
+    assert np.array_equal(qa[0], qb[0]) and np.array_equal(qa[1], qb[1]) and len(qa[0]) > 50
+    assert np.all(b.cone_angle == np.pi)  # no culling after a box-only refit
