@@ -213,14 +213,30 @@ def _plan(effects) -> _Plan:
     return p
 
 
+_MODAL: list = [None, b"", None, 0.0]  # body, q bytes, skip, bound: for the last q seen (a resting body's is fixed)
+
+
+def _modal_terms(body, q: np.ndarray):
+    """``(_skip, deformation_bound)`` of ``q``, kept for the last (body, q) seen."""
+    key = q.tobytes()
+    m = _MODAL
+    if m[0] is not body or m[1] != key:
+        scale = body._row_scale[:-1]
+        a = np.abs(q)
+        m[2] = a * scale < NEGLIGIBLE
+        m[3] = float(np.sqrt(3.0) * (a @ scale)) * (1.0 + 1e-6) + 1e-12 * (1.0 + body.radius)
+        m[0], m[1] = body, key
+    return m[2], m[3]
+
+
 def _skip(body, q: np.ndarray) -> np.ndarray:
-    """Modes whose contribution is negligible (as in ``ModalBody.positions``)."""
-    return np.abs(q) * body._row_scale[:-1] < NEGLIGIBLE
+    """Modes whose contribution is negligible (as in ``ModalBody.positions``); do not modify the result."""
+    return _modal_terms(body, q)[0]
 
 
 def deformation_bound(body, q: np.ndarray) -> float:
     """An upper bound [m] of every vertex's deformation ``|Phi_j q|`` (plus rounding slack)."""
-    return float(np.sqrt(3.0) * (np.abs(q) @ body._row_scale[:-1])) * (1.0 + 1e-6) + 1e-12 * (1.0 + body.radius)
+    return _modal_terms(body, q)[1]
 
 
 _VERTEX_MODES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -689,7 +705,9 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     gain = -body.mass * float(np.asarray(accel, dtype=np.float64) @ total)  # [J]
     if gain <= 0.0:
         return
-    kinetic = body.kinetic_energy_rigid(state) + 0.5 * float(state.qdot @ state.qdot)
+    Lb = _rotation(state).T @ state.angular_momentum  # kinetic energy (body.kinetic_energy_rigid with the cached R)
+    kinetic = 0.5 * (body.mass * float(state.velocity @ state.velocity) + float(Lb @ (body.inertia_inv @ Lb))
+                     + float(state.qdot @ state.qdot))
     scale = float(np.sqrt(max(0.0, 1.0 - gain / kinetic))) if kinetic > 0.0 else 0.0
     state.velocity *= scale
     state.angular_momentum *= scale
