@@ -133,6 +133,7 @@ def measure_resting(path: str, *, dt: float = 1e-3, settle: int = 300) -> dict:
     ground), after ``settle`` steps of settling; seconds per step, contact count."""
     import modalfem.runtime as rt
 
+    load0 = os.getloadavg()[0]
     body = rt.load(path)
     free = rt.ModalSolver(body)
     fs = free.state(angular_velocity=(1.0, 2.0, 3.0))
@@ -148,7 +149,7 @@ def measure_resting(path: str, *, dt: float = 1e-3, settle: int = 300) -> dict:
     top = _profile(lambda: solver.advance(st, dt), 50)
     gap = body.positions(st, precise=True)[:, 2].min()
     return {"nv": body.vertex_count, "r": body.mode_count, "contacts": int(contacts.count), "free": t_free,
-            "contact": t_contact, "min_gap": float(gap), "profile": top}
+            "contact": t_contact, "min_gap": float(gap), "profile": top, "load": [load0, os.getloadavg()[0]]}
 
 
 def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEPS, dt: float = PILE_DT) -> dict:
@@ -159,6 +160,7 @@ def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEP
     from modalfem.runtime.pairs import ContactGroup
     from modalfem.runtime.rotation import quat_from_axis_angle
 
+    load0 = os.getloadavg()[0]
     kinds = ["small_bar", "fork", "bell"]
     bodies = {k: rt.load(paths[k], dtype=np.float64) for k in kinds}
     rng = np.random.default_rng(1)
@@ -197,4 +199,5 @@ def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEP
     heights = [float(st.position[2]) for st in states]
     return {"count": count, "steps": steps, "dt": dt, "step": elapsed, "free": t_free, "contacts": contacts,
             "pair_contacts": pair_contacts, "separated": separated, "max_height": max(heights),
-            "vertices": int(sum(s.body.vertex_count for s in solvers)), "profile": top}
+            "vertices": int(sum(s.body.vertex_count for s in solvers)), "profile": top,
+            "load": [load0, os.getloadavg()[0]]}

@@ -332,7 +332,11 @@ def render_contact(resting: list[dict], pile: dict, *, command: str, date: str, 
          f"- Machine: {machine}; load average when measured: {load} (other jobs shared the 2 cores: absolute "
          "times are inflated, the ratios less so)", "",
          "| case | surface vertices | modes | contacts | free step us | contact step us | contact / free | "
-         "steps/s | goal steps/s | verdict |", "|---|---|---|---|---|---|---|---|---|---|"]
+         "steps/s | goal steps/s | verdict | load before / after |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def load_of(r) -> str:
+        return " / ".join(f"{x:.2f}" for x in r["load"]) if "load" in r else "?"
+
     for name, r in resting:
         if "error" in r:
             L.append(f"| {name} | error: {r['error']} |||||||||")
@@ -341,7 +345,7 @@ def render_contact(resting: list[dict], pile: dict, *, command: str, date: str, 
         goal = GOALS[name]
         L.append(f"| {name} resting on the ground | {r['nv']} | {r['r']} | {r['contacts']} | {1e6 * r['free']:.1f} | "
                  f"{1e6 * r['contact']:.0f} | {r['contact'] / r['free']:.0f} | {sps:.0f} | {goal:.0f} | "
-                 f"**{'met' if sps >= goal else 'NOT met'}** |")
+                 f"**{'met' if sps >= goal else 'NOT met'}** | {load_of(r)} |")
     if "error" in pile:
         L.append(f"| pile | error: {pile['error']} |||||||||")
     elif pile:
@@ -350,7 +354,7 @@ def render_contact(resting: list[dict], pile: dict, *, command: str, date: str, 
                  f"{pile['vertices']} (all bodies) | 8 each | {pile['contacts']} (max; {pile['pair_contacts']} "
                  f"body-body) | {1e6 * pile['free']:.0f} (all bodies) | {1e6 * pile['step']:.0f} | "
                  f"{pile['step'] / pile['free']:.0f} | {sps:.0f} | {GOALS['pile']:.0f} | "
-                 f"**{'met' if sps >= GOALS['pile'] else 'NOT met'}** |")
+                 f"**{'met' if sps >= GOALS['pile'] else 'NOT met'}** | {load_of(pile)} |")
     L += ["", ("Where the time of a step goes (cProfile, own time per step, largest first; resting cases over 50 "
                "steps, the pile over 20 steps at its end):"), ""]
     for name, r in resting + [("pile", pile)]:
