@@ -66,8 +66,10 @@ def _tet(cells, steps: int, threads: int, timeout: float) -> dict:
 
 
 #: kernels whose work runs in parallel chunks although they are not ``parallel=True`` themselves (they call
-#: the parallel passes; the cloth ``pcg``'s coarse-level solve, O(192^2) per iteration, is serial)
-_PARALLEL_CALLERS = {("modalfem.cloth._kernels", "pcg"), ("modalfem.tet._kernels", "pcg_twolevel")}
+#: the parallel passes; the cloth ``pcg``'s coarse-level solve, O(192^2) per iteration, and
+#: ``select_indexed``'s marking through the vertex index are serial)
+_PARALLEL_CALLERS = {("modalfem.cloth._kernels", "pcg"), ("modalfem.tet._kernels", "pcg_twolevel"),
+                     ("modalfem.collision._pair_kernels", "select_indexed")}
 
 
 def _is_parallel(filename: str, name: str) -> bool:

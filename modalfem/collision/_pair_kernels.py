@@ -47,15 +47,14 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     flo, fhi = np.empty((F, 3)), np.empty((F, 3))
     elo, ehi = np.empty((E, 3)), np.empty((E, 3))
     fdone = np.zeros(F, dtype=np.bool_)
-    used = np.empty(2 * k, dtype=np.int64)
-    nu = 0
-    for p in range(k):
-        for side in range(2):
-            f = tp[p, side]
-            if not fdone[f]:
-                fdone[f] = True
-                used[nu] = f
-                nu += 1
+    chunks = chunk_count(k, PAIR_CHUNK)
+    for ch in numba.prange(chunks):  # the triangles in tp (every writer stores the same True)
+        start, stop = chunk_bounds(k, chunks, ch)
+        for p in range(start, stop):
+            fdone[tp[p, 0]] = True
+            fdone[tp[p, 1]] = True
+    used = np.flatnonzero(fdone)
+    nu = len(used)
     bchunks = chunk_count(nu, PAIR_CHUNK)
     for ch in numba.prange(bchunks):
         start, stop = chunk_bounds(nu, bchunks, ch)
@@ -70,7 +69,6 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
                     for c in range(3):
                         elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
                         ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
-    chunks = chunk_count(k, PAIR_CHUNK)
     vbufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
     ebufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
     for ch in numba.prange(chunks):
@@ -80,17 +78,20 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     return _concat4(vbufs), _concat4(ebufs)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _concat4(bufs):
-    """The (k_i, 4) arrays of ``bufs`` one after the other."""
-    total = 0
-    for b in bufs:
-        total += len(b)
-    out = np.empty((total, 4), dtype=np.int64)
-    o = 0
-    for b in bufs:
-        out[o:o + len(b)] = b
-        o += len(b)
+    """The (k_i, 4) arrays of ``bufs`` one after the other (copied in parallel, each to its offset)."""
+    nb = len(bufs)
+    offsets = np.zeros(nb + 1, dtype=np.int64)
+    for i in range(nb):
+        offsets[i + 1] = offsets[i] + len(bufs[i])
+    out = np.empty((offsets[nb], 4), dtype=np.int64)
+    for i in numba.prange(nb):
+        b = bufs[i]
+        o = offsets[i]
+        for r in range(len(b)):
+            for c in range(4):
+                out[o + r, c] = b[r, c]
     return out
 
 
@@ -152,6 +153,38 @@ def drop_pairs(q: np.ndarray, alive: np.ndarray, dirty: np.ndarray) -> None:
             alive[i] = False
 
 
+#: pairs per chunk of the parallel scans of the pair store (selections)
+SCAN_CHUNK = 4096
+
+
+@numba.njit(cache=True, parallel=True)
+def _compact(q: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """The rows of ``q`` (k, 4) where ``keep`` is True, in order: counted per chunk, then copied per chunk
+    at the offsets of the chunks before it (chunks fixed by k: the same rows on any thread count)."""
+    k = len(q)
+    chunks = chunk_count(k, SCAN_CHUNK)
+    counts = np.zeros(chunks + 1, dtype=np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        c = 0
+        for i in range(start, stop):
+            if keep[i]:
+                c += 1
+        counts[ch + 1] = c
+    for ch in range(chunks):
+        counts[ch + 1] += counts[ch]
+    out = np.empty((counts[chunks], 4), dtype=np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        o = counts[ch]
+        for i in range(start, stop):
+            if keep[i]:
+                for c in range(4):
+                    out[o, c] = q[i, c]
+                o += 1
+    return out
+
+
 @numba.njit(cache=True)
 def select_pairs(q: np.ndarray, alive: np.ndarray, only: np.ndarray) -> np.ndarray:
     """The alive pairs of ``q`` (k, 4), only those holding a vertex flagged in ``only`` unless it is empty."""
@@ -202,20 +235,12 @@ def drop_indexed(alive: np.ndarray, ptr: np.ndarray, pid: np.ndarray, verts: np.
 @numba.njit(cache=True)
 def select_indexed(q: np.ndarray, alive: np.ndarray, ptr: np.ndarray, pid: np.ndarray, verts: np.ndarray):
     """:func:`select_pairs` with a filter through a :func:`vertex_index`: the alive pairs of ``q`` holding
-    one of ``verts``, in the block's order."""
+    one of ``verts``, in the block's order (the marks set through the index, the block compacted by
+    :func:`_compact` in parallel chunks)."""
     mark = np.zeros(len(q), dtype=np.bool_)
-    count = 0
     for v in verts:
         for s in range(ptr[v], ptr[v + 1]):
             p = pid[s]
-            if alive[p] and not mark[p]:
+            if alive[p]:
                 mark[p] = True
-                count += 1
-    out = np.empty((count, 4), dtype=np.int64)
-    n = 0
-    for p in range(len(q)):
-        if mark[p]:
-            for c in range(4):
-                out[n, c] = q[p, c]
-            n += 1
-    return out
+    return _compact(q, mark)
