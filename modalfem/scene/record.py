@@ -147,6 +147,13 @@ class Recorder:
         """Frames recorded completely so far."""
         return self._count
 
+    @property
+    def gltf_report(self) -> dict[str, dict]:
+        """Per body of ``scene.glb`` (after ``finish``): ``morph`` (``"modes"`` or ``"principal components"``),
+        ``targets`` and ``max_error_m`` [m], the largest vertex error of the morphs over every frame (tet and cloth
+        bodies, against ``tolerance_m``; above it only when ``MAX_TARGETS`` components were not enough)."""
+        return {} if self._anim is None else dict(self._anim.report)
+
     def ms_per_frame(self) -> dict[str, float]:
         """Wall time per recorded frame [ms] of each writer (``gltf`` and ``sound`` include ``finish``)."""
         n = max(self._count, 1)

@@ -62,7 +62,15 @@ def principal_targets(D: np.ndarray, tolerance: float, max_targets: int = MAX_TA
     flat = D.reshape(F, -1)
     if not np.any(flat):
         return np.zeros((0, n, 3)), np.zeros((F, 0)), 0.0
-    U, S, Vt = np.linalg.svd(flat, full_matrices=False)
+    if F < flat.shape[1] // 4:  # many vertices: the frames' Gram matrix (F x F) instead of a full SVD (~5x faster)
+        lam, U = np.linalg.eigh(flat @ flat.T)
+        lam, U = lam[::-1], U[:, ::-1]
+        S = np.sqrt(np.maximum(lam, 0.0))
+        keep = S > S[0] * 1e-7  # below, the Gram matrix has no digits left for them (and they are far below tol)
+        U, S = U[:, keep], S[keep]
+        Vt = (U.T @ flat) / S[:, None]
+    else:
+        U, S, Vt = np.linalg.svd(flat, full_matrices=False)
     US = U * S
 
     def error(k: int) -> float:
@@ -190,7 +198,7 @@ class GltfAnimation:
                 track(n, "rotation", quat[:, [1, 2, 3, 0]], "VEC4")
                 if len(T):
                     track(n, "weights", W.reshape(-1), "SCALAR")
-                self.report[name] = {"morph": "modes", "targets": len(T), "max_error_m": 0.0}
+                self.report[name] = {"morph": "modes", "targets": len(T)}  # exact (float32 storage)
             else:
                 X = np.array(self.deforming[name][:F], dtype=np.float64)
                 tris = self.triangles[name]

@@ -485,5 +485,8 @@ def test_principal_targets_reproduce_a_low_rank_motion_with_its_rank_and_meet_th
     resid = noisy - (W @ T.reshape(len(T), -1)).reshape(noisy.shape)
     assert err <= 0.01 and np.isclose(np.linalg.norm(resid, axis=2).max(), err)
     assert 2 <= len(T) < 30
+    few = D[:, :4]  # more frames than coordinates: the plain SVD path
+    T, W, err = principal_targets(few, 1e-9)
+    assert len(T) == 2 and np.allclose(W @ T.reshape(2, -1), few.reshape(30, -1), atol=1e-12)
     T, W, err = principal_targets(np.zeros((4, 5, 3)), 1e-3)
     assert T.shape == (0, 5, 3) and W.shape == (4, 0) and err == 0.0
