@@ -402,3 +402,23 @@ def test_reused_matrix_iterations_reach_the_same_positions(model, monkeypatch):
 def test_bad_projection_is_refused(model):
     with pytest.raises(InputError, match="projection"):
         TetSolver(model, projection="sometimes")
+
+
+def test_looser_early_solves_reach_the_same_positions_with_fewer_cg_iterations():
+    """Newton iterations that later ones correct solve to ``cg_rtol_far``; the step still ends within its
+    tolerance of the steps whose every solve uses ``cg_rtol`` (bound as in the projection test)."""
+    mesh = box(size=(0.6, 0.1, 0.1), cells=(12, 2, 2))
+    m = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
+    steps, tol, out = 5, 1e-8, {}
+    for far in (None, 1e-6):
+        solver = TetSolver(m, effects=[fx.Gravity(), fx.Pins(mesh.tag_points("x0"))], tol=tol, cg_rtol=1e-6,
+                           cg_rtol_far=far)
+        s = TetState.at_rest(m)
+        infos = [solver.step(s, s, 1.0 / 30.0) for _ in range(steps)]
+        assert all(i.converged for i in infos)
+        out[far] = (s.x, sum(i.linear_iterations for i in infos))
+    assert TetSolver(m, cg_rtol=1e-6).cg_rtol_far == pytest.approx(3e-5)
+    assert out[None][1] < out[1e-6][1]
+    np.testing.assert_allclose(out[None][0], out[1e-6][0], rtol=0, atol=2 * steps**2 * tol * m.size)
+    with pytest.raises(InputError, match="cg_rtol_far"):
+        TetSolver(m, cg_rtol_far=0.0)
