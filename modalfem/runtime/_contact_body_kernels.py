@@ -24,6 +24,7 @@ import numba
 import numpy as np
 
 from modalfem.runtime._contact_kernels import _rigid_gaps, _signed
+from modalfem.runtime.obstacles import PLANE
 from modalfem.runtime._contact_kernels import normal_velocities as _normal_velocities
 
 __all__ = ["TOLERANCE", "crossings", "find", "gaps_at", "lever_arms", "normal_velocities", "push_shift", "resolve_rigid", "solve_rigid"]
@@ -154,7 +155,7 @@ def push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes):
 
     Per pass and obstacle: the vertices whose rigid position is within ``slack + bound`` [m] get their exact
     positions; if the deepest is closer than ``slack / 2`` (or inside), the body moves along its normal
-    to ``slack`` above. Stops after a pass that moved nothing.
+    to ``slack`` above. Stops after a pass that moved nothing (or after the first with a single plane).
     """
     act = _active(skip)
     nv = rest.shape[0]
@@ -184,8 +185,8 @@ def push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes):
                 total[1] += s1
                 total[2] += s2
                 moved = True
-        if not moved:
-            break
+        if not moved or (kinds.shape[0] == 1 and kinds[0] == PLANE):
+            break  # (one plane: the move lifted every vertex by the same amount, the deepest to slack)
     return total
 
 

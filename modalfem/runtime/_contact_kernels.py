@@ -442,6 +442,12 @@ def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
     k = vertex.shape[0]
     out = np.empty(k)
     jr = np.empty((3, 6))
+    moving = np.empty(nm, dtype=np.int64)  # modes with qdot != 0 (the others add an exact zero)
+    nmv = 0
+    for mm in range(nm):
+        if qdot[mm] != 0.0:
+            moving[nmv] = mm
+            nmv += 1
     for i in range(k):
         x0, x1, x2 = local[i, 0], local[i, 1], local[i, 2]
         r0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2
@@ -466,9 +472,8 @@ def normal_velocities(vertex, local, modal, vm, R, nm, n, v, w, qdot):
             u0 += jr[0, 3 + c] * w[c]
             u1 += jr[1, 3 + c] * w[c]
             u2 += jr[2, 3 + c] * w[c]
-        for mm in range(nm):
-            if qdot[mm] == 0.0:  # adds an exact zero (a mode at rest: most of them for a body lying still)
-                continue
+        for t in range(nmv):
+            mm = moving[t]
             if modal[i]:
                 p0 = float(vm[j, mm, 0])
                 p1 = float(vm[j, mm, 1])
