@@ -267,25 +267,17 @@ class ContactGroup:
         """Vertices of body a near the deformed surface of body b (within ``margin`` + both bodies' travel
         [m]; ``box`` the bodies' world boxes): (ba, vertex, bb, triangle, bary, normal, gap, point) or None.
         The normal points out of b (towards a)."""
-        from modalfem.runtime import _contact_kernels as K
+        from modalfem.runtime import _pair_kernels as PK
 
-        xa = world[a]
-        r = reach[a] + reach[b] - self.margin
-        near = np.flatnonzero(np.all((xa >= box[b][0] - r) & (xa <= box[b][1] + r), axis=1))
-        if not len(near):
+        r = float(reach[a] + reach[b] - self.margin)
+        t = self._tree(b)
+        vertex, tri, bary, nrm, gap, point = PK.pair_contacts(
+            world[a], np.asarray(box[b][0], dtype=np.float64), np.asarray(box[b][1], dtype=np.float64), r, t.P, t.lo,
+            t.hi, t.nonempty, t.slot_tri, t._slo, t._shi, world[b], self.solvers[b].body.triangles, 1e-9)
+        k = len(vertex)
+        if not k:
             return None
-        p = xa[near]
-        qi, tri = self._tree(b).query(p - r, p + r)
-        if not len(qi):
-            return None
-        best, w, gap, nrm = K.closest_triangles(p, qi, tri, world[b], self.solvers[b].body.triangles, 1e-9)
-        # every triangle within r of the vertex was a candidate, so a closest distance <= r is the true one;
-        # a vertex whose found triangles are all farther than r is not judged (its closest may be missed)
-        sel = (best >= 0) & (gap < r) & (gap > -r)
-        if not sel.any():
-            return None
-        k = int(sel.sum())
-        return (np.full(k, a), near[sel], np.full(k, b), best[sel], w[sel], nrm[sel], gap[sel], p[sel])
+        return (np.full(k, a), vertex, np.full(k, b), tri, bary, nrm, gap, point)
 
     def _solve(self, states, bodies, R, Iw_inv, accel, parts, h, report) -> None:
         from modalfem.runtime import _contact_kernels as K
