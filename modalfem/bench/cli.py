@@ -150,7 +150,9 @@ def render(results: dict, rungs, versions: dict, *, command: str, date: str, mac
     L.append("Columns: DOFs = all displacement DOFs (clamped ones included); setup = mesh + assembly "
              "(peer A includes FFCx form compilation, cache warmed first unless `--quick`); eigen = everything "
              "after assembly (constraints, factorisation, solve, and for ours the certificate, also shown "
-             "alone in 'cert'); total = setup + eigen, imports excluded; process = child process wall "
+             "alone in 'cert'); total = setup + eigen, imports excluded; CPU = CPU time of the child over the same "
+             "interval, all its threads (on a loaded machine it shows each case's work where the wall time also "
+             "shows the scheduler); process = child process wall "
              "time incl. interpreter start and imports; peak RSS = `ru_maxrss` of the child. "
              f"f1 = first bending frequency. Timoshenko f1 = {f_timo:.4f} Hz (`modalfem.theory.timoshenko_omegas`, "
              "Cowper shear coefficient, cross-checked by a 1D Timoshenko FE model in the smoke test; "
@@ -161,8 +163,8 @@ def render(results: dict, rungs, versions: dict, *, command: str, date: str, mac
              "counts, but a different 6-tetrahedra split, so f1 differs a little on coarse meshes."
              + (f" {repeat_note}" if repeat_note else ""))
     L.append("")
-    hdr = ["P", "cells", "DOFs", "case", "setup s", "eigen s", "cert s", "total s", "total range s", "process s",
-           "peak RSS MB", "f1 Hz", "err vs Timoshenko", "err vs 3D ref", "certified", "total / ours-fenicsx"]
+    hdr = ["P", "cells", "DOFs", "case", "setup s", "eigen s", "cert s", "total s", "total range s", "CPU s",
+           "process s", "peak RSS MB", "f1 Hz", "err vs Timoshenko", "err vs 3D ref", "certified", "total / ours-fenicsx"]
     L.append("| " + " | ".join(hdr) + " |")
     L.append("|" + "|".join("---" for _ in hdr) + "|")
     for r in rungs:
@@ -185,6 +187,7 @@ def render(results: dict, rungs, versions: dict, *, command: str, date: str, mac
                    _s(res.get("certificate")) if "total" in res and mb.CASES[c][1] else "-",
                    _time_cell(res, "total"),
                    "{:.2f}-{:.2f}".format(*res["total_range"]) if "total_range" in res else "-",
+                   _s(res.get("cpu")) if "cpu" in res else "-",
                    _s(res.get("process")) if "skipped" not in res else "-",
                    rss_txt, "n/a" if f1 is None else f"{f1:.4f}",
                    _pct(f1, f_timo), _pct(f1, f_ref), ok,
