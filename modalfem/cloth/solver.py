@@ -17,7 +17,7 @@ inverses of the vertices' projected 3x3 diagonal blocks) plus, on a hierarchy of
 once), block Jacobi of each level's Galerkin matrix for piecewise-constant translations and a direct
 solve on the coarsest level. The slow, smooth modes that block Jacobi leaves to CG are the levels'
 work: on the 64x64 pile it takes 58 iterations instead of 94 (implicit step, 1e-4) and 64 instead of
-~135 (smoothing, 1e-2) for about the cost of one matrix product each. Matrices live in a 3x3-block
+~135 (smoothing, 1e-2; it now stops at 0.1, ``SMOOTH_RTOL``) for about the cost of one matrix product each. Matrices live in a 3x3-block
 sparse pattern built once (every vertex's diagonal block included); each step the energies scatter
 their element blocks straight into its data. Which solver is faster: ``modalfem bench cloth``.
 
@@ -43,8 +43,12 @@ from modalfem._threads import serial_blas
 
 #: relative residual of the smoothing solve: it only shapes the collision response (which goes through
 #: the collision pipeline again), so a looser tolerance than the implicit step's is enough; the
-#: momentum the residual would change is restored exactly
-SMOOTH_RTOL = 1e-2
+#: momentum the residual would change is restored exactly. On the 64x64 pile at step 60 (one collision
+#: response): 0.1 takes 33 CG iterations (1e-2: 60, converged: 276) and its smoothed change is within
+#: 3.5 % (L2; 5 % in the largest entry, 3.4 % of the thickness over the step) of the converged one; over
+#: the whole pile 31 instead of 55 iterations per step, no more impact-zone vertices in the re-check,
+#: 0 intersections
+SMOOTH_RTOL = 0.1
 
 __all__ = ["ImplicitEuler", "LinearSolveInfo", "pcg_constrained"]
 
