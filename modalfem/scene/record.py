@@ -27,7 +27,6 @@ from modalfem import effects as fx
 from modalfem.errors import InputError
 from modalfem.scene.record_gltf import GltfAnimation
 from modalfem.scene.record_video import (
-    SHADOW,
     Camera,
     FrameRenderer,
     GifStream,
@@ -269,7 +268,7 @@ class Recorder:
             for n, (x, tris) in surfaces.items():
                 parts.append((x, tris, self._renderer.shade(x, tris, self.world.by_name[n].kind)))
                 for h in self._grounds:
-                    parts.append((self._renderer.shadow(x, h), tris, np.full(len(tris), SHADOW, dtype=np.uint8)))
+                    parts.insert(0, (self._renderer.shadow(x, h), tris, None))
             image = self._renderer.draw(parts, f"t = {state.time:.3f} s")
             if self._gif is not None:
                 self._gif.write(image)

@@ -30,13 +30,14 @@ from modalfem.errors import InputError
 
 __all__ = ["Camera", "FrameRenderer", "GifStream", "Mp4Stream", "checker_patch", "downsample", "ffmpeg_exe", "palette"]
 
-#: palette: 0 background, 1 text, 2-3 checker squares, 4 shadow, then four shade ramps of RAMP entries each
+#: palette: 0 background, 1 text, 2-3 checker squares, 4-5 the same in shadow, then four shade ramps of RAMP each
 RAMP = 62
 SHADOW = 4
-KIND_BASE = {"modal": 5, "tet": 5 + RAMP, "cloth": 5 + 2 * RAMP, "obstacle": 5 + 3 * RAMP}
+KIND_BASE = {"modal": 6, "tet": 6 + RAMP, "cloth": 6 + 2 * RAMP, "obstacle": 6 + 3 * RAMP}
 KIND_RGB = {"modal": (200, 150, 62), "tet": (90, 158, 90), "cloth": (79, 127, 196), "obstacle": (150, 150, 150)}
 BACKGROUND, TEXT, CHECKER_LIGHT, CHECKER_DARK = (238, 241, 245), (20, 20, 20), (214, 214, 210), (178, 178, 172)
-SHADOW_RGB = (128, 128, 124)
+#: brightness of the ground in a shadow
+SHADOW_DIM = 0.62
 #: lowest shade (ambient) of a ramp, as a fraction of the base colour
 AMBIENT = 0.35
 
@@ -44,7 +45,8 @@ AMBIENT = 0.35
 def palette() -> np.ndarray:
     """The (256, 3) uint8 palette of every frame."""
     p = np.zeros((256, 3))
-    p[0], p[1], p[2], p[3], p[SHADOW] = BACKGROUND, TEXT, CHECKER_LIGHT, CHECKER_DARK, SHADOW_RGB
+    p[0], p[1], p[2], p[3] = BACKGROUND, TEXT, CHECKER_LIGHT, CHECKER_DARK
+    p[SHADOW], p[SHADOW + 1] = SHADOW_DIM * p[2], SHADOW_DIM * p[3]
     shade = AMBIENT + (1.0 - AMBIENT) * np.linspace(0.0, 1.0, RAMP)
     for kind, base in KIND_BASE.items():
         p[base:base + RAMP] = np.outer(shade, KIND_RGB[kind])
@@ -115,8 +117,9 @@ EDGE = 1e-7
 
 
 @numba.njit(cache=True)
-def _rasterise(p, tris, colour, depth, image):  # pragma: no cover - compiled
-    """Flat triangles ``tris`` (k, 3) over projected points ``p`` (n, 3) into ``image`` with ``depth``."""
+def _rasterise(p, tris, colour, depth, image, shadow, dim):  # pragma: no cover - compiled
+    """Flat triangles ``tris`` (k, 3) over projected points ``p`` (n, 3) into ``image`` with ``depth``; with
+    ``shadow`` the pixels they cover in front of what is drawn become ``dim[pixel]`` (depth unchanged)."""
     H, W = image.shape
     for k in range(tris.shape[0]):
         a, b, c = tris[k, 0], tris[k, 1], tris[k, 2]
@@ -158,8 +161,11 @@ def _rasterise(p, tris, colour, depth, image):  # pragma: no cover - compiled
                     continue
                 z = w0 * z0 + w1 * z1 + w2 * z2
                 if z > depth[y, x]:
-                    depth[y, x] = z
-                    image[y, x] = col
+                    if shadow:
+                        image[y, x] = dim[image[y, x]]
+                    else:
+                        depth[y, x] = z
+                        image[y, x] = col
 
 
 @numba.njit(cache=True)
@@ -226,6 +232,9 @@ class FrameRenderer:
         self._image = np.empty((H, W), dtype=np.uint8)
         self._font = None
         self._static: tuple | None = None
+        self._dim = np.arange(256, dtype=np.uint8)  # shadow: checker squares to their dim copies, the rest kept
+        self._dim[2], self._dim[3] = SHADOW, SHADOW + 1
+        self._none = np.zeros(0, dtype=np.uint8)
 
     def shade(self, x: np.ndarray, tris: np.ndarray, kind: str) -> np.ndarray:
         """Palette colours (k,) of triangles ``tris`` over ``x`` [m] of a ``kind`` body (or ``"obstacle"``):
@@ -238,9 +247,9 @@ class FrameRenderer:
         return (KIND_BASE[kind] + np.round(lam * (RAMP - 1))).astype(np.uint8)
 
     def shadow(self, x: np.ndarray, height: float) -> np.ndarray:
-        """Vertices ``x`` (n, 3) [m] dropped vertically onto the ground at ``height`` [m] (drawn with colour
-        ``SHADOW``: a shadow under a light straight above, lifted a little over the ground so it wins the depth
-        test)."""
+        """Vertices ``x`` (n, 3) [m] dropped vertically onto the ground at ``height`` [m]: drawn as a part with
+        colours ``None``, they dim the ground's squares they cover (a shadow under a light straight above; lifted a
+        little over the ground so it wins the depth test)."""
         out = np.array(x, dtype=np.float64)
         out[:, 2] = height + 2e-3 * self.camera.half_width
         return out
@@ -256,13 +265,15 @@ class FrameRenderer:
     def _raster(self, parts: list) -> None:
         for x, tris, colour in parts:
             if len(tris):
+                shadow = colour is None
                 _rasterise(self.camera.project(x), np.ascontiguousarray(tris, dtype=np.int64),
-                           np.ascontiguousarray(colour, dtype=np.uint8), self._depth, self._image)
+                           self._none if shadow else np.ascontiguousarray(colour, dtype=np.uint8), self._depth,
+                           self._image, shadow, self._dim)
 
     def draw(self, parts: list, label: str) -> np.ndarray:
-        """Rasterise ``parts``, a list of ``(vertices (n, 3) [m], triangles (k, 3), colours (k,) uint8)``, over
-        the static picture and write ``label`` at the top left. Returns the image (H, W) uint8 (reused by the
-        next call)."""
+        """Rasterise ``parts``, a list of ``(vertices (n, 3) [m], triangles (k, 3), colours (k,) uint8 or None for a
+        shadow)``, over the static picture and write ``label`` at the top left. Returns the image (H, W) uint8
+        (reused by the next call)."""
         if self._static is None:
             self._depth.fill(-np.inf)
             self._image.fill(0)
