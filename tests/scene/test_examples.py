@@ -49,10 +49,12 @@ def _quiet_copy(name: str, folder) -> tuple:
     path, _ = examples()[name]
     text = path.read_text()
     head = re.split(r"^\[outputs\]", text, flags=re.M)[0]
-    head = re.sub(r"^\[outputs\.[\s\S]*$", "", head, flags=re.M)
     copy = folder / f"{name}.toml"
     copy.write_text(head + _OFF)
-    return copy, tomllib.loads(text)
+    d = tomllib.loads(text)
+    quiet = tomllib.loads(copy.read_text())
+    assert {k: v for k, v in quiet.items() if k != "outputs"} == {k: v for k, v in d.items() if k != "outputs"}
+    return copy, d
 
 
 def _models(copy):
