@@ -488,6 +488,9 @@ class World:
         if self._sounds:
             plan.append((Stage("sound", tuple(self._sounds), ("sound",)), self._stage_sound))
         self._plan = plan
+        # a world of one modal body whose plan is its step alone
+        self._solo = self.bodies[0].name if (len(self.bodies) == 1 and self.bodies[0].kind == "modal"
+                                             and [s.name for s, _ in plan] == ["modal step"]) else None
         return [s for s, _ in plan]
 
     def describe_plan(self) -> str:
@@ -549,7 +552,7 @@ class World:
             raise SimulationError(f"time step must be a number [s], got {dt!r}") from None
         if not (math.isfinite(dt) and dt > 0):
             raise SimulationError(f"time step must be finite and > 0 s, got {dt!r}")
-        control = control or WorldControl()
+        control = control or _NO_CONTROL
         for body, _, J in control.impulses:
             if body not in self.by_name:
                 raise SimulationError(f"control impulse on unknown body {body!r} (bodies: {', '.join(self.by_name)})")
@@ -558,6 +561,8 @@ class World:
         for body in control.scripted:
             if body not in self._tet:
                 raise SimulationError(f"scripted vertices need a tet body, {body!r} is not one")
+        if self._solo is not None and not control.impulses and self._solo in state_out.bodies:
+            return self._step_solo(state_in, state_out, dt)
         ctx = _StepContext(state_in, WorldState(state_in.time, {}), control, dt)
         report = StepReport()
         ctx.report = report
@@ -580,6 +585,29 @@ class World:
                 bodies[name] = new
         state_out.bodies = bodies
         state_out.contacts = ctx.contacts
+        state_out.time = state_in.time + dt
+        return report
+
+    def _step_solo(self, state_in: WorldState, state_out: WorldState, dt: float) -> StepReport:
+        """The step of a world of one modal body whose plan is its step alone, without strikes: the solver steps
+        straight into the caller's state (``ModalSolver.step`` is all-or-nothing itself), so the world adds no
+        scratch state, copy or stage bookkeeping to the free step."""
+        name = self._solo
+        m = self._modal[name]
+        solver = m["solver"]
+        t0 = time.perf_counter()
+        s = state_in.bodies[name]
+        contacts = solver.collide(s, dt) if m["static"] else None
+        try:
+            solver.step(s, state_out.bodies[name], None, contacts, dt)
+        except SimulationError as exc:
+            raise SimulationError(f"modal body {name!r}: {exc}") from None
+        report = StepReport()
+        report.seconds["modal step"] = time.perf_counter() - t0
+        if contacts is not None:
+            report.contacts["modal_static"] = contacts.count
+        if state_out is not state_in:
+            state_out.contacts = dict(state_in.contacts)
         state_out.time = state_in.time + dt
         return report
 
@@ -886,8 +914,6 @@ class World:
                     ctx.impacts[name] = builder.modal_change(name, sel, lam)
 
     def _stage_modal_step(self, ctx) -> None:
-        from modalfem import runtime as rt
-
         dt = ctx.dt
         for name, m in self._modal.items():
             s = ctx.state_in.bodies[name]
@@ -903,6 +929,8 @@ class World:
             ctl = None
             strikes = self._strikes(ctx, name)
             if strikes:
+                from modalfem import runtime as rt
+
                 ctl = rt.Control()
                 for p, J in strikes:
                     ctl.add_impulse(p, J)
@@ -1066,6 +1094,10 @@ class _StepContext:
         self.impacts = {}
         self.contacts = dict(state_in.contacts)  # kept unless the solid solve runs
         self.report = None
+
+
+#: the control of a step given none (never changed: stages only read it)
+_NO_CONTROL = WorldControl()
 
 
 def _vertex(name: str, p, n: int) -> int:

@@ -84,6 +84,13 @@ def _count_stages(monkeypatch):
             return _orig(self, ctx)
 
         monkeypatch.setattr(mw.World, s, counted)
+    solo = mw.World._step_solo  # a lone modal body's step (the modal step without the world's bookkeeping)
+
+    def counted_solo(self, *args):
+        calls["_stage_modal_step"] += 1
+        return solo(self, *args)
+
+    monkeypatch.setattr(mw.World, "_step_solo", counted_solo)
     return calls
 
 
@@ -424,3 +431,25 @@ def test_a_step_from_a_copied_state_repeats_exactly(bar_model):
         w.step(b, b, None, 1e-3)
     for n in ("lower", "upper"):
         assert np.array_equal(a[n].position, b[n].position) and np.array_equal(a[n].qdot, b[n].qdot)
+
+
+def test_a_lone_modal_body_steps_exactly_as_its_solver(bar_model):
+    """The lone-body path (World._step_solo) is ModalSolver.step: same bits after a spinning flight under
+    gravity, into the caller's state in place or into another state."""
+    from modalfem import runtime as rt
+    from modalfem.effects import Gravity
+
+    w = mw.World(bodies=[mw.Modal(bar_model, name="bar", angular_velocity=(0.3, 2.0, -1.0))], effects=[Gravity()])
+    assert w._solo == "bar"
+    solver = rt.ModalSolver(rt.ModalBody(bar_model), effects=[Gravity()])
+    s = w.state()
+    other = w.state()
+    ref = s["bar"].copy()
+    for _ in range(12):
+        w.step(s, s, None, 1e-3)
+        solver.step(ref, ref, None, None, 1e-3)
+    w.step(s, other, None, 1e-3)
+    solver.step(ref, ref, None, None, 1e-3)
+    for a in ("q", "qdot", "position", "velocity", "angular_momentum"):
+        assert np.array_equal(getattr(other["bar"], a), getattr(ref, a)), a
+    assert other.time == pytest.approx(13e-3) and s.time == pytest.approx(12e-3)
