@@ -10,14 +10,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from modalfem.cli import _Parser  # usage errors: one line, exit code 2
 from modalfem.errors import InputError
 
 __all__ = ["plan_main", "run_main"]
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit code 2 (modalfem.cli.main prints it)
-        raise InputError(message)
 
 
 def _run_parser() -> argparse.ArgumentParser:

@@ -13,14 +13,9 @@ import signal
 import sys
 import threading
 
-from modalfem.errors import InputError
+from modalfem.cli import _Parser  # usage errors: one line, exit code 2
 
 __all__ = ["build_parser", "main"]
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit code 2 (modalfem.cli.main prints it)
-        raise InputError(message)
 
 
 def build_parser() -> argparse.ArgumentParser:
