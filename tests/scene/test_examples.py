@@ -98,7 +98,7 @@ def _expected_stages(d: dict) -> set:
 
 
 def test_examples_are_the_six():
-    assert set(examples()) == set(_STEPS)
+    assert set(examples()) == set(_STEPS), "a new example needs its step count in _STEPS"
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in _SLOW else n for n in _STEPS])
