@@ -39,9 +39,13 @@ def examples() -> dict[str, tuple[Path, str]]:
 
     out = {}
     for p in sorted(EXAMPLES.glob("*.toml")):
-        with open(p, "rb") as f:
-            d = tomllib.load(f)
-        out[p.stem] = (p, str(d.get("description", "")).strip().splitlines()[0] if d.get("description") else "")
+        try:
+            with open(p, "rb") as f:
+                d = tomllib.load(f)
+        except (OSError, tomllib.TOMLDecodeError):
+            d = {}  # listed all the same: running it names the problem
+        desc = d.get("description")
+        out[p.stem] = (p, desc.strip().splitlines()[0] if isinstance(desc, str) and desc.strip() else "")
     return out
 
 
@@ -245,6 +249,8 @@ class _Log:
     def frame(self, state, step: int, recorder) -> None:
         if recorder is not None:
             recorder.frame(state)
+        if self.frame_count == 0:
+            self.start_energy = {n: self.world.energy(state, n) for n in self.names}
         self.frame_count += 1
         self.times.append(state.time)
         for n in self.names:
@@ -273,8 +279,13 @@ class _Log:
         for b in sc.bodies:
             n = b.name
             e = np.asarray(self.energy[n])
-            entry = {"kind": b.kind, "energy_start_J": e[0], "energy_end_J": e[-1], "energy_max_J": e.max(),
-                     "momentum_start": self.momentum[n][0], "momentum_end": self.momentum[n][-1],
+            end = self.world.energy(state, n)  # the last step's state (the last frame may be earlier)
+            model = self.world.by_name[n].model
+            entry = {"kind": b.kind,
+                     "mass_kg": float(model.mass) if b.kind == "modal" else float(np.sum(model.masses)),
+                     "energy_start_J": e[0], "energy_end_J": end["total"], "energy_max_J": max(e.max(), end["total"]),
+                     "energy_start": self.start_energy[n], "energy_end": end,
+                     "momentum_start": self.momentum[n][0], "momentum_end": self.world.momentum(state, n)[0],
                      "vertices": len(self.world.surface(state, n)[0])}
             if b.kind == "modal":
                 model = self.world.by_name[n].model
@@ -300,6 +311,7 @@ class _Log:
             "contacts": {k: {"max": max(v), "mean": float(np.mean(v))} for k, v in self.contacts.items()},
             "bodies": bodies,
             "energy": {"times": self.times, "total_J": {n: self.energy[n] for n in self.names}},
+            "momentum": {"times": self.times, "linear_kg_m_s": {n: self.momentum[n] for n in self.names}},
             "exchanged_impulse_Ns": self.exchanged_abs,
             "intersections": {"checked_frames": len(self.checks), "total": sum(c for _, c, _ in self.checks),
                               "found": [[t, c, pairs] for t, c, pairs in self.checks if c]},
