@@ -32,10 +32,18 @@ distance v0^2 / (2 mu g)):
   steel bar gain ~1e-9 J per step (which the energy guard then halved away, ~15 sub-steps per step);
   impacts still act on every mode. It starts from one common normal impulse at all its contacts (the value
   meeting their mean target, found matrix-free), so a body resting on a face converges in a few sweeps.
+  When no mode takes part (all faster than the sub-step, or ``modal=False``) it is the compiled rigid-body
+  solve ``_contact_body_kernels.resolve_rigid`` (the body's six velocities in registers; it stops on a
+  velocity tolerance, 1e-12 of the problem's velocity scale, and skips smaller updates: a body resting on a
+  face then costs one sweep).
 
 Contact finding is compiled too and does not reconstruct the whole surface: the rigid positions
 ``c + R X_j`` are tested against each obstacle with the margin grown by a bound of the deformation
-(``sqrt(3) sum_i |q_i| max |Phi_i|``), and only those candidates get their exact deformed positions.
+(``sqrt(3) sum_i |q_i| max |Phi_i|``), and only those candidates get their exact deformed positions, in one
+call (``_contact_body_kernels.find``; impact prediction, mid-step gaps and push-out are one call each too).
+Contacts found by ``ModalSolver.collide`` at the very state and dt of the step are reused by the step's first
+search (``ModalSolver.advance``), and the rotation matrix, skipped modes and deformation bound are kept for
+the last state seen.
 
 After the step, vertices left inside an obstacle (impact times are predicted without the rotation and
 the modes) are pushed out by translating the body along the obstacle normal, so no vertex ends
