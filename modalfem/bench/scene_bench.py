@@ -250,7 +250,7 @@ def command(argv: list[str]) -> int:
                                                                "example scene)")
     ap.add_argument("--out", default="BENCHMARKS.md", help="markdown file whose scene section is replaced")
     ap.add_argument("--steps", type=int, default=1000, help="steps per case (at most the scene's own; 1000)")
-    ap.add_argument("--repeats", type=int, default=3, help="timed repetitions per case, the fastest counts (3)")
+    ap.add_argument("--repeats", type=int, default=2, help="timed repetitions per case, the fastest counts (2)")
     ap.add_argument("--quick", action="store_true", help="5 steps, 2 repetitions (smoke test)")
     ap.add_argument("--no-write", action="store_true", help="print the section only, do not touch --out")
     a = ap.parse_args(argv)
