@@ -10,6 +10,7 @@ scene with the same body, loads the file instead. The cache is ``$MODALFEM_CACHE
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -82,6 +83,8 @@ def build_scene(scene, base: Path, *, label: str = "scene", progress=None, check
                 from modalfem import tet
 
                 mesh = _solid_mesh(b.mesh, base, say, b.name)
+                if b.orientation is not None:
+                    mesh = dataclasses.replace(mesh, points=_rotated(mesh.points, b.orientation))
                 model = tet.tet_model(mesh, _material(b.material), energy=b.energy)
                 bodies.append(mw.Tet(model, name=b.name, position=b.position, velocity=b.velocity))
             else:
@@ -219,6 +222,8 @@ def _cloth_model(b, base: Path):
         mesh = grid(tuple(g.size), tuple(g.vertices), origin=tuple(g.origin), plane=g.plane)
     else:
         mesh = read_cloth(_path(base, b.mesh), unit_scale=b.unit_scale)
+    if b.orientation is not None:
+        mesh = dataclasses.replace(mesh, points=_rotated(mesh.points, b.orientation))
     m = b.material
     material = ClothMaterial(areal_density=m.areal_density, young=m.young, poisson=m.poisson,
                              thickness=m.thickness, bending_stiffness=m.bending_stiffness)
@@ -249,15 +254,29 @@ def _obstacle(o, base: Path):
     if o.kind == "ground":
         return mw.Ground(o.height, size=o.size)
     if o.kind == "plane":
-        return mw.Plane(o.normal, o.point, path=path)
+        return mw.Plane(o.normal, o.point, path=path, size=o.size)
     if o.kind == "sphere":
         return mw.Sphere(o.center, o.radius, path=path)
     if o.kind == "box":
-        return mw.Box(o.center, o.half_extents, path=path)
+        return mw.Box(o.center, o.half_extents, path=path,
+                      rotation=None if o.rotation is None else _matrix(o.rotation))
     from modalfem.mesh.surface_read import read_surface
 
     v, f = read_surface(_path(base, o.file), unit_scale=o.unit_scale)
     return mw.TriangleMesh(v + np.asarray(o.offset), f, path=path)
+
+
+def _matrix(q) -> np.ndarray:
+    from modalfem.runtime.rotation import quat_to_matrix
+
+    q = np.asarray(q, dtype=np.float64)
+    return quat_to_matrix(q / np.linalg.norm(q))
+
+
+def _rotated(points: np.ndarray, q) -> np.ndarray:
+    """``points`` rotated by quaternion ``q`` about their mean."""
+    c = points.mean(axis=0)
+    return (points - c) @ _matrix(q).T + c
 
 
 def _gusty(base_velocity: np.ndarray, gusts: list):

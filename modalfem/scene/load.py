@@ -214,6 +214,12 @@ def _check(scene: Scene, label: str, base: Path | None) -> None:
         raise SceneError(f"{label}: {path}: {problem}")
 
     names = [b.name for b in scene.bodies]
+    for i, b in enumerate(scene.bodies):
+        if b.orientation is not None and not any(b.orientation):
+            fail(f"bodies[{i}].orientation", "a quaternion must not be zero")
+    for i, o in enumerate(scene.obstacles):
+        if getattr(o, "rotation", None) is not None and not any(o.rotation):
+            fail(f"obstacles[{i}].rotation", "a quaternion must not be zero")
     for i, name in enumerate(names):
         if name in names[:i]:
             fail(f"bodies[{i}].name", f"duplicate body name {name!r}")

@@ -31,6 +31,8 @@ def did_you_mean(word: str, choices) -> str:
 
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Quaternion = Annotated[list[float], Field(min_length=4, max_length=4, description="a rotation as a quaternion "
+                                                                                 "(w, x, y, z), normalised on use")]
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_.-]{0,63}$",
                             description="a name: 1-64 letters, digits, '_', '-', '.', starting with a letter")]
 Positive = Annotated[float, Field(gt=0)]
@@ -158,6 +160,9 @@ class _Pose(_Table):
     name: Name
     position: Vec3 | None = Field(None, description="translation of the rest shape (the mesh as given) at t = 0 [m]")
     velocity: Vec3 | None = Field(None, description="initial velocity [m/s]")
+    orientation: Quaternion | None = Field(
+        None, description="rotation (w, x, y, z) of the rest shape about its centre (modal: the centre of mass; "
+                          "tet, cloth: the mean of its vertices), applied before position [-]")
 
 
 class ModalBody(_Pose):
@@ -173,8 +178,6 @@ class ModalBody(_Pose):
     degree: Literal[1, 2] = Field(2, description="finite-element degree of the modal analysis")
     damping: Annotated[list[Annotated[float, Field(ge=0)]], Field(min_length=2, max_length=2)] = Field(
         [2.0, 1e-9], description="model Rayleigh damping [alpha 1/s, beta s] (with mesh + material)")
-    orientation: Annotated[list[float], Field(min_length=4, max_length=4)] | None = Field(
-        None, description="quaternion (w, x, y, z) body -> world [-], a rotation about the centre of mass")
     angular_velocity: Vec3 | None = Field(None, description="initial angular velocity, world [rad/s]")
 
 
@@ -236,6 +239,7 @@ class PlaneObstacle(_Moving):
     kind: Literal["plane"]
     normal: Vec3 = Field(description="outward normal [-]")
     point: Vec3 = Field([0.0, 0.0, 0.0], description="a point of the plane [m]")
+    size: Positive = Field(5.0, description="extent drawn in pictures [m]")
 
 
 class SphereObstacle(_Moving):
@@ -248,6 +252,7 @@ class BoxObstacle(_Moving):
     kind: Literal["box"]
     center: Vec3 = Field(description="centre [m]")
     half_extents: Annotated[list[Positive], Field(min_length=3, max_length=3)] = Field(description="half sizes [m]")
+    rotation: Quaternion | None = Field(None, description="rotation (w, x, y, z) of the box about its centre [-]")
 
 
 class MeshObstacle(_Moving):

@@ -290,3 +290,25 @@ def test_ctrl_c_keeps_complete_frames_and_says_so(tmp_path):
     assert len(times) == s["frames"] and all((out / f).is_file() for f in refs)
     assert Image.open(out / "preview.gif").n_frames == s["frames"]
     assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]  # no temporaries left
+
+
+def test_orientations_rotate_rest_shapes_about_their_centre(tmp_path):
+    c, sn = math.cos(math.pi / 4), math.sin(math.pi / 4)
+    text = (HEAD + time_block() + BLOCK.format(z=0.5).replace("position", f"orientation = [{c}, {sn}, 0.0, 0.0]\n"
+                                                               "position")
+            + CLOTH.replace("origin = [-0.05, -0.05, 0.3] }", "origin = [0.3, 0.0, 0.3] }")
+            + f"orientation = [{c}, {sn}, 0.0, 0.0]\n"
+            + f'[[obstacles]]\nkind = "box"\ncenter = [2.0, 0.0, 0.5]\nhalf_extents = [0.3, 0.1, 0.1]\n'
+            + f"rotation = [{c}, 0.0, 0.0, {sn}]\n" + OFF)
+    s, base = load_scene(write(tmp_path, text))
+    built = build_scene(s, base)
+    block = built.state["block"].x
+    assert np.allclose(np.ptp(block, axis=0), [0.1, 0.05, 0.1])            # 90 deg about x: on its side
+    assert np.allclose(block.mean(0), [0.05, 0.05, 0.525])                  # about its centre, then moved
+    sheet = built.state["sheet"].x
+    assert np.allclose(np.ptp(sheet, axis=0), [0.2, 0.0, 0.2], atol=1e-12)  # 90 deg about x: upright
+    assert np.allclose(sheet.mean(0), [0.4, 0.1, 0.3])
+    R = built.world.obstacles[0].rotation
+    assert np.allclose(R @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    with pytest.raises(SceneError, match=r"bodies\[0\].orientation: a quaternion must not be zero"):
+        scene_from_text(text.replace(f"orientation = [{c}, {sn}, 0.0, 0.0]", "orientation = [0, 0, 0, 0]", 1), label="s")
