@@ -131,8 +131,8 @@ def build_scene(scene, base: Path, *, label: str = "scene", progress=None, check
             strikes.append((ev.time, ev.body, int(np.argmin(d)), np.asarray(ev.impulse, float)))
     strikes.sort(key=lambda s: s[0])
     t = scene.time
-    steps = max(1, int(round(t.duration / t.dt)))
-    frame_every = max(1, int(round(1.0 / (t.frame_rate * t.dt))))
+    steps = max(1, round(t.duration / t.dt))
+    frame_every = max(1, round(1.0 / (t.frame_rate * t.dt)))
     return BuiltScene(scene, world, state, strikes, steps, frame_every, t.dt, cached)
 
 

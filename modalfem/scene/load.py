@@ -309,6 +309,5 @@ def _exists(fail, base: Path | None, where: str, name: str) -> None:
     p = Path(name)
     if not p.is_absolute() and base is not None:
         p = base / p
-    if base is not None or p.is_absolute():
-        if not p.is_file():
-            fail(where, f"no such file {str(p)!r}")
+    if (base is not None or p.is_absolute()) and not p.is_file():
+        fail(where, f"no such file {str(p)!r}")

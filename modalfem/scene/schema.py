@@ -12,7 +12,7 @@ global or per body), ``events`` (strikes, wind gusts) and ``outputs``.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Discriminator, Field, Tag
 
@@ -82,8 +82,7 @@ def _preset_names(schema: dict) -> None:  # the JSON Schema lists the presets, s
     schema["enum"] = sorted(MATERIALS)
 
 
-SolidMaterial = Annotated[Union[Annotated[str, AfterValidator(_preset), Field(json_schema_extra=_preset_names),
-                                          Tag("preset")], Annotated[Solid, Tag("table")]],
+SolidMaterial = Annotated[Annotated[str, AfterValidator(_preset), Field(json_schema_extra=_preset_names), Tag("preset")] | Annotated[Solid, Tag("table")],
                           Discriminator(_material_kind),
                           Field(description="a preset name (steel, aluminium, brass) or a table "
                                             "{E [Pa], nu [-], rho [kg/m^3]}")]
@@ -144,12 +143,12 @@ class ForkMesh(_Table):
     h: Positive = Field(0.002, description="element size [m]")
 
 
-Generated = Annotated[Union[BoxMesh, PlateMesh, RodMesh, BellMesh, ForkMesh], Field(discriminator="generator")]
+Generated = Annotated[BoxMesh | PlateMesh | RodMesh | BellMesh | ForkMesh, Field(discriminator="generator")]
 def _mesh_kind(v) -> str:  # a dict when validating, a model when serialising (model_dump)
     return "generator" if (isinstance(v, dict) and "generator" in v) or hasattr(v, "generator") else "file"
 
 
-SolidMesh = Annotated[Union[Annotated[MeshFile, Tag("file")], Annotated[Generated, Tag("generator")]],
+SolidMesh = Annotated[Annotated[MeshFile, Tag("file")] | Annotated[Generated, Tag("generator")],
                       Discriminator(_mesh_kind), Field(description="a mesh file {file = ...} or a generator "
                                                                      "{generator = \"box\" | \"plate\" | \"rod\" | "
                                                                      "\"bell\" | \"tuning_fork\", ...}")]
@@ -216,7 +215,7 @@ class ClothBody(_Pose):
         [], description="hold the rest-shape vertices on these sides of the sheet (e.g. a flag's pole at -x)")
 
 
-Body = Annotated[Union[ModalBody, TetBody, ClothBody], Field(discriminator="kind")]
+Body = Annotated[ModalBody | TetBody | ClothBody, Field(discriminator="kind")]
 
 
 # ---------------------------------------------------------------------------------------------- obstacles
@@ -262,7 +261,7 @@ class MeshObstacle(_Moving):
     offset: Vec3 = Field([0.0, 0.0, 0.0], description="translation [m]")
 
 
-Obstacle = Annotated[Union[GroundObstacle, PlaneObstacle, SphereObstacle, BoxObstacle, MeshObstacle],
+Obstacle = Annotated[GroundObstacle | PlaneObstacle | SphereObstacle | BoxObstacle | MeshObstacle,
                      Field(discriminator="kind")]
 
 
@@ -318,8 +317,7 @@ class SoundEffect(_Table):
     bodies: Bodies = None
 
 
-Effect = Annotated[Union[GravityEffect, WindEffect, DampingEffect, ContactEffect, SelfCollisionEffect,
-                         PseudoForcesEffect, SoundEffect], Field(discriminator="kind")]
+Effect = Annotated[GravityEffect | WindEffect | DampingEffect | ContactEffect | SelfCollisionEffect | PseudoForcesEffect | SoundEffect, Field(discriminator="kind")]
 
 # ---------------------------------------------------------------------------------------------- events
 
@@ -343,7 +341,7 @@ class GustEvent(_Table):
     velocity: Vec3 = Field(description="peak added air velocity [m/s]")
 
 
-Event = Annotated[Union[StrikeEvent, GustEvent], Field(discriminator="kind")]
+Event = Annotated[StrikeEvent | GustEvent, Field(discriminator="kind")]
 
 
 # ---------------------------------------------------------------------------------------------- outputs

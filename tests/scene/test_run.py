@@ -298,7 +298,7 @@ def test_orientations_rotate_rest_shapes_about_their_centre(tmp_path):
                                                                "position")
             + CLOTH.replace("origin = [-0.05, -0.05, 0.3] }", "origin = [0.3, 0.0, 0.3] }")
             + f"orientation = [{c}, {sn}, 0.0, 0.0]\n"
-            + f'[[obstacles]]\nkind = "box"\ncenter = [2.0, 0.0, 0.5]\nhalf_extents = [0.3, 0.1, 0.1]\n'
+            + '[[obstacles]]\nkind = "box"\ncenter = [2.0, 0.0, 0.5]\nhalf_extents = [0.3, 0.1, 0.1]\n'
             + f"rotation = [{c}, 0.0, 0.0, {sn}]\n" + OFF)
     s, base = load_scene(write(tmp_path, text))
     built = build_scene(s, base)
