@@ -182,12 +182,16 @@ class Recorder:
         self.camera = Camera(elev=opts["elev"], azim=opts["azim"], center=opts.get("center", fitted.center),
                              half_width=opts.get("half_width", fitted.half_width), size=self.video_size)
         self._obstacles, self._draw = [], []
-        self._grounds = [o.height for o in self.world.obstacles if o.kind == "ground"]
+        self._grounds = [o.height for o in self.world.obstacles if o.kind == "ground" and self.camera.eye[2] > 0]
         renderer = FrameRenderer(self.camera)
         for name, o in named:
-            if hasattr(o, "normal"):
-                V, F, colour = checker_patch(o.point, o.normal, self.camera.center, _PATCH * self.camera.half_width)
+            if hasattr(o, "normal"):  # a patch around the view, or the plane's own square when that is smaller
+                half = _PATCH * self.camera.half_width
+                mid = self.camera.center if o.size >= half else o.point
+                V, F, colour = checker_patch(o.point, o.normal, mid, min(half, o.size))
                 self._obstacles.append((name, o, (V, F)))
+                if self.camera.eye @ o.normal <= 0:  # seen from behind (its solid side): not drawn in the video
+                    continue
             else:
                 V, F = o.surface(0.0)
                 V = V - o.offset(0.0)

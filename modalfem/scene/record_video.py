@@ -194,26 +194,33 @@ def _nice(x: float) -> float:
     return max(m * e for m in (1.0, 2.0, 5.0) if m * e <= x)
 
 
+def _edges(lo: float, hi: float, sq: float) -> tuple[np.ndarray, np.ndarray]:
+    """Square edges from ``lo`` to ``hi`` on the grid of size ``sq`` (partial squares at both ends), and the grid
+    index of each square."""
+    inner = np.arange(math.floor(lo / sq) + 1, math.ceil(hi / sq)) * sq
+    e = np.concatenate([[lo], inner[(inner > lo + 1e-9 * sq) & (inner < hi - 1e-9 * sq)], [hi]])
+    return e, np.floor(0.5 * (e[:-1] + e[1:]) / sq).astype(np.int64)
+
+
 def checker_patch(point, normal, center, half: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A square checkered patch of a plane around ``center``'s foot point: vertices (n, 3) [m], triangles
-    (k, 3) and their palette colours (k,) (about 10 squares across, of a round size)."""
+    """A square checkered patch of half-width ``half`` [m] of a plane, centred on ``center``'s foot point:
+    vertices (n, 3) [m], triangles (k, 3) and their palette colours (k,) (squares of a round size, about 10
+    across, fixed to the plane: they stay put when the patch moves)."""
     n = np.asarray(normal, dtype=np.float64)
     a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
     a /= np.linalg.norm(a)
     b = np.cross(n, a)
-    foot = center - n * ((center - point) @ n)
+    foot = np.asarray(center, dtype=np.float64) - n * ((center - np.asarray(point)) @ n)
     sq = _nice(2.0 * half / 10.0)
-    ia = math.floor((foot @ a - half) / sq), math.ceil((foot @ a + half) / sq)
-    ib = math.floor((foot @ b - half) / sq), math.ceil((foot @ b + half) / sq)
-    na, nb = ia[1] - ia[0], ib[1] - ib[0]
-    ua = (np.arange(na + 1) + ia[0]) * sq
-    ub = (np.arange(nb + 1) + ib[0]) * sq
+    ua, ia = _edges(foot @ a - half, foot @ a + half, sq)
+    ub, ib = _edges(foot @ b - half, foot @ b + half, sq)
+    na, nb = len(ia), len(ib)
     off = n * float(np.asarray(point) @ n)
     V = (off + ua[:, None, None] * a + ub[None, :, None] * b).reshape(-1, 3)
     i, j = np.meshgrid(np.arange(na), np.arange(nb), indexing="ij")
     v00 = (i * (nb + 1) + j).reshape(-1)
     F = np.concatenate([np.stack([v00, v00 + nb + 1, v00 + nb + 2], 1), np.stack([v00, v00 + nb + 2, v00 + 1], 1)])
-    parity = ((i + ia[0] + j + ib[0]) % 2).reshape(-1)
+    parity = ((ia[i] + ib[j]) % 2).reshape(-1)
     colour = np.where(np.concatenate([parity, parity]) == 0, 2, 3).astype(np.uint8)
     return V, F.astype(np.int64), colour
 

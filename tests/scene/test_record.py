@@ -490,3 +490,26 @@ def test_principal_targets_reproduce_a_low_rank_motion_with_its_rank_and_meet_th
     assert len(T) == 2 and np.allclose(W @ T.reshape(2, -1), few.reshape(30, -1), atol=1e-12)
     T, W, err = principal_targets(np.zeros((4, 5, 3)), 1e-3)
     assert T.shape == (0, 5, 3) and W.shape == (4, 0) and err == 0.0
+
+
+def test_a_wall_seen_from_behind_is_not_drawn_and_a_small_plane_keeps_its_size(tmp_path):
+    from PIL import Image
+
+    bar, _, _ = _models()
+    # between the camera (azim -60: looking from -y, +x) and the bar, a wall whose free side faces the bar
+    front = np.array([np.cos(np.radians(-60)), np.sin(np.radians(-60)), 0.0])
+    world = mw.World(bodies=[mw.Modal(bar, name="bar", position=(0.0, 0.0, 0.1))],
+                     obstacles=[mw.Ground(0.0), mw.Plane(-front, 0.3 * front, size=10.0),
+                                mw.Plane((0.0, 0.0, 1.0), (0.0, 0.0, 0.3), size=0.05)])
+    rec = Recorder(world, tmp_path, video_size=SIZE, gltf=False, sound=False)
+    rec.frame(world.state())
+    rec.finish()
+    with Image.open(tmp_path / "preview.gif") as im:
+        rgb = np.asarray(im.convert("RGB"))
+    assert _hue_masks(rgb, 8)["modal"].sum() > 100  # the wall did not hide the bar
+    import meshio
+
+    small = meshio.read(tmp_path / "paraview" / "obstacles" / "plane2.vtu").points
+    assert np.allclose(small.min(0), (-0.05, -0.05, 0.3)) and np.allclose(small.max(0), (0.05, 0.05, 0.3))
+    wall = meshio.read(tmp_path / "paraview" / "obstacles" / "plane1.vtu").points
+    assert np.allclose((wall - 0.3 * front) @ front, 0.0, atol=1e-12)  # the big wall: a patch on its plane
