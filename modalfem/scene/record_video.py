@@ -39,7 +39,7 @@ BACKGROUND, TEXT, CHECKER_LIGHT, CHECKER_DARK = (238, 241, 245), (20, 20, 20), (
 #: brightness of the ground in a shadow
 SHADOW_DIM = 0.62
 #: lowest shade (ambient) of a ramp, as a fraction of the base colour
-AMBIENT = 0.35
+AMBIENT = 0.4
 
 
 def palette() -> np.ndarray:
@@ -73,7 +73,7 @@ class Camera:
         self.center = np.asarray(center, dtype=np.float64).reshape(3)
         self.half_width = float(half_width)
         self.size = (int(size[0]), int(size[1]))
-        light = 0.45 * self.right + 0.75 * self.up + 0.6 * self.eye
+        light = 0.3 * self.right + 0.5 * self.up + 0.8 * self.eye
         self.light = light / np.linalg.norm(light)
 
     def project(self, x: np.ndarray) -> np.ndarray:
