@@ -212,9 +212,16 @@ _PLANS: dict = {}
 
 
 def _plan(effects) -> _Plan:
-    key = tuple(id(e) for e in effects)
-    p = _PLANS.get(key)
-    if p is None or any(a is not b for a, b in zip(p.effects, effects)):
+    if len(effects) == 1:  # the common case, without building a key tuple (called several times a step)
+        e = effects[0]
+        p = _PLANS.get(id(e))
+        if p is not None and p.effects[0] is e:
+            return p
+        key = id(e)
+    else:
+        key = tuple(id(e) for e in effects)
+        p = _PLANS.get(key)
+    if p is None or len(p.effects) != len(effects) or any(a is not b for a, b in zip(p.effects, effects)):
         if len(_PLANS) > 64:
             _PLANS.clear()
         p = _PLANS[key] = _Plan(effects)
