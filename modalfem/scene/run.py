@@ -184,10 +184,11 @@ def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps:
         control = world.control()
         done = 0
         t_run = time.perf_counter()
+        stop = _Interrupt()
         try:
             log.frame(state, 0, recorder)
             for k in range(steps):
-                if interrupt_after is not None and k == interrupt_after:
+                if stop.requested or (interrupt_after is not None and k == interrupt_after):
                     raise KeyboardInterrupt
                 control.clear()
                 t0 = state.time
@@ -202,6 +203,8 @@ def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps:
                 bar(done)
         except KeyboardInterrupt:
             interrupted = True
+        finally:
+            stop.restore()
         wall = time.perf_counter() - t_run
         files = recorder.finish(interrupted=interrupted) if recorder is not None else {}
         if recorder is not None:  # a Ctrl-C between the recorder's frame and the log's: keep what both have
@@ -219,6 +222,32 @@ def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps:
         bar.say(f"done: {done} steps in {wall:.1f} s ({done / max(wall, 1e-9):,.0f} steps/s), {frames} frames -> "
                 f"{out}/")
     return RunResult(out, summary, interrupted)
+
+
+class _Interrupt:
+    """Ctrl-C during the steps asks the loop to stop after the step at hand (a KeyboardInterrupt raised inside a
+    compiled kernel surfaces as a SystemError and would lose the run); a second Ctrl-C stops at once."""
+
+    def __init__(self) -> None:
+        import signal
+        import threading
+
+        self.requested = False
+        self._old = None
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGINT, self._handle)
+
+    def _handle(self, signum, frame) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def restore(self) -> None:
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+            self._old = None
 
 
 class _Log:
@@ -321,25 +350,41 @@ class _Log:
         })
 
 
-def _peaks(snd, model, duration: float, count: int = 3) -> dict:
-    """The strongest spectral peaks [Hz] of a body's sound (the scene's time and 1 s of ringing after it, Hann
-    window, 1 Hz bins) and the model frequency nearest to each."""
-    x = np.asarray(snd.render(duration + 1.0), dtype=np.float64)  # the scene and 1 s of ringing after it
+def _peaks(snd, model, duration: float, count: int = 3, segment: float = 0.25) -> dict:
+    """The strongest spectral peaks [Hz] of a body's sound and the model frequency nearest to each.
+
+    The sound is the scene's time and 1 s of ringing after it; its spectrum is Welch's average of Hann-windowed
+    ``segment`` [s] pieces overlapping by half (bins of 1 / segment = 4 Hz). A single long FFT resolves finer,
+    but the many small impacts of a resting body each restart its modes with another phase, and their sum ripples
+    across every line on a scale of one over the time between them: local maxima in a line's skirt, several
+    line widths off its mode, that are not peaks of the sound. Peaks are local maxima, strongest first, that
+    stand above the window's sidelobes of every stronger peak."""
+    x = np.asarray(snd.render(duration + 1.0), dtype=np.float64)
     rate = float(snd.sample_rate)
     out = {"sample_rate": rate, "samples": len(x), "peak_pa": float(np.max(np.abs(x))) if len(x) else 0.0}
+    n = min(len(x), max(64, int(round(segment * rate))))
     if len(x) < 64 or not np.any(x):
-        out["peaks_hz"] = []
+        out["peaks_hz"], out["nearest_mode_hz"], out["bin_hz"] = [], [], rate / max(n, 1)
         return out
-    spec = np.abs(np.fft.rfft(x * np.hanning(len(x))))
-    freqs = np.fft.rfftfreq(len(x), 1.0 / rate)
-    bin_hz = rate / len(x)
-    # local maxima of the magnitude (a strong line's skirt is not one), strongest first, at least 1e-4 of the
-    # strongest (quieter ones are the window's leakage floor)
+    win = np.hanning(n)
+    starts = range(0, len(x) - n + 1, max(n // 2, 1))
+    power = np.mean([np.abs(np.fft.rfft(x[i:i + n] * win)) ** 2 for i in starts], axis=0)
+    spec = np.sqrt(power)
+    freqs = np.fft.rfftfreq(n, 1.0 / rate)
     inner = spec[1:-1]
-    peaks = np.flatnonzero((inner >= spec[:-2]) & (inner > spec[2:]) & (inner >= 1e-4 * spec.max())) + 1
-    found = [float(freqs[i]) for i in peaks[np.argsort(spec[peaks])[::-1]][:count]]
+    cands = np.flatnonzero((inner >= spec[:-2]) & (inner > spec[2:])) + 1
+    kept: list[int] = []
+    for i in cands[np.argsort(spec[cands])[::-1]]:
+        # a Hann window leaks a line of amplitude A into the bin k away as at most A / (pi k (k^2 - 1)) (k >= 2):
+        # a maximum under twice that from a stronger peak is its sidelobe; within 2 bins it is the same line
+        if all(abs(int(i) - j) >= 2 and spec[i] > 2.0 * spec[j] / (np.pi * abs(int(i) - j) * ((int(i) - j) ** 2 - 1))
+               for j in kept):
+            kept.append(int(i))
+        if len(kept) == count:
+            break
+    found = [float(freqs[i]) for i in kept]
     f_modes = model.omega / (2 * np.pi)
     out["peaks_hz"] = found
-    out["bin_hz"] = bin_hz
+    out["bin_hz"] = rate / n
     out["nearest_mode_hz"] = [float(f_modes[np.argmin(np.abs(f_modes - f))]) for f in found]
     return out

@@ -167,9 +167,13 @@ def test_example_runs_and_its_summary_holds(name, tmp_path):
         snd = s["sound"][n]
         f = np.asarray(s["bodies"][n]["frequencies_hz"])
         assert snd["peaks_hz"], n
-        bin_hz = snd["sample_rate"] / snd["samples"]
+        bin_hz = snd["bin_hz"]
+        # the loudest line sits on a mode; the others may be broadened: a body resting on others has its rings
+        # choked by the contact impulses, and a ring cut after a time T is a line about 1 / T wide with ripples
+        # (sidelobes) across it; rings last at least 10 ms here (one step is 1 ms), so 100 Hz
+        assert np.min(np.abs(f - snd["peaks_hz"][0])) <= 3 * bin_hz, (n, snd["peaks_hz"][0])
         for p in snd["peaks_hz"]:
-            assert np.min(np.abs(f - p)) <= 3 * bin_hz, (n, p)
+            assert np.min(np.abs(f - p)) <= 3 * bin_hz + 1.0 / 0.01, (n, p)
 
 
 @pytest.mark.parametrize("name", ["bell-drop", "modal-pile"])
