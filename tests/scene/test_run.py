@@ -312,3 +312,21 @@ def test_orientations_rotate_rest_shapes_about_their_centre(tmp_path):
     assert np.allclose(R @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
     with pytest.raises(SceneError, match=r"bodies\[0\].orientation: a quaternion must not be zero"):
         scene_from_text(text.replace(f"orientation = [{c}, {sn}, 0.0, 0.0]", "orientation = [0, 0, 0, 0]", 1), label="s")
+
+
+@pytest.mark.slow
+def test_modal_pile_at_2ms_only_loses_energy_and_never_crosses(tmp_path):
+    """Four modal bodies dropped into a box at dt = 2 ms: a body pressed between another and the ground meets both
+    in one solve. (With the ground solved after the bodies, the fork wedged between the bars pumped the scene
+    from 0.38 J to 1.04 J within 0.1 s and 636 triangle pairs crossed.)"""
+    from modalfem.scene import examples
+
+    text = examples()["modal-pile"][0].read_text().split("[outputs]")[0]
+    text = text.replace("dt = 1e-3", "dt = 2e-3").replace("frame_rate = 30", "frame_rate = 50")
+    assert "dt = 2e-3" in text and "frame_rate = 50" in text
+    res = run_scene(write(tmp_path, text + OFF), tmp_path / "out", quiet=True, max_steps=200)
+    s = res.summary
+    total = np.sum([s["energy"]["total_J"][n] for n in s["bodies"]], axis=0)
+    scale = total[0]
+    assert np.all(np.diff(total) <= 1e-9 * scale), np.diff(total).max()
+    assert s["intersections"]["total"] == 0 and s["intersections"]["checked_frames"] == s["frames"]
