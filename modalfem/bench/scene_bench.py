@@ -179,11 +179,27 @@ def summarise(scene: dict) -> dict:
     return {"base": base, "noise": noise, "rows": rows, "full": full}
 
 
-def render(scenes: list[dict], *, command: str, date: str, machine: str, load: tuple, threads: str) -> str:
+def _code_version() -> str:
+    """``code <commit>`` of the source tree measured (and whether it had uncommitted changes), or ``""``."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                              timeout=10)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "modalfem"], cwd=root, capture_output=True,
+                               text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    if head.returncode != 0:
+        return ""
+    return f"code {head.stdout.strip()}" + (" with uncommitted changes" if dirty.stdout.strip() else "")
+
+
+def render(scenes: list[dict], *, command: str, date: str, machine: str, load: tuple, threads: str,
+           code: str = "") -> str:
     """The markdown section."""
     lines = [SECTION, "",
              f"`{command}` ({date}; {machine}; load average (1 min) {load[0]:.2f} before, {load[1]:.2f} after; "
-             f"{threads}).", "",
+             f"{threads}{'; ' + code if code else ''}).", "",
              "Each scene with all its effects, then without each effect kind in turn (a gust goes with its wind), "
              "then with all effects again; every case in a fresh process, the world built as `modalfem run` builds "
              "it, then the same steps from t = 0 with the scene's strikes, outputs off (only `World.step` is timed), "
@@ -212,6 +228,10 @@ def render(scenes: list[dict], *, command: str, date: str, machine: str, load: t
                             for k, v in sorted(s["full"]["stages"].items(), key=lambda kv: -kv[1]))
             lines.append(f"Plan with all effects: {'; '.join(s['full']['plan'])}. Stage times (first run, per "
                          f"step): {per}.")
+        plans = {tuple(r["plan"]) for r in cases if r["drop"] is None and "error" not in r}
+        if len(plans) > 1:
+            lines.append("**The two all-effects runs compiled different plans: the code changed during the run; "
+                         "do not trust this scene's costs.**")
         lines.append("")
         hdr = ["case", "steps/s", "ms/step", "stages (effects each evaluates)", "stages gone", "in them ms/step",
                "cost ms/step", "cost % of step"]
@@ -271,7 +291,7 @@ def command(argv: list[str]) -> int:
     cmd = "python -m modalfem bench scene" + ("" if not argv else " " + shlex.join(argv))
     date = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     section = render(scenes, command=cmd, date=date, machine=_machine(), load=(load0, os.getloadavg()[0]),
-                     threads=_threads())
+                     threads=_threads(), code=_code_version())
     print(section)
     if not a.no_write:
         update_section(a.out, section)

@@ -75,7 +75,9 @@ def test_cost_is_the_difference_to_the_mean_of_the_bracketing_full_runs():
     assert rows["sound"]["own"] == pytest.approx(1e3 * 1e-4 / 100) and rows["gravity"]["own"] is None
     assert "| without sound | 833.3 | 1.200 | modal step | sound | 0.001 | +0.900 | +42.9 % |" in text
     assert "| without gravity | 666.7 | 1.500 | modal step; sound | none |  | +0.600 | +28.6 % |" in text
-    assert "noise 0.200 ms/step (9.5 %)" in text
+    assert "noise 0.200 ms/step (9.5 %)" in text and "different plans" not in text
+    scene["cases"][-1]["plan"] = ["modal step"]  # the code changed between the bracketing runs
+    assert "compiled different plans" in sb.render([scene], command="c", date="d", machine="m", load=(0, 0), threads="t")
 
 
 def test_dropping_the_wind_drops_its_gusts(tmp_path):
