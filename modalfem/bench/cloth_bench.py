@@ -195,9 +195,11 @@ def plot_steps(results: list[dict], path: str) -> bool:
 
 
 def render(results: list[dict], solvers: list[dict], *, command: str, date: str, machine: str, versions: str,
-           plot: str | None = None, ablation: list[dict] | None = None, ablation_n: int = 64) -> str:
+           plot: str | None = None, ablation: list[dict] | None = None, ablation_n: int = 64,
+           load: tuple | None = None) -> str:
     """The markdown section (``plot``: path of the per-step PNG relative to the markdown file, if any;
-    ``ablation``: the stage ablation's runs, labelled, the first with every stage on)."""
+    ``ablation``: the stage ablation's runs, labelled, the first with every stage on; ``load``: the 1-minute
+    load average at the start and the end of the run)."""
     L = [SECTION, "", f"- Date: {date}", f"- Machine: {machine}", f"- Versions: {versions}", f"- Command: `{command}`",
          ("- One thread per case (MODALFEM/OMP/OpenBLAS/MKL_NUM_THREADS=1; 2 threads: `modalfem bench threads`), one child process per case; all stages on "
           "(repulsion, CCD, impact zones, culling by normal cones and projected contours in the proximity "
@@ -205,6 +207,9 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
           "cloth dropped vertically onto the ground), dt = 10 ms."),
          ("- CPU ms/step is this process's CPU time per step (`time.process_time`): on a shared machine it "
           "counts less of the waiting for a core than the wall time."),
+         *([] if load is None else [
+             f"- Load average (1 min): {load[0]:.1f} at the start, {load[1]:.1f} at the end (above the 2 cores: "
+             "other work shared the machine, and the wall times are upper bounds)."]),
          ("- Each case runs its scene's whole length (drape 100 steps, pile 80; the 128x128 cases half of it); "
           "ms/step 2nd half is the wall time per step over the second half of the steps (for the pile its "
           "settled, many-layer phase)."),
@@ -281,6 +286,13 @@ def _versions_line() -> str:
     return f"Python {sys.version.split()[0]}, numpy {np.__version__}, scipy {scipy.__version__}"
 
 
+def _load() -> float:
+    try:
+        return os.getloadavg()[0]
+    except OSError:  # pragma: no cover - not Unix
+        return float("nan")
+
+
 def command(argv: list[str]) -> int:
     """``modalfem bench cloth [--out BENCHMARKS.md] [--sizes 32 64 128] [--steps S] [--scenes drape pile]
     [--no-solvers] [--quick] [--plot PNG]``."""
@@ -302,6 +314,7 @@ def command(argv: list[str]) -> int:
     sizes, steps = ([8], 10) if a.quick else (a.sizes, a.steps)
     ablation_n = 8 if a.quick else a.ablation_n
     t0 = time.perf_counter()
+    load0 = _load()
     results, solvers = [], []
     from modalfem.cloth import scenes
 
@@ -339,7 +352,7 @@ def command(argv: list[str]) -> int:
     if plot_steps(results, plot):
         rel = os.path.relpath(os.path.abspath(plot), os.path.dirname(os.path.abspath(a.out)))
     section = render(results, solvers, command=cmd, date=date, machine=_machine(), versions=_versions_line(),
-                     plot=rel, ablation=ablation, ablation_n=ablation_n)
+                     plot=rel, ablation=ablation, ablation_n=ablation_n, load=(load0, _load()))
     print(section)
     update_section(a.out, section)
     print(f"cloth bench: {time.perf_counter() - t0:.0f} s, section written to {a.out}", file=sys.stderr)
