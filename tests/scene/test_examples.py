@@ -97,12 +97,29 @@ def _expected_stages(d: dict) -> set:
     return out
 
 
+#: the World method that runs each stage of a plan
+_STAGE_METHODS = {"tet step": "_stage_tet_step", "solid contacts": "_stage_contacts", "modal step": "_stage_modal_step",
+                  "tet self-collision": "_stage_tet_self", "cloth step": "_stage_cloth_step",
+                  "cloth collisions": "_stage_deformable", "sound": "_stage_sound"}
+
+
 def test_examples_are_the_six():
     assert set(examples()) == set(_STEPS), "a new example needs its step count in _STEPS"
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in _SLOW else n for n in _STEPS])
-def test_example_runs_and_its_summary_holds(name, tmp_path):
+def test_example_runs_and_its_summary_holds(name, tmp_path, monkeypatch):
+    from modalfem.world.world import World
+
+    calls = {}
+    for method in set(_STAGE_METHODS.values()) | {"_step_solo"}:
+        orig = getattr(World, method)
+
+        def spy(self, *args, _orig=orig, _m=method):
+            calls[_m] = calls.get(_m, 0) + 1
+            return _orig(self, *args)
+
+        monkeypatch.setattr(World, method, spy)
     copy, d = _quiet_copy(name, tmp_path)
     steps = _STEPS[name]
     res = run_scene(copy, tmp_path / "out", quiet=True, max_steps=steps)
@@ -116,8 +133,10 @@ def test_example_runs_and_its_summary_holds(name, tmp_path):
     assert s["intersections"]["checked_frames"] == s["frames"] >= 2
     assert s["intersections"]["total"] == 0, s["intersections"]["found"][:3]
 
-    # exactly the stages the scene needs
+    # exactly the stages the scene needs, and the run called exactly those, once per step
     assert {p.split(":")[0] for p in s["plan"]} == _expected_stages(d)
+    ran = s["time"]["steps_run"]
+    assert calls == {_STAGE_METHODS[p.split(":")[0]]: ran for p in s["plan"]}, calls
 
     # energy: only strikes and wind put energy in
     names = list(s["bodies"])
