@@ -49,6 +49,14 @@ After the step, vertices left inside an obstacle (impact times are predicted wit
 the modes) are pushed out by translating the body along the obstacle normal, so no vertex ends
 inside (e.g. below the ground); the potential energy this lift adds is taken from the kinetic energy.
 
+Fused step: the commonest contact step, a body resting or sliding on static obstacles in one sustained sub-step
+(rigid response, gravity-like loads, no impact now or within the step, no friction stop inside it, no energy
+gained) is done by one compiled call (``sustained_step``: ``_contact_step_kernels.sustained_step``) with the same
+operations in the same order as the Python event loop + ``push_out`` + the energy guard, so the state is the
+same bit for bit (tests/runtime/test_contact_fast.py); any other step is declined untouched and takes the
+Python path. The pieces both compute (deformation bound, skipped modes, the push-out's energy payment, the
+guard's energy, the stop share) are the same compiled functions.
+
 Energy guard: impact times are predicted without the rotation and the modes, and a push-out of a body
 too slow to pay for its lift costs energy; both shrink with the step. With gravity as the only load,
 ``ModalSolver.step`` therefore redoes a contact step that ends with more kinetic + modal + gravitational
@@ -74,7 +82,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modalfem.runtime.body import NEGLIGIBLE
 from modalfem.runtime.state import restore, snapshot
 
 __all__ = [
@@ -86,6 +93,7 @@ __all__ = [
     "push_out",
     "resolve_contacts",
     "step_with_contacts",
+    "sustained_step",
 ]
 
 
@@ -235,13 +243,19 @@ def _modal_terms(body, q: np.ndarray):
     """``(_skip, deformation_bound)`` of ``q``, kept for the last (body, q) seen."""
     key = q.tobytes()
     m = _MODAL
-    if m[0] is not body or m[1] != key:
-        scale = body._row_scale[:-1]
-        a = np.abs(q)
-        m[2] = a * scale < NEGLIGIBLE
-        m[3] = float(np.sqrt(3.0) * (a @ scale)) * (1.0 + 1e-6) + 1e-12 * (1.0 + body.radius)
+    if m[0] is not body or m[1] != key:  # (compiled: the same operations as the fused step's)
+        from modalfem.runtime._contact_step_kernels import modal_terms
+        m[2], m[3] = modal_terms(q, _row_scale(body), float(body.radius))
         m[0], m[1] = body, key
     return m[2], m[3]
+
+
+def _row_scale(body) -> np.ndarray:
+    """The modes' largest vertex displacement per unit q (r,) float64 [m / (sqrt(kg) m)]."""
+    s = body.__dict__.get("_contact_row_scale")
+    if s is None:
+        s = body.__dict__["_contact_row_scale"] = np.ascontiguousarray(body._row_scale[:-1], dtype=np.float64)
+    return s
 
 
 def _skip(body, q: np.ndarray) -> np.ndarray:
@@ -390,14 +404,19 @@ def normal_velocities(solver, state, contacts: Contacts) -> np.ndarray:
     if k == 0:
         return np.zeros(0)
     body = solver.body
-    R = _rotation(state)
-    Iw_inv = R @ body.inertia_inv @ R.T
     modal = _plan(contacts.effects).modal[contacts.effect]
     nm = body.mode_count if modal.any() else 0
     q = state.q
+    R = _rotation(state)
     return KB.normal_velocities(contacts.vertex, body.rest, vertex_modes(body), q, _skip(body, q), modal, R, nm,
                                 np.ascontiguousarray(contacts.normal, dtype=np.float64), state.velocity,
-                                Iw_inv @ state.angular_momentum, state.qdot)
+                                _angular_velocity(body, R, state.angular_momentum), state.qdot)
+
+
+def _angular_velocity(body, R: np.ndarray, L: np.ndarray) -> np.ndarray:
+    """World angular velocity ``R I^-1 R^T L`` (3,) [rad/s] as the normal velocities use it (numpy products: the
+    fused step is handed this very vector)."""
+    return (R @ body.inertia_inv @ R.T) @ L
 
 
 def resolve_contacts(solver, state, contacts: Contacts, dt: float, *, accel=None, sustained: bool = False) -> None:
@@ -621,6 +640,73 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
     _write_record(contacts, record)
 
 
+def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
+    """The contact part of ``ModalSolver.step`` (``step_with_contacts``, ``push_out`` and the energy guard) in one
+    compiled call (``_contact_step_kernels.sustained_step``) when it is a single sustained sub-step: loads a
+    constant force through the centre of mass (``loads`` not None, no torque, no modal force: the caller
+    checks), the contacts' response rigid over dt [s] (``_rigid_response``), no impact now or within the step,
+    no friction stop inside it, and no energy gained. Returns True when the step was done (``state`` advanced
+    by dt, ``contacts`` holding the step record as ``step_with_contacts`` writes it), False with nothing
+    changed otherwise (the caller then takes the Python path, whose result it would have been bit for bit)."""
+    from modalfem.runtime import _contact_step_kernels as KS
+    body = solver.body
+    effects = contacts.effects
+    accel = loads.force / body.mass
+    c = contacts if _fresh(contacts, state, float(dt), accel) else find_contacts(solver, state, effects, dt,
+                                                                                   accel=accel)
+    k = c.count
+    plan = _plan(effects)
+    if k == 0 or not _rigid_response(body, plan, c, dt):
+        return False
+    omega2, axes, moments, eps = _fast_terms(body)
+    obstacle = plan.first[c.effect] + c.obstacle
+    gap_mid = np.empty(k)
+    n_mid = np.empty((k, 3))
+    lam_n = np.empty(k)
+    done = KS.sustained_step(plan.kinds, plan.params, c.vertex, obstacle, c.gap, c.normal,
+                             0.1 * plan.margin[obstacle], plan.threshold[c.effect], plan.friction[c.effect],
+                             plan.modal[c.effect], body.rest, vertex_modes(body), _row_scale(body),
+                             float(body.radius), omega2, float(body.mass), body.inertia, body.inertia_inv, axes,
+                             moments, eps, np.stack(solver.integrator.coefficients(0.5 * dt)), loads.force,
+                             loads.torque, loads.modal, accel, float(dt), int(plan.iterations), 4,
+                             state.position, state.orientation, state.velocity, state.angular_momentum,
+                             _angular_velocity(body, _rotation(state), state.angular_momentum), state.q, state.qdot,
+                             gap_mid, n_mid, lam_n)
+    if not done:
+        return False
+    mid = Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, impulses=lam_n, obstacle=c.obstacle)
+    record: list = []
+    _accumulate(record, mid, gap_mid)
+    _write_record(contacts, record)
+    return True
+
+
+_FAST: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _fast_terms(body) -> tuple:
+    """(omega^2 (r,), principal axes (3, 3) as rows, principal moments (3,), the shapes' machine epsilon),
+    kept while the body lives."""
+    fast = _FAST.get(body)
+    if fast is None:
+        fast = _FAST[body] = (np.ascontiguousarray(body.omega, dtype=np.float64) ** 2,
+                              np.ascontiguousarray(body.principal_axes.T, dtype=np.float64),
+                              np.ascontiguousarray(body.principal_moments, dtype=np.float64),
+                              _eps(body.shapes_t.dtype))
+    return fast
+
+
+def guard_energy(solver, state, loads) -> tuple[float, float]:
+    """``(solver.energy(state), that - loads.force . position)`` [J]: the energy guard's measure, by the compiled
+    function the fused step uses (``_contact_step_kernels.energy``)."""
+    from modalfem.runtime import _contact_step_kernels as KS
+    body = solver.body
+    force = _ZERO3 if loads is None else loads.force
+    own, e = KS.energy(float(body.mass), body.inertia_inv, _fast_terms(body)[0], state.position, state.orientation,
+                       state.velocity, state.angular_momentum, state.q, state.qdot, force)
+    return float(own), float(e)
+
+
 def _fly(solver, state, loads, c: Contacts, h: float, slop: np.ndarray, tries: int = 8):
     """Free flight of at most h [s] that ends with no contact vertex deeper than its slop inside.
 
@@ -656,32 +742,11 @@ def _stop_fraction(body, mid: Contacts, v_start, v_after, accel, span):
     saturated friction (total ``sum mu_i lambda_n,i`` over the sub-step) and the tangential load
     acceleration a_t, it stops at ``t_s = m |v_t0| / (F_max - m a_t . d)``, d the sliding direction.
     """
-    if mid.count == 0 or not np.any(mid.impulses > 0.0):
-        return None
-    mu = _plan(mid.effects).friction[mid.effect]
-    cone = float(mu @ mid.impulses)
-    if cone <= 0.0:
-        return None
-    n0, n1, n2 = mid.normal[int(np.argmax(mid.impulses))].tolist()  # (3-vectors as floats: ~10x cheaper)
-    v0, v1, v2 = v_start.tolist()
-    vn = n0 * v0 + n1 * v1 + n2 * v2
-    t0, t1, t2 = v0 - n0 * vn, v1 - n1 * vn, v2 - n2 * vn
-    s0 = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-    if s0 == 0.0:
-        return None
-    a0, a1, a2 = accel.tolist()
-    e0, e1, e2 = (x + 0.5 * span * a for x, a in zip(v_after.tolist(), (a0, a1, a2)))  # end-of-sub-step velocity
-    en = n0 * e0 + n1 * e1 + n2 * e2
-    e0, e1, e2 = e0 - n0 * en, e1 - n1 * en, e2 - n2 * en
-    if math.sqrt(e0 * e0 + e1 * e1 + e2 * e2) > 1e-3 * s0:  # still sliding at the end: friction was saturated
-        return None
-    rate = cone / span - body.mass * (a0 * t0 + a1 * t1 + a2 * t2) / s0  # [N]: deceleration of saturated friction
-    if rate <= 0.0:
-        return None
-    share = body.mass * s0 / (rate * span)
-    if 1e-3 < share < 1.0 - 1e-6:
-        return share
-    return None
+    from modalfem.runtime import _contact_step_kernels as KS
+    share = KS.stop_share(float(body.mass), np.ascontiguousarray(mid.normal, dtype=np.float64), mid.impulses,
+                          _plan(mid.effects).friction[mid.effect], v_start, v_after,
+                          np.asarray(accel, dtype=np.float64), float(span))
+    return None if math.isnan(share) else float(share)
 
 
 _EPS: dict = {}
@@ -708,6 +773,7 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     float32 (~6e-8 of it), so a vertex is pushed to at least that rounding slack above the obstacle.
     """
     from modalfem.runtime import _contact_body_kernels as KB
+    from modalfem.runtime import _contact_step_kernels as KS
     body = solver.body
     plan = _plan(contacts.effects)
     q = state.q
@@ -715,15 +781,7 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     slack = 4.0 * (body.mode_count + 2) * _eps(body.shapes_t.dtype) * bound
     total = KB.push_shift(plan.kinds, plan.params, body.rest, vertex_modes(body), q, _skip(body, q),
                           _rotation(state), state.position, bound, slack, int(passes))
-    if accel is None or not total.any():
+    if accel is None:
         return
-    gain = -body.mass * float(np.asarray(accel, dtype=np.float64) @ total)  # [J]
-    if gain <= 0.0:
-        return
-    Lb = _rotation(state).T @ state.angular_momentum  # kinetic energy (body.kinetic_energy_rigid with the cached R)
-    kinetic = 0.5 * (body.mass * float(state.velocity @ state.velocity) + float(Lb @ (body.inertia_inv @ Lb))
-                     + float(state.qdot @ state.qdot))
-    scale = float(np.sqrt(max(0.0, 1.0 - gain / kinetic))) if kinetic > 0.0 else 0.0
-    state.velocity *= scale
-    state.angular_momentum *= scale
-    state.qdot *= scale
+    KS.pay_lift(float(body.mass), np.asarray(accel, dtype=np.float64), total, _rotation(state), body.inertia_inv,
+                state.velocity, state.angular_momentum, state.qdot)
