@@ -208,16 +208,17 @@ def stop_share(mass, normal, lam_n, mu, v_start, v_after, accel, span):
 
 
 @numba.njit(cache=True)
-def sustained_step(kinds, params, vertex, obstacle, gap, normal, slop, thr, mu, modal,
+def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, vertex, effect, local, gap, normal,
                    rest, vm, row_scale, radius, omega2, mass, inertia, inertia_inv, axes, moments, eps,
                    co_half, force, torque, fmodal, accel, h, iters, passes,
                    pos, qt, v, L, w, q, qdot, gap_mid, n_mid, lam_n):
     """One contact step of h [s] as a single sustained sub-step, when that is what the Python path does.
 
     Args:
-        kinds, params: the obstacles (``contact._Plan``); vertex, obstacle (k,): the contacts found at the
-            start of the step (obstacle: index into kinds), gap (k,) [m], normal (k, 3); slop, thr, mu (k,):
-            the contacts' slop [m] (0.1 margin), bounce threshold [m/s] and friction; modal (k,) bool.
+        kinds, params, first, margin, threshold, friction, modal_e: the obstacles and effects (``contact._Plan``:
+            per obstacle its kind, parameters and margin [m]; per effect its first obstacle, bounce threshold
+            [m/s], friction and modal flag); vertex, effect, local (k,): the contacts found at the start of the
+            step (vertex, effect, obstacle within the effect), gap (k,) [m], normal (k, 3).
         rest, vm, row_scale, radius: the body's rest positions (nv, 3) [m], vertex-major modes, the modes'
             largest vertex displacement per unit q [m / (sqrt(kg) m)] (r,), radius [m]; omega2 (r,)
             [rad^2/s^2]; mass [kg]; inertia, inertia_inv (3, 3) body axes; axes (3, 3) principal axes (rows),
@@ -236,8 +237,20 @@ def sustained_step(kinds, params, vertex, obstacle, gap, normal, slop, thr, mu, 
     """
     k = vertex.shape[0]
     nm = q.shape[0]
+    obstacle = np.empty(k, dtype=np.int64)
+    slop = np.empty(k)  # 0.1 margin [m]
+    thr = np.empty(k)
+    mu = np.empty(k)
+    modal = np.empty(k, dtype=np.bool_)
     anymodal = False
     for i in range(k):
+        e = effect[i]
+        o = first[e] + local[i]
+        obstacle[i] = o
+        slop[i] = 0.1 * margin[o]
+        thr[i] = threshold[e]
+        mu[i] = friction[e]
+        modal[i] = modal_e[e]
         if modal[i]:
             anymodal = True
     R0 = _matrix(qt)

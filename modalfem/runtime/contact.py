@@ -659,17 +659,18 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
     if k == 0 or not _rigid_response(body, plan, c, dt):
         return False
     omega2, axes, moments, eps = _fast_terms(body)
-    obstacle = plan.first[c.effect] + c.obstacle
+    co = solver.__dict__.get("_half_coefficients")
+    if co is None or co[0] != dt:  # the integrator's coefficients of dt / 2 as one (6, r) array
+        co = solver.__dict__["_half_coefficients"] = (dt, np.stack(solver.integrator.coefficients(0.5 * dt)))
     gap_mid = np.empty(k)
     n_mid = np.empty((k, 3))
     lam_n = np.empty(k)
-    done = KS.sustained_step(plan.kinds, plan.params, c.vertex, obstacle, c.gap, c.normal,
-                             0.1 * plan.margin[obstacle], plan.threshold[c.effect], plan.friction[c.effect],
-                             plan.modal[c.effect], body.rest, vertex_modes(body), _row_scale(body),
-                             float(body.radius), omega2, float(body.mass), body.inertia, body.inertia_inv, axes,
-                             moments, eps, np.stack(solver.integrator.coefficients(0.5 * dt)), loads.force,
-                             loads.torque, loads.modal, accel, float(dt), int(plan.iterations), 4,
-                             state.position, state.orientation, state.velocity, state.angular_momentum,
+    done = KS.sustained_step(plan.kinds, plan.params, plan.first, plan.margin, plan.threshold, plan.friction,
+                             plan.modal, c.vertex, c.effect, c.obstacle, c.gap, c.normal, body.rest,
+                             vertex_modes(body), _row_scale(body), float(body.radius), omega2, float(body.mass),
+                             body.inertia, body.inertia_inv, axes, moments, eps, co[1], loads.force, loads.torque,
+                             loads.modal, accel, float(dt), int(plan.iterations), 4, state.position,
+                             state.orientation, state.velocity, state.angular_momentum,
                              _angular_velocity(body, _rotation(state), state.angular_momentum), state.q, state.qdot,
                              gap_mid, n_mid, lam_n)
     if not done:
