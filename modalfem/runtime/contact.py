@@ -675,10 +675,17 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
                              gap_mid, n_mid, lam_n)
     if not done:
         return False
-    mid = Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, impulses=lam_n, obstacle=c.obstacle)
-    record: list = []
-    _accumulate(record, mid, gap_mid)
-    _write_record(contacts, record)
+    # the step record, as _accumulate + _write_record write it: the contacts that pushed
+    sel = lam_n > 0.0
+    if not sel.all():
+        if not sel.any():
+            _write_record(contacts, [])
+            return True
+        c = c.subset(sel)
+        gap_mid, n_mid, lam_n = gap_mid[sel], n_mid[sel], lam_n[sel]
+    contacts.vertex, contacts.effect, contacts.obstacle = (a.astype(np.int64, copy=False)
+                                                          for a in (c.vertex, c.effect, c.obstacle))
+    contacts.normal, contacts.gap, contacts.impulses, contacts.tangential = n_mid, gap_mid, lam_n, None
     return True
 
 

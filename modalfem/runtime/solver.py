@@ -160,7 +160,7 @@ class ModalSolver:
         accel = None
         gravities = [np.asarray(e.g, dtype=np.float64) for e in self._load_effects if hasattr(e, "g")]
         if gravities:
-            accel = np.sum(gravities, axis=0)
+            accel = gravities[0].copy() if len(gravities) == 1 else np.sum(gravities, axis=0)
         return find_contacts(self, state, self._contact_effects, dt, accel=accel)
 
     # ------------------------------------------------------------------ step
