@@ -10,6 +10,7 @@ import pytest
 
 import modalfem.runtime as rt
 import modalfem.runtime.contact as C
+from modalfem.runtime.rotation import quat_from_axis_angle
 from modalfem.runtime.solver import ENERGY_RTOL
 from modalfem.runtime.state import _FIELDS, snapshot
 
@@ -17,13 +18,22 @@ DT = 1e-3  # [s]
 G = 9.81  # [m/s^2]
 
 
-def _solver(body, friction=0.3):
-    return rt.ModalSolver(body, effects=[rt.Gravity((0, 0, -G)), rt.Obstacles([rt.Ground(0.0)], friction=friction)])
+SLOPE = np.radians(10.0)  # a plane tilted about y: tan 10 deg = 0.18 < friction 0.3, the body stays put
+SLOPE_NORMAL = np.array([np.sin(SLOPE), 0.0, np.cos(SLOPE)])
 
 
-def _on_ground(solver, **kwargs):
+def _solver(body, friction=0.3, slope=False):
+    plane = rt.Plane(SLOPE_NORMAL, (0.0, 0.0, 0.0)) if slope else rt.Ground(0.0)
+    return rt.ModalSolver(body, effects=[rt.Gravity((0, 0, -G)), rt.Obstacles([plane], friction=friction)])
+
+
+def _on_ground(solver, slope=False, **kwargs):
+    """A state with its lowest vertex on the ground (or on the slope, the body turned to lie on it)."""
+    if slope:
+        kwargs["orientation"] = quat_from_axis_angle((0.0, 1.0, 0.0), SLOPE)
     st = solver.state(**kwargs)
-    st.position[2] -= solver.body.positions(st, precise=True)[:, 2].min()  # lowest vertex on the ground
+    up = SLOPE_NORMAL if slope else np.array([0.0, 0.0, 1.0])
+    st.position -= up * (solver.body.positions(st, precise=True) @ up).min()
     return st
 
 
@@ -39,7 +49,7 @@ def _run(monkeypatch, body, fast: bool, steps: int, **kwargs):
         return done
 
     monkeypatch.setattr(C, "sustained_step", fused if fast else (lambda *a: False))
-    solver = _solver(body)
+    solver = _solver(body, slope=kwargs.get("slope", False))
     st = _on_ground(solver, **kwargs)
     out = []
     for _ in range(steps):
@@ -51,28 +61,33 @@ def _run(monkeypatch, body, fast: bool, steps: int, **kwargs):
     return out, taken[0]
 
 
-CASES = {"resting": {}, "sliding": {"velocity": (0.5, 0.2, 0.0), "angular_velocity": (0.0, 0.0, 0.5)}}
+CASES = {"resting": {}, "sliding": {"velocity": (0.5, 0.2, 0.0), "angular_velocity": (0.0, 0.0, 0.5)},
+         "on a slope": {"slope": True}}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_the_fused_step_gives_the_python_paths_state_bit_for_bit(small_model, monkeypatch, case):
     """Both paths do the same floating-point operations in the same order (the decisions on touching, impacts,
     stops and energy from the same numbers), so every state array and the step record are equal bit for bit
-    over 300 steps; the fused step did the resting body's every step and most of the sliding one's (the
-    others: the friction stop and the steps after it, where the Python path takes over)."""
+    over 300 steps; the fused step did every step of the body resting on the ground and on a slope (held by
+    friction against gravity's pull along it), and a quarter of the sliding one's (while it slides a vertex
+    touches and approaches in most steps: an impact solve first, the Python path's; then its friction stop)."""
     body = rt.ModalBody(small_model)  # float32 shapes (the runtime default)
     steps = 300
     fused, taken = _run(monkeypatch, body, True, steps, **CASES[case])
     python, none = _run(monkeypatch, body, False, steps, **CASES[case])
     assert none == 0
-    assert taken == steps if case == "resting" else taken >= steps // 4
+    assert taken == steps if case != "sliding" else taken >= steps // 4
     for i, (a, b) in enumerate(zip(fused, python)):
         for name, x, y in zip(_FIELDS, a[0], b[0]):
             assert np.array_equal(x, y), (i, name, x - y)
         for x, y in zip(a[1:], b[1:]):
             assert np.array_equal(x, y), i
-    if case == "sliding":  # it did slide (and the fused steps were sliding ones)
-        assert np.linalg.norm(fused[-1][0][2][:2] - fused[0][0][2][:2]) > 0.01
+    moved = np.linalg.norm(fused[-1][0][2] - fused[0][0][2])  # [m] over the run
+    if case == "sliding":  # it did slide
+        assert moved > 0.01
+    if case == "on a slope":  # friction held it (sliding freely it would go g sin(10 deg) t^2 / 2 = 0.08 m)
+        assert moved < 1e-6
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -82,8 +97,9 @@ def test_fused_steps_never_add_energy_nor_leave_a_vertex_below_the_ground(small_
     with the body's own energy functions; no vertex ends below the ground beyond the float64 rounding of a
     position (1e-12 m, as the contact tests)."""
     body = rt.ModalBody(small_model)
-    solver = _solver(body)
+    solver = _solver(body, slope=CASES[case].get("slope", False))
     st = _on_ground(solver, **CASES[case])
+    up = SLOPE_NORMAL if CASES[case].get("slope") else np.array([0.0, 0.0, 1.0])
     real = C.sustained_step
     taken = []
 
@@ -104,10 +120,10 @@ def test_fused_steps_never_add_energy_nor_leave_a_vertex_below_the_ground(small_
             own1 = energy(st) - body.mass * G * st.position[2]
             scale = own0 + own1 + body.mass * G * (np.linalg.norm(st.position - p0) + body.radius)
             assert energy(st) <= e0 + ENERGY_RTOL * scale, i
-        assert body.positions(st, precise=True)[:, 2].min() >= -1e-12, i
-    # the resting body's every step; the sliding one's a vertex touching and approaching (an impact solve first:
+        assert (body.positions(st, precise=True) @ up).min() >= -1e-12, i
+    # the resting bodies' every step; the sliding one's a vertex touching and approaching (an impact solve first:
     # the Python path) in most steps while it slides, the fused step once it has stopped
-    assert sum(taken) >= (200 if case == "resting" else 10), sum(taken)
+    assert sum(taken) >= (10 if case == "sliding" else 200), sum(taken)
 
 
 def _call(solver, st, dt=DT):
