@@ -4,16 +4,18 @@
 ``contact.push_out`` + the energy guard of ``ModalSolver._contact_step_without_gain``) for its commonest case,
 in one call: a body in sustained contact (resting or sliding) whose contact response is rigid (every mode
 faster than the step, ``contact._rigid_response``), under a constant load force through the centre of mass
-(gravity), with no impact now (no contact touching and approaching), no impact predicted within the step and
-no friction stop inside it. Then the Python event loop does exactly this: the impulse-free test, a free half
-step, the mid-step gaps, the rigid sustained solve (``_contact_body_kernels.resolve_rigid``), the stop test,
-a free half step, the push-out with its energy payment, and the energy check. The kernel does the same
-arithmetic in the same order (the state is the Python path's bit for bit; tests/runtime/test_contact_fast.py)
-and returns 0 without touching the state whenever any condition fails, so the caller falls back to the
-Python path, which handles impacts, stops and the halving of a step that gained energy.
+(gravity), with no impact predicted within the step and no friction stop inside it (contacts touching and
+approaching now get the Python impact solve first: ``after_impact``). Then the Python event loop does exactly
+this: the impact prediction, a free half step, the mid-step gaps, the rigid sustained solve
+(``_contact_body_kernels.resolve_rigid``), the stop test, a free half step, the push-out with its energy
+payment, and the energy check. The kernel does the same arithmetic in the same order (the state is the Python
+path's bit for bit; tests/runtime/test_contact_fast.py) and returns 0 (2: touching contacts, an impact solve
+first) without touching the state whenever a condition fails, so the caller falls back to the Python path,
+which handles impacts, stops and the halving of a step that gained energy.
 
-Shared pieces (the deformation bound, the skipped modes, the push-out's energy payment) are compiled
-functions that the Python path calls too, so both compute them with the same operations.
+Shared pieces (the deformation bound, the skipped modes, the push-out's energy payment, the guard's energy, the
+stop share) are compiled functions that the Python path calls too, so both compute them with the same
+operations.
 """
 
 from __future__ import annotations
@@ -211,7 +213,7 @@ def stop_share(mass, normal, lam_n, mu, v_start, v_after, accel, span):
 def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, vertex, effect, local, gap, normal,
                    rest, vm, row_scale, radius, omega2, mass, inertia, inertia_inv, axes, moments, eps,
                    co_half, force, torque, fmodal, accel, h, iters, passes,
-                   pos, qt, v, L, w, q, qdot, gap_mid, n_mid, lam_n):
+                   pos, qt, v, L, w, q, qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0):
     """One contact step of h [s] as a single sustained sub-step, when that is what the Python path does.
 
     Args:
@@ -230,10 +232,14 @@ def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, v
             angular velocity ``R I^-1 R^T L`` as the Python path forms it (``contact.normal_velocities``: the
             same normal velocities, so the same decisions on touching and impacts).
         gap_mid, n_mid, lam_n: (k,), (k, 3), (k,) outputs: mid-step gaps and normals, normal impulses [N s].
+        after_impact: the state is the one after the impact solve of the contacts touching and approaching
+            at the start of the step (the caller's, as the Python path's step 1.): no touching test then, and
+            own0, e0 [J] are the energies (``energy``) before that solve, for the energy guard (else unused).
 
     Returns:
-        1 when the step was done (state and outputs written), 0 when the Python path must do it (state
-        untouched): an impact now or predicted in the step, a friction stop inside it, or energy gained.
+        1 when the step was done (state and outputs written); 2 when contacts touch and approach now (an impact
+        solve first: the caller's) and 0 when the Python path must do the step (an impact predicted in the
+        step, a friction stop inside it, or energy gained); the state untouched in both.
     """
     k = vertex.shape[0]
     nm = q.shape[0]
@@ -256,13 +262,15 @@ def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, v
     R0 = _matrix(qt)
     skip, _ = modal_terms(q, row_scale, radius)
     vn = normal_velocities(vertex, rest, vm, q, skip, modal, R0, nm if anymodal else 0, normal, v, w, qdot)
-    for i in range(k):  # 1. an impact now: the Python path's
-        if gap[i] <= 1e-8 * slop[i] and vn[i] < 0.0:
-            return 0
+    if not after_impact:
+        for i in range(k):  # 1. an impact now: the caller's
+            if gap[i] <= 1e-8 * slop[i] and vn[i] < 0.0:
+                return 2
     t_fast, j, t_slow = crossings(gap, vn, normal, accel, thr, h)
     if j >= 0:  # 2. an impact predicted within the step
         return 0
-    own0, e0 = energy(mass, inertia_inv, omega2, pos, qt, v, L, q, qdot, force)
+    if not after_impact:
+        own0, e0 = energy(mass, inertia_inv, omega2, pos, qt, v, L, q, qdot, force)
     # 3. one sustained sub-step over the whole step, on copies of the state
     p1, qt1, v1, L1, q1, qd1 = pos.copy(), qt.copy(), v.copy(), L.copy(), q.copy(), qdot.copy()
     _advance_free(p1, qt1, v1, L1, q1, qd1, force, torque, fmodal, mass, axes, moments, co_half, 0.5 * h)

@@ -50,12 +50,13 @@ the modes) are pushed out by translating the body along the obstacle normal, so 
 inside (e.g. below the ground); the potential energy this lift adds is taken from the kinetic energy.
 
 Fused step: the commonest contact step, a body resting or sliding on static obstacles in one sustained sub-step
-(rigid response, gravity-like loads, no impact now or within the step, no friction stop inside it, no energy
+(rigid response, gravity-like loads, no impact predicted within the step, no friction stop inside it, no energy
 gained) is done by one compiled call (``sustained_step``: ``_contact_step_kernels.sustained_step``) with the same
 operations in the same order as the Python event loop + ``push_out`` + the energy guard, so the state is the
-same bit for bit (tests/runtime/test_contact_fast.py); any other step is declined untouched and takes the
-Python path. The pieces both compute (deformation bound, skipped modes, the push-out's energy payment, the
-guard's energy, the stop share) are the same compiled functions.
+same bit for bit (tests/runtime/test_contact_fast.py). Contacts touching and approaching at the start (a sliding
+body's every other step) get the Python impact solve first, then the compiled rest. Any other step is declined
+untouched and takes the Python path. The pieces both compute (deformation bound, skipped modes, the push-out's
+energy payment, the guard's energy, the stop share) are the same compiled functions.
 
 Energy guard: impact times are predicted without the rotation and the modes, and a push-out of a body
 too slow to pay for its lift costs energy; both shrink with the step. With gravity as the only load,
@@ -644,8 +645,10 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
     """The contact part of ``ModalSolver.step`` (``step_with_contacts``, ``push_out`` and the energy guard) in one
     compiled call (``_contact_step_kernels.sustained_step``) when it is a single sustained sub-step: loads a
     constant force through the centre of mass (``loads`` not None, no torque, no modal force: the caller
-    checks), the contacts' response rigid over dt [s] (``_rigid_response``), no impact now or within the step,
-    no friction stop inside it, and no energy gained. Returns True when the step was done (``state`` advanced
+    checks), the contacts' response rigid over dt [s] (``_rigid_response``), no impact predicted within the
+    step, no friction stop inside it, and no energy gained. Contacts touching and approaching at the start get
+    the impact solve of ``step_with_contacts`` (``resolve_contacts``, Python) before the compiled rest (undone
+    if that then declines). Returns True when the step was done (``state`` advanced
     by dt, ``contacts`` holding the step record as ``step_with_contacts`` writes it), False with nothing
     changed otherwise (the caller then takes the Python path, whose result it would have been bit for bit)."""
     from modalfem.runtime import _contact_step_kernels as KS
@@ -665,15 +668,34 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
     gap_mid = np.empty(k)
     n_mid = np.empty((k, 3))
     lam_n = np.empty(k)
-    done = KS.sustained_step(plan.kinds, plan.params, plan.first, plan.margin, plan.threshold, plan.friction,
-                             plan.modal, c.vertex, c.effect, c.obstacle, c.gap, c.normal, body.rest,
-                             vertex_modes(body), _row_scale(body), float(body.radius), omega2, float(body.mass),
-                             body.inertia, body.inertia_inv, axes, moments, eps, co[1], loads.force, loads.torque,
-                             loads.modal, accel, float(dt), int(plan.iterations), 4, state.position,
-                             state.orientation, state.velocity, state.angular_momentum,
-                             _angular_velocity(body, _rotation(state), state.angular_momentum), state.q, state.qdot,
-                             gap_mid, n_mid, lam_n)
-    if not done:
+
+    def fused(after_impact: bool, own0: float, e0: float) -> int:
+        return KS.sustained_step(plan.kinds, plan.params, plan.first, plan.margin, plan.threshold, plan.friction,
+                                 plan.modal, c.vertex, c.effect, c.obstacle, c.gap, c.normal, body.rest,
+                                 vertex_modes(body), _row_scale(body), float(body.radius), omega2, float(body.mass),
+                                 body.inertia, body.inertia_inv, axes, moments, eps, co[1], loads.force, loads.torque,
+                                 loads.modal, accel, float(dt), int(plan.iterations), 4, state.position,
+                                 state.orientation, state.velocity, state.angular_momentum,
+                                 _angular_velocity(body, _rotation(state), state.angular_momentum), state.q,
+                                 state.qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0)
+
+    done = fused(False, 0.0, 0.0)
+    if done == 2:  # contacts touching and approaching: the impact solve of step_with_contacts' 1., then fused
+        own0, e0 = guard_energy(solver, state, loads)
+        saved = snapshot(state)
+        slop = 0.1 * plan.margin[plan.first[c.effect] + c.obstacle]
+        sub = c.subset((c.gap <= 1e-8 * slop) & (normal_velocities(solver, state, c) < 0.0))
+        resolve_contacts(solver, state, sub, float(dt))
+        if fused(True, own0, e0) != 1:
+            restore(state, saved)
+            return False
+        record: list = []
+        _accumulate(record, sub, sub.gap)
+        _accumulate(record, Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, impulses=lam_n,
+                                     obstacle=c.obstacle), gap_mid)
+        _write_record(contacts, record)
+        return True
+    if done != 1:
         return False
     # the step record, as _accumulate + _write_record write it: the contacts that pushed
     sel = lam_n > 0.0

@@ -1,7 +1,7 @@
 """The fused sustained-contact step (``contact.sustained_step``, ``_contact_step_kernels.sustained_step``):
-the same state as the Python event loop bit for bit, taken for a resting and a sliding body, never adding
-energy, leaving no vertex inside the ground, and declining (state untouched) when an impact or a friction
-stop falls in the step."""
+the same state as the Python event loop bit for bit, taken for a body resting, sliding, and held on a slope,
+never adding energy, leaving no vertex inside the ground, and declining (state untouched) when an impact or a
+friction stop falls in the step or the modes take part in the sustained solve."""
 
 from __future__ import annotations
 
@@ -39,16 +39,22 @@ def _on_ground(solver, slope=False, **kwargs):
 
 def _run(monkeypatch, body, fast: bool, steps: int, **kwargs):
     """``steps`` collide + step pairs; per step the state's arrays and the step record; the count of steps the
-    fused step did (``fast``) or 0 (the fused step switched off: the Python path only)."""
-    real = C.sustained_step
+    fused step did (``fast``) or 0 (the fused step switched off: the Python path only); the impact solves."""
+    real, real_resolve = C.sustained_step, C.resolve_contacts
     taken = [0]
+    impacts = [0]  # impact solves (on the fused path: those of the contacts touching and approaching at the start)
 
     def fused(*a):
         done = real(*a)
         taken[0] += done
         return done
 
+    def resolve(*a, **kw):
+        impacts[0] += not kw.get("sustained", False)
+        return real_resolve(*a, **kw)
+
     monkeypatch.setattr(C, "sustained_step", fused if fast else (lambda *a: False))
+    monkeypatch.setattr(C, "resolve_contacts", resolve)
     solver = _solver(body, slope=kwargs.get("slope", False))
     st = _on_ground(solver, **kwargs)
     out = []
@@ -58,7 +64,8 @@ def _run(monkeypatch, body, fast: bool, steps: int, **kwargs):
         out.append(([getattr(st, f).copy() for f in _FIELDS], c.vertex.copy(), c.impulses.copy(), c.gap.copy(),
                      c.normal.copy()))
     monkeypatch.setattr(C, "sustained_step", real)
-    return out, taken[0]
+    monkeypatch.setattr(C, "resolve_contacts", real_resolve)
+    return out, taken[0], impacts[0]
 
 
 CASES = {"resting": {}, "sliding": {"velocity": (0.5, 0.2, 0.0), "angular_velocity": (0.0, 0.0, 0.5)},
@@ -70,14 +77,18 @@ def test_the_fused_step_gives_the_python_paths_state_bit_for_bit(small_model, mo
     """Both paths do the same floating-point operations in the same order (the decisions on touching, impacts,
     stops and energy from the same numbers), so every state array and the step record are equal bit for bit
     over 300 steps; the fused step did every step of the body resting on the ground and on a slope (held by
-    friction against gravity's pull along it), and a quarter of the sliding one's (while it slides a vertex
-    touches and approaches in most steps: an impact solve first, the Python path's; then its friction stop)."""
+    friction against gravity's pull along it), and nearly every step of the sliding one (while it slides, a
+    vertex touches and approaches in most steps: the impact solve of those first, then the fused rest; here
+    all 300 on an Intel Xeon, 0.9 of them asked: an impact predicted within a step on another machine's
+    rounding would leave that step to the Python path)."""
     body = rt.ModalBody(small_model)  # float32 shapes (the runtime default)
     steps = 300
-    fused, taken = _run(monkeypatch, body, True, steps, **CASES[case])
-    python, none = _run(monkeypatch, body, False, steps, **CASES[case])
+    fused, taken, impacts = _run(monkeypatch, body, True, steps, **CASES[case])
+    python, none, _ = _run(monkeypatch, body, False, steps, **CASES[case])
     assert none == 0
-    assert taken == steps if case != "sliding" else taken >= steps // 4
+    if case == "sliding":  # the fused steps after an impact solve were taken (and compared) too
+        assert impacts > steps // 4, impacts
+    assert taken == steps if case != "sliding" else taken >= 0.9 * steps
     for i, (a, b) in enumerate(zip(fused, python)):
         for name, x, y in zip(_FIELDS, a[0], b[0]):
             assert np.array_equal(x, y), (i, name, x - y)
@@ -121,9 +132,7 @@ def test_fused_steps_never_add_energy_nor_leave_a_vertex_below_the_ground(small_
             scale = own0 + own1 + body.mass * G * (np.linalg.norm(st.position - p0) + body.radius)
             assert energy(st) <= e0 + ENERGY_RTOL * scale, i
         assert (body.positions(st, precise=True) @ up).min() >= -1e-12, i
-    # the resting bodies' every step; the sliding one's a vertex touching and approaching (an impact solve first:
-    # the Python path) in most steps while it slides, the fused step once it has stopped
-    assert sum(taken) >= (10 if case == "sliding" else 200), sum(taken)
+    assert sum(taken) >= (0.9 * 200 if case == "sliding" else 200), sum(taken)  # (see the test above)
 
 
 def _call(solver, st, dt=DT):
