@@ -67,7 +67,7 @@ def test_render_contact_gives_each_verdict_from_its_own_number():
     rows = _rows(text.splitlines(), "| case")
     assert [r["verdict"] for r in rows] == ["**met**", "**NOT met**", "**met**"]  # 10000 >= 5000, 200 < 300, 250
     assert [r["steps/s"] for r in rows] == ["10000", "200", "250"]
-    assert [r["contact / free"] for r in rows] == ["2", "100", "4"]
+    assert [r["contact / free"] for r in rows] == ["2.5", "100.0", "4"]  # resting cases to 0.1 (1e-4 / 4e-5)
     assert "- bar: solve (k.py) 50 us" in text
     failed = rb.render_contact([("bar", {"error": "boom"})], {"error": "boom"}, command="c", date="d", machine="m",
                                load="1.0")
