@@ -952,7 +952,10 @@ class World:
             if contacts is not None:
                 ctx.report.contacts["modal_static"] = ctx.report.contacts.get("modal_static", 0) + contacts.count
                 if name in self._sounds and contacts.count:
-                    self._sounds[name].add_contacts(ctx.state_in.time, contacts, rotation=s.rotation())
+                    # impacts only: a body resting under gravity takes ~m g dt every step, which recorded as
+                    # impacts is a buzz at the step rate (and a resting bell was ~820 impacts in 1000 steps)
+                    self._sounds[name].add_contacts(ctx.state_in.time, contacts, rotation=s.rotation(),
+                                                    min_impulse=5.0 * body.mass * float(np.linalg.norm(m["g"])) * dt)
             ctx.out.bodies[name] = out
             ctx.done.add(name)
 

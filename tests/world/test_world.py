@@ -453,3 +453,22 @@ def test_a_lone_modal_body_steps_exactly_as_its_solver(bar_model):
     for a in ("q", "qdot", "position", "velocity", "angular_momentum"):
         assert np.array_equal(getattr(other["bar"], a), getattr(ref, a)), a
     assert other.time == pytest.approx(13e-3) and s.time == pytest.approx(12e-3)
+
+
+def test_resting_contact_is_not_heard_as_impacts(bar_model):
+    """A bar landing on the ground makes a few impacts; lying there it takes ~m g dt every step, which must not be
+    recorded as an impact per step (a buzz at the step rate)."""
+    from modalfem.effects import Contact, Gravity, Sound
+
+    z0 = -float(bar_model.vertices[:, 2].min()) + float(bar_model.center_of_mass[2]) + 2e-3
+    w = mw.World(bodies=[mw.Modal(bar_model, name="bar", position=(0.0, 0.0, z0))], obstacles=[mw.Ground(0.0)],
+                 effects=[Gravity(), Contact(restitution=0.3), Sound()])
+    s = w.state()
+    for _ in range(150):  # a 2 mm drop lands in ~20 ms and settles
+        w.step(s, s, None, 1e-3)
+    landed = w.sound("bar").impact_count
+    assert 1 <= landed <= 40
+    for _ in range(200):
+        w.step(s, s, None, 1e-3)
+    assert abs(float(w.momentum(s, "bar")[0][2])) < 1e-3 * bar_model.mass * 9.81 * 0.35   # at rest
+    assert w.sound("bar").impact_count == landed
