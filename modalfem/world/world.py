@@ -435,6 +435,13 @@ class World:
             offs[name] = (n, k)
             n += k
         touching = [m for m in members if self._one(m, fx.Contact)]
+        lacking = [m for m in touching if not self._one(m, fx.SelfCollision)]
+        if len(touching) > 1 and lacking:
+            # one pipeline over the cloths: contact between them is its self-collision test, which also tests each
+            # cloth against itself; a world does what it is asked, so say so instead of switching it on unasked
+            raise InputError(f"cloths {', '.join(touching)} touch each other, which the collision pipeline tests as "
+                             f"one surface (each cloth against itself too): add self-collision for "
+                             f"{', '.join(lacking)}, or contact on one cloth only")
         selfc = any(self._one(m, fx.SelfCollision) for m in members) or len(touching) > 1
         obstacles, motions = [], {}
         if touching:

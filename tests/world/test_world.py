@@ -472,3 +472,23 @@ def test_resting_contact_is_not_heard_as_impacts(bar_model):
         w.step(s, s, None, 1e-3)
     assert abs(float(w.momentum(s, "bar")[0][2])) < 1e-3 * bar_model.mass * 9.81 * 0.35   # at rest
     assert w.sound("bar").impact_count == landed
+
+
+def test_two_touching_cloths_without_self_collision_are_refused():
+    """Contact between two cloths is the pipeline's self-collision test over both, which tests each cloth against
+    itself too: a world without SelfCollision on them says so instead of switching it on unasked."""
+    from modalfem.cloth.mesh import grid
+    from modalfem.cloth.model import ClothMaterial, ClothModel
+    from modalfem.effects import Contact, Gravity, SelfCollision
+
+    knit = ClothMaterial(areal_density=0.2, young=2e5, poisson=0.3, thickness=5e-4)
+    a = ClothModel(grid((0.2, 0.2), (4, 4)), knit)
+    b = ClothModel(grid((0.2, 0.2), (4, 4), origin=(0.0, 0.0, 0.05)), knit)
+    bodies = [mw.Cloth(a, name="a"), mw.Cloth(b, name="b")]
+    with pytest.raises(InputError, match=r"cloths a, b touch each other.*add self-collision for a, b"):
+        mw.World(bodies=bodies, effects=[Gravity(), Contact()])
+    with pytest.raises(InputError, match=r"add self-collision for b"):
+        mw.World(bodies=bodies, effects=[Gravity(), Contact(), SelfCollision(bodies=["a"])])
+    w = mw.World(bodies=bodies, effects=[Gravity(), Contact(), SelfCollision()])
+    assert [s.name for s in w.plan] == ["cloth step", "cloth collisions"]
+    assert mw.World(bodies=bodies, effects=[Gravity(), Contact(bodies=["a"])]).plan  # one cloth touching: fine
