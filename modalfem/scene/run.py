@@ -11,9 +11,7 @@ leaves nothing behind, Ctrl-C finishes the files with the frames so far and keep
 from __future__ import annotations
 
 import json
-import math
 import os
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,52 +87,26 @@ class RunResult:
     interrupted: bool
 
 
-class _Bar:
-    """One progress line: steps, steps/s, simulated time, ETA (redrawn on a terminal, every ~10 % otherwise)."""
+class _Ticker:
+    """The step loop's countable progress on the command line's progress lines (``modalfem.cli._Progress``):
+    steps, steps/s, simulated time, ETA; redrawn at most every 0.2 s on a terminal, every ~10 % in a log."""
 
-    def __init__(self, total: int, dt: float, *, quiet: bool, stream=None) -> None:
-        self.total, self.dt, self.quiet = total, dt, quiet
-        self.stream = stream or sys.stderr
-        try:
-            self.live = bool(self.stream.isatty())
-        except (AttributeError, ValueError):
-            self.live = False
+    def __init__(self, progress, total: int, dt: float) -> None:
+        self.progress, self.total, self.dt = progress, total, dt
         self.t0 = time.perf_counter()
         self.last = 0.0
         self.next_tenth = 1
 
     def __call__(self, done: int) -> None:
-        if self.quiet:
-            return
         now = time.perf_counter()
         final = done == self.total
-        if self.live and not final and now - self.last < 0.2:
-            return
-        if not self.live and not final and done * 10 < self.next_tenth * self.total:
+        if not final and (now - self.last < 0.2 if self.progress.live else done * 10 < self.next_tenth * self.total):
             return
         self.last = now
         self.next_tenth = done * 10 // self.total + 1
-        el = now - self.t0
-        rate = done / el if el > 0 else 0.0
-        eta = (self.total - done) / rate if rate > 0 else math.inf
-        fill = int(20 * done / self.total)
-        line = (f"[{'#' * fill}{'.' * (20 - fill)}] {done}/{self.total} steps  {rate:,.0f} steps/s  "
-                f"t = {done * self.dt:.3f} s  ETA {eta:.0f} s" if math.isfinite(eta) else "")
-        try:
-            self.stream.write(("\r" + line + "\x1b[K") if self.live else line + "\n")
-            if self.live and final:
-                self.stream.write("\n")
-            self.stream.flush()
-        except (OSError, ValueError):
-            pass
-
-    def say(self, msg: str) -> None:
-        if not self.quiet:
-            try:
-                self.stream.write(("\n" if self.live and self.last else "") + msg + "\n")
-                self.stream.flush()
-            except (OSError, ValueError):
-                pass
+        rate = done / max(now - self.t0, 1e-9)
+        self.progress.bar(done, self.total, f"steps  {rate:,.0f} steps/s  t = {done * self.dt:.3f} s  "
+                                            f"ETA {(self.total - done) / rate:.0f} s")
 
 
 def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps: int | None = None,
@@ -151,17 +123,28 @@ def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps:
     Raises:
         SceneError: a bad scene (one line with the file and key path); nothing is written.
     """
-    from modalfem.output.staging import OutputSet, check_targets
-    from modalfem.scene.build import build_scene
+    from modalfem.cli import _Progress
+    from modalfem.output.staging import check_targets
     from modalfem.scene.load import load_scene
 
     path = find_scene(name_or_path)
     scene, base = load_scene(path)
     out = Path(out)
     check_targets(out_dir=out, out_files=RUN_FILES)
-    say = (lambda m: None) if quiet else (lambda m: print(m, file=stream or sys.stderr, flush=True))
+
+    progress = _Progress(quiet=quiet, stream=stream)
+    try:
+        return _run(path, scene, base, out, progress, max_steps, interrupt_after)
+    finally:
+        progress.close()
+
+
+def _run(path: Path, scene, base: Path, out: Path, progress, max_steps, interrupt_after) -> RunResult:
+    from modalfem.output.staging import OutputSet
+    from modalfem.scene.build import build_scene
+
     t_build = time.perf_counter()
-    built = build_scene(scene, base, label=path.name, progress=say)
+    built = build_scene(scene, base, label=path.name, progress=progress)
     t_build = time.perf_counter() - t_build
     o = scene.outputs
     recording = o.paraview or o.video != "none" or o.gltf or o.sound
@@ -174,9 +157,11 @@ def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps:
 
             recorder = Recorder(built.world, folder, paraview=o.paraview, video=None if o.video == "none" else o.video,
                                 video_size=tuple(o.video_size), gltf=o.gltf, sound=o.sound,
-                                frame_rate=scene.time.frame_rate, camera=o.camera.model_dump(exclude_none=True))
+                                frame_rate=scene.time.frame_rate, camera=o.camera.model_dump(exclude_none=True),
+                                progress=progress)
         steps = built.steps if max_steps is None else min(built.steps, max_steps)
-        bar = _Bar(steps, built.dt, quiet=quiet, stream=stream)
+        progress(f"simulating {steps * built.dt:.4g} s in {steps} steps of {built.dt:g} s")
+        bar = _Ticker(progress, steps, built.dt)
         log = _Log(built, scene)
         state = built.state
         world = built.world
@@ -216,10 +201,10 @@ def run_scene(name_or_path, out, *, quiet: bool = False, stream=None, max_steps:
         outputs.commit()
     frames = summary["frames"]
     if interrupted:
-        bar.say(f"interrupted at t = {state.time:.4g} s after {done} of {steps} steps: the {frames} frames written so "
+        progress.done(f"interrupted at t = {state.time:.4g} s after {done} of {steps} steps: the {frames} frames written so "
                 f"far are complete and valid in {out}/")
     else:
-        bar.say(f"done: {done} steps in {wall:.1f} s ({done / max(wall, 1e-9):,.0f} steps/s), {frames} frames -> "
+        progress.done(f"done: {done} steps in {wall:.1f} s ({done / max(wall, 1e-9):,.0f} steps/s), {frames} frames -> "
                 f"{out}/")
     return RunResult(out, summary, interrupted)
 
