@@ -606,19 +606,10 @@ class World:
         straight into the caller's state (``ModalSolver.step`` is all-or-nothing itself), so the world adds no
         scratch state, copy or stage bookkeeping to the free step."""
         name = self._solo
-        m = self._modal[name]
-        solver = m["solver"]
-        t0 = time.perf_counter()
-        s = state_in.bodies[name]
-        contacts = solver.collide(s, dt) if m["static"] else None
-        try:
-            solver.step(s, state_out.bodies[name], None, contacts, dt)
-        except SimulationError as exc:
-            raise SimulationError(f"modal body {name!r}: {exc}") from None
         report = StepReport()
+        t0 = time.perf_counter()
+        self._modal_body_step(name, state_in.bodies[name], state_out.bodies[name], None, dt, report)
         report.seconds["modal step"] = time.perf_counter() - t0
-        if contacts is not None:
-            report.contacts["modal_static"] = contacts.count
         if state_out is not state_in:
             state_out.contacts = dict(state_in.contacts)
         state_out.time = state_in.time + dt
@@ -930,7 +921,7 @@ class World:
         dt = ctx.dt
         for name, m in self._modal.items():
             s = ctx.state_in.bodies[name]
-            body, solver = m["body"], m["solver"]
+            body = m["body"]
             dV = ctx.dV.get(name)
             if dV is not None:  # the contact impulses of the modal contact solve, at the step start
                 m["start"].assign(s)
@@ -948,23 +939,31 @@ class World:
                 for p, J in strikes:
                     ctl.add_impulse(p, J)
             out = m["scratch"]  # reused every step; the caller's state receives a copy at the end of the step
-            contacts = solver.collide(s, dt) if m["static"] else None
-            try:
-                solver.step(s, out, ctl, contacts, dt)
-            except SimulationError as exc:
-                raise SimulationError(f"modal body {name!r}: {exc}") from None
+            contacts = self._modal_body_step(name, s, out, ctl, dt, ctx.report)
             if strikes and name in self._sounds:
                 self._sounds[name].add_impulses(ctx.state_in.time, [p for p, _ in strikes],
                                                 [J for _, J in strikes], rotation=s.rotation())
-            if contacts is not None:
-                ctx.report.contacts["modal_static"] = ctx.report.contacts.get("modal_static", 0) + contacts.count
-                if name in self._sounds and contacts.count:
-                    # impacts only: a body resting under gravity takes ~m g dt every step, which recorded as
-                    # impacts is a buzz at the step rate (and a resting bell was ~820 impacts in 1000 steps)
-                    self._sounds[name].add_contacts(ctx.state_in.time, contacts, rotation=s.rotation(),
-                                                    min_impulse=5.0 * body.mass * float(np.linalg.norm(m["g"])) * dt)
+            if contacts is not None and name in self._sounds and contacts.count:
+                # impacts only: a body resting under gravity takes ~m g dt every step, which recorded as
+                # impacts is a buzz at the step rate (and a resting bell was ~820 impacts in 1000 steps)
+                self._sounds[name].add_contacts(ctx.state_in.time, contacts, rotation=s.rotation(),
+                                                min_impulse=5.0 * body.mass * float(np.linalg.norm(m["g"])) * dt)
             ctx.out.bodies[name] = out
             ctx.done.add(name)
+
+    def _modal_body_step(self, name: str, s, out, ctl, dt: float, report: StepReport):
+        """Modal body ``name`` from state ``s`` into ``out`` by its solver, with its static obstacles' contacts
+        (counted in ``report``); returns those contacts (None without static obstacles)."""
+        m = self._modal[name]
+        solver = m["solver"]
+        contacts = solver.collide(s, dt) if m["static"] else None
+        try:
+            solver.step(s, out, ctl, contacts, dt)
+        except SimulationError as exc:
+            raise SimulationError(f"modal body {name!r}: {exc}") from None
+        if contacts is not None:
+            report.contacts["modal_static"] = report.contacts.get("modal_static", 0) + contacts.count
+        return contacts
 
     def _stage_deformable(self, ctx) -> None:
         d = self._deform
