@@ -6,9 +6,11 @@ every value is computed by one thread in a fixed order, so results are bit-ident
   eigensystem of an isotropic density (the formulas of :func:`modalfem.tet.energies.element_hessians`);
   ``element_forces`` the forces alone.
 * ``csr_matvec``: ``y = A x`` for a CSR matrix, rows in parallel; ``pcg_twolevel`` the solver's whole
-  preconditioned CG (two-level or Jacobi) on such passes, dot products summed per chunk in chunk order.
-* ``gather_sum``: ``out[p] = sum(values[order[ptr[p]:ptr[p + 1]]])``, the assembly's scatter written as
-  a gather (no write conflicts), and ``symmetrise`` its completion from upper triangles.
+  preconditioned CG (two-level or Jacobi), three fused passes per iteration, dot products summed per
+  chunk in chunk order.
+* ``assemble_upper``: the assembly's scatter of element upper triangles written as a gather per upper
+  position (no write conflicts), symmetrised in the same pass; ``galerkin`` the two-level
+  preconditioner's coarse matrix ``P^T A P``, groups of rows in parallel.
 """
 
 from __future__ import annotations
@@ -21,8 +23,8 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["csr_matvec", "element_forces", "gather_sum", "hessians_upper", "pcg_twolevel", "svd_of_positions", "svd_rv",
-           "symmetrise", "unsigned"]
+__all__ = ["assemble_upper", "csr_matvec", "element_forces", "galerkin", "hessians_upper", "pcg_twolevel",
+           "svd_of_positions", "svd_rv", "unsigned"]
 
 _apply_threads()
 
@@ -36,16 +38,17 @@ _PJ = (2, 2, 1)
 
 @numba.njit(cache=True, parallel=True)
 def hessians_upper(Ut, Vt, D2, lam, gt, vol, d1, H, f, forces: bool, project: bool) -> None:
-    """Element Hessians (projected, or exact) and forces (see module docstring), element index last.
+    """Element Hessians (projected, or exact) and forces (see module docstring), element index last for
+    the inputs, first for the Hessians (each element's 78 values written together).
 
     Args:
         Ut, Vt: U and V of the rotation-variant SVD (3, 3, m).
-        D2: d^2 psi / d sigma^2 (m, 3, 3) [Pa] (projected by the caller, if wanted).
-        lam: twist and flip eigenvalues (m, 6) [Pa].
+        D2: d^2 psi / d sigma^2 (3, 3, m) [Pa] (projected by the caller, if wanted).
+        lam: twist and flip eigenvalues (6, m) [Pa].
         gt: shape-function gradients (4, 3, m) [1/m].
         vol: rest volumes (m,) [m^3].
-        d1: d psi / d sigma (m, 3) [Pa] (read only with ``forces``).
-        H: out, (78, m) upper triangles [N/m] in the order of ``np.triu_indices(12)``.
+        d1: d psi / d sigma (3, m) [Pa] (read only with ``forces``).
+        H: out, (m, 78) upper triangles [N/m] in the order of ``np.triu_indices(12)``.
         f: out with ``forces``, (4, 3, m) [N]: ``V0 U diag(d1) V^T grad_a``.
         forces: compute ``f``.
         project: clamp negative twist and flip eigenvalues at 0 (else they are kept: the exact Hessian
@@ -86,14 +89,14 @@ def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, project, b, c, K, Gv
         for a in range(3):
             for i in range(3):
                 r = 3 * a + i
-                f[a + 1, i, e] = V0 * (d1[e, 0] * b[0, r] + d1[e, 1] * b[1, r] + d1[e, 2] * b[2, r])
+                f[a + 1, i, e] = V0 * (d1[0, e] * b[0, r] + d1[1, e] * b[1, r] + d1[2, e] * b[2, r])
         for i in range(3):
             f[0, i, e] = -(f[1, i, e] + f[2, i, e] + f[3, i, e])
     for p in range(3):  # c = (V0 d2 mixing the first 3 modes; V0 lambda / 2 for the pair modes) b
         for r in range(9):
-            c[p, r] = V0 * (D2[e, p, 0] * b[0, r] + D2[e, p, 1] * b[1, r] + D2[e, p, 2] * b[2, r])
+            c[p, r] = V0 * (D2[p, 0, e] * b[0, r] + D2[p, 1, e] * b[1, r] + D2[p, 2, e] * b[2, r])
     for k in range(6):
-        w = 0.5 * V0 * lam[e, k]
+        w = 0.5 * V0 * lam[k, e]
         if project and w < 0.0:
             w = 0.0
         for r in range(9):
@@ -111,14 +114,14 @@ def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, project, b, c, K, Gv
     pos = 0
     for i in range(3):
         for k in range(i, 3):
-            H[pos, e] = R[i, k] + R[i, 3 + k] + R[i, 6 + k]
+            H[e, pos] = R[i, k] + R[i, 3 + k] + R[i, 6 + k]
             pos += 1
         for s in range(9):
-            H[pos, e] = -R[i, s]
+            H[e, pos] = -R[i, s]
             pos += 1
     for r in range(9):
         for s in range(r, 9):
-            H[pos, e] = K[r, s]
+            H[e, pos] = K[r, s]
             pos += 1
 
 
@@ -168,28 +171,22 @@ def csr_matvec(indptr, indices, data, x, y) -> None:
 
 
 @numba.njit(cache=True, parallel=True)
-def gather_sum(ptr, order, values, out) -> None:
-    """``out[p] = sum of values[order[ptr[p]:ptr[p + 1]]]`` (in that order); entries in parallel chunks."""
+def assemble_upper(ptr, order, values, owner, mirror, out) -> None:
+    """The assembly's scatter as a gather, symmetrised in the same pass: for each position ``k`` of the
+    upper triangle (diagonal included), ``t = sum of values[order[ptr[k]:ptr[k + 1]]]`` (in that order: the
+    element entries landing on it or on its transpose) is written to ``out[owner[k]]`` and
+    ``out[mirror[k]]`` (its transpose; the same position on the diagonal). Positions in parallel chunks;
+    each entry of ``out`` is written by one position only."""
     n = len(ptr) - 1
     chunks = chunk_count(n, ROW_CHUNK)
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(n, chunks, ch)
-        for p in range(start, stop):
+        for k in range(start, stop):
             t = 0.0
-            for s in range(ptr[p], ptr[p + 1]):
+            for s in range(ptr[k], ptr[k + 1]):
                 t += values[order[s]]
-            out[p] = t
-
-
-@numba.njit(cache=True, parallel=True)
-def symmetrise(half, transpose, is_diag, out) -> None:
-    """``out = half + half[transpose]``, the diagonal positions (``is_diag``) counted once."""
-    n = len(half)
-    chunks = chunk_count(n, ROW_CHUNK)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(n, chunks, ch)
-        for p in range(start, stop):
-            out[p] = half[p] if is_diag[p] else half[p] + half[transpose[p]]
+            out[owner[k]] = t
+            out[mirror[k]] = t
 
 
 @numba.njit(cache=True, parallel=True)
@@ -334,25 +331,80 @@ def _dot(a, b, part) -> float:
 
 
 @numba.njit(cache=True, parallel=True)
-def _precondition(r, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, cr, cz, z, part) -> float:
-    """``z = inv * r + P Ac_inv P^T r`` (no coarse part when ``Ac_inv`` is empty); returns ``r . z``."""
+def _search(indptr, indices, data, z, p, Ap, beta: float, part) -> float:
+    """The next search direction and its product in one pass: ``p = z + beta p`` and ``Ap = A z + beta Ap``
+    (``A p`` by linearity from the previous product: the CSR product reads ``z``, which no row changes
+    here, so the direction update needs no pass of its own); returns ``p . Ap``. ``beta = 0`` starts
+    (``p = z``, ``Ap = A z``; the old values are not read)."""
+    n = len(p)
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        t = 0.0
+        for i in range(start, stop):
+            s = 0.0
+            for q in range(indptr[i], indptr[i + 1]):
+                s += data[q] * z[indices[q]]
+            if beta == 0.0:
+                pi, api = z[i], s
+            else:
+                pi, api = z[i] + beta * p[i], s + beta * Ap[i]
+            p[i] = pi
+            Ap[i] = api
+            t += pi * api
+        part[ch] = t
+    s = 0.0
+    for ch in range(chunks):
+        s += part[ch]
+    return s
+
+
+@numba.njit(cache=True, parallel=True)
+def _update(x, r, p, Ap, alpha: float, Pp, Pi, Pd, Ac_inv, cpart, cr, cz, part) -> float:
+    """``x += alpha p``, ``r -= alpha Ap`` and the coarse part of the next preconditioning in the same pass:
+    ``cr = P^T r`` (per-chunk partial sums ``cpart`` (chunks, nc), added in chunk order), then
+    ``cz = Ac_inv cr`` (serial: O(nc^2), a column sweep of the symmetric ``Ac_inv``, vectorised). Returns
+    ``r . r``. ``alpha = 0`` with zero ``p`` and ``Ap``: only the restriction of ``r``."""
+    n = len(x)
     nc = len(cr)
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        t = 0.0
+        if nc > 0:
+            for j in range(nc):
+                cpart[ch, j] = 0.0
+        for i in range(start, stop):
+            x[i] += alpha * p[i]
+            ri = r[i] - alpha * Ap[i]
+            r[i] = ri
+            t += ri * ri
+            if nc > 0:
+                for q in range(Pp[i], Pp[i + 1]):
+                    cpart[ch, Pi[q]] += Pd[q] * ri
+        part[ch] = t
+    s = 0.0
+    for ch in range(chunks):
+        s += part[ch]
     if nc > 0:
-        cchunks = chunk_count(nc, 16)
-        for ch in numba.prange(cchunks):  # cr = P^T r
-            start, stop = chunk_bounds(nc, cchunks, ch)
-            for i in range(start, stop):
-                t = 0.0
-                for p in range(Tp[i], Tp[i + 1]):
-                    t += Td[p] * r[Ti[p]]
-                cr[i] = t
-        for ch in numba.prange(cchunks):  # cz = Ac_inv cr
-            start, stop = chunk_bounds(nc, cchunks, ch)
-            for i in range(start, stop):
-                t = 0.0
-                for j in range(nc):
-                    t += Ac_inv[i, j] * cr[j]
-                cz[i] = t
+        for j in range(nc):
+            c = 0.0
+            for ch in range(chunks):
+                c += cpart[ch, j]
+            cr[j] = c
+            cz[j] = 0.0
+        for j in range(nc):  # cz = Ac_inv cr by columns (Ac_inv symmetric): cz[i] summed over j in order
+            c = cr[j]
+            for i in range(nc):
+                cz[i] += Ac_inv[j, i] * c
+    return s
+
+
+@numba.njit(cache=True, parallel=True)
+def _precondition(r, inv, Pp, Pi, Pd, cz, z, part) -> float:
+    """``z = inv * r + P cz`` (``cz = Ac_inv P^T r`` from :func:`_update`; no coarse part when ``cz`` is
+    empty); returns ``r . z``."""
+    nc = len(cz)
     n = len(r)
     chunks = chunk_count(n, ROW_CHUNK)
     for ch in numba.prange(chunks):
@@ -374,78 +426,92 @@ def _precondition(r, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, cr, cz, z, part) -> fl
     return s
 
 
-@numba.njit(cache=True, parallel=True)
-def _step_update(x, r, p, Ap, alpha, part) -> float:
-    """``x += alpha p``, ``r -= alpha Ap``; returns ``r . r``."""
-    n = len(x)
-    chunks = chunk_count(n, ROW_CHUNK)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(n, chunks, ch)
-        t = 0.0
-        for i in range(start, stop):
-            x[i] += alpha * p[i]
-            ri = r[i] - alpha * Ap[i]
-            r[i] = ri
-            t += ri * ri
-        part[ch] = t
-    s = 0.0
-    for ch in range(chunks):
-        s += part[ch]
-    return s
-
-
-@numba.njit(cache=True, parallel=True)
-def _direction(p, z, beta) -> None:
-    """``p = z + beta p``."""
-    n = len(p)
-    chunks = chunk_count(n, ROW_CHUNK)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(n, chunks, ch)
-        for i in range(start, stop):
-            p[i] = z[i] + beta * p[i]
-
-
 @numba.njit(cache=True)
-def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, rtol: float,
-                 maxiter: int):
-    """Preconditioned CG for ``A x = b`` (CSR ``A``) with ``M^-1 r = inv * r + P Ac_inv P^T r`` (P and
-    P^T as CSR ``(Pp, Pi, Pd)``, ``(Tp, Ti, Td)``; Jacobi alone when ``Ac_inv`` is (0, 0)), compiled: every
-    product and vector update a pass in parallel chunks, dot products summed per chunk in chunk order.
+def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_inv, rtol: float, maxiter: int):
+    """Preconditioned CG for ``A x = b`` (CSR ``A``) with ``M^-1 r = inv * r + P Ac_inv P^T r`` (P as CSR
+    ``(Pp, Pi, Pd)``; Jacobi alone when ``Ac_inv`` is (0, 0)), compiled: three parallel passes per
+    iteration (thread launches cost ~5-10 us each here, a pass over the vectors a few tens): the direction
+    update with the CSR product and ``p . Ap`` (:func:`_search`), the vector updates with ``r . r`` and the
+    coarse restriction (:func:`_update`), the preconditioner with ``r . z`` (:func:`_precondition`); dot
+    products summed per chunk in chunk order, so any thread count gives the same bits.
 
     ``x`` (len(b),) is the start when ``warm`` (else set to 0) and the solution on return. Stops when
     ``|r| <= rtol |b|``. Returns ``(iterations, definite)``: ``definite`` False when a search direction
     ``p != 0`` had ``p^T A p <= 0`` (``A`` not positive definite) before the tolerance was reached.
     """
     n = len(b)
-    part = np.empty(chunk_count(n, ROW_CHUNK))
+    chunks = chunk_count(n, ROW_CHUNK)
+    part = np.empty(chunks)
     r = np.empty(n)
-    Ap = np.empty(n)
+    Ap = np.zeros(n)
+    p = np.zeros(n)
     z = np.empty(n)
     nc = Ac_inv.shape[0]
+    cpart = np.empty((chunks, nc))
     cr = np.empty(nc)
     cz = np.empty(nc)
     if warm:
         csr_matvec(indptr, indices, data, x, Ap)
         for i in range(n):
             r[i] = b[i] - Ap[i]
+            Ap[i] = 0.0
     else:
         for i in range(n):
             x[i] = 0.0
             r[i] = b[i]
     stop = rtol * rtol * _dot(b, b, part)
-    if _dot(r, r, part) <= stop:  # already solved (e.g. b = 0: every DOF held, nothing to move)
-        return 0, True
-    rz = _precondition(r, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, cr, cz, z, part)
-    p = z.copy()
+    # the restriction of the first residual (alpha = 0 with p = Ap = 0 leaves x and r unchanged)
+    if _update(x, r, p, Ap, 0.0, Pp, Pi, Pd, Ac_inv, cpart, cr, cz, part) <= stop:
+        return 0, True  # already solved (e.g. b = 0: every DOF held, nothing to move)
+    rz = _precondition(r, inv, Pp, Pi, Pd, cz, z, part)
+    beta = 0.0
     for it in range(1, maxiter + 1):
-        csr_matvec(indptr, indices, data, p, Ap)
-        pAp = _dot(p, Ap, part)
+        pAp = _search(indptr, indices, data, z, p, Ap, beta, part)
         if not pAp > 0.0:  # a zero search direction (exactly solved) or lost definiteness: stop here
             return it, not _dot(p, p, part) > 0.0
         alpha = rz / pAp
-        if _step_update(x, r, p, Ap, alpha, part) <= stop:
+        if _update(x, r, p, Ap, alpha, Pp, Pi, Pd, Ac_inv, cpart, cr, cz, part) <= stop:
             return it, True
-        rz_new = _precondition(r, inv, Pp, Pi, Pd, Tp, Ti, Td, Ac_inv, cr, cz, z, part)
-        _direction(p, z, rz_new / rz)
+        rz_new = _precondition(r, inv, Pp, Pi, Pd, cz, z, part)
+        beta = rz_new / rz
         rz = rz_new
     return maxiter, True
+
+
+@numba.njit(cache=True, parallel=True)
+def galerkin(indptr, indices, data, Pp, Pi, Pd, group_ptr, group_rows, Ac) -> None:
+    """``Ac += P^T A P`` (dense (nc, nc), zero on entry) for CSR ``A`` and a prolongation ``P`` (CSR ``(Pp, Pi,
+    Pd)``) whose row ``r`` has its columns in the coarse block of one group: ``group_rows[group_ptr[g]:
+    group_ptr[g + 1]]`` lists the rows (DOFs) of group ``g`` in increasing order, and only they write the
+    rows of ``Ac`` of that group. Groups in parallel (no write conflicts), each entry summed over its group's
+    rows in order: the same bits on any thread count. Per row, ``w = A[r, :] P`` is gathered on the coarse
+    columns it touches only."""
+    nc = Ac.shape[0]
+    groups = len(group_ptr) - 1
+    for g in numba.prange(groups):
+        w = np.zeros(nc)
+        touched = np.empty(nc, dtype=np.int64)
+        mark = np.zeros(nc, dtype=np.bool_)
+        for k in range(group_ptr[g], group_ptr[g + 1]):
+            r = group_rows[k]
+            cnt = 0
+            for q in range(indptr[r], indptr[r + 1]):
+                c = indices[q]
+                a = data[q]
+                for t in range(Pp[c], Pp[c + 1]):
+                    j = Pi[t]
+                    if not mark[j]:
+                        mark[j] = True
+                        touched[cnt] = j
+                        cnt += 1
+                    w[j] += a * Pd[t]
+            for t in range(Pp[r], Pp[r + 1]):
+                i = Pi[t]
+                v = Pd[t]
+                for u in range(cnt):
+                    j = touched[u]
+                    Ac[i, j] += v * w[j]
+            for u in range(cnt):
+                j = touched[u]
+                w[j] = 0.0
+                mark[j] = False

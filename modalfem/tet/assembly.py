@@ -2,7 +2,8 @@
 
 The pattern holds every coupling of the mesh plus the full diagonal. ``assemble`` scatters element
 values to a precomputed CSR position per element entry (one ``np.bincount``, or for upper triangles a
-compiled, parallel gather over the positions; no COO -> CSR conversion per step); Dirichlet
+compiled, parallel gather over the upper positions that writes each sum and its transpose; no COO -> CSR
+conversion per step); Dirichlet
 rows/columns are replaced by the identity through a mask on ``data``.
 """
 
@@ -36,19 +37,27 @@ class HessianPattern:
         self.rows = (keys // N).astype(np.int64)
         self.indptr = np.searchsorted(self.rows, np.arange(N + 1)).astype(np.int32)
         self.element_index = inv[: 144 * len(cells)]
-        # upper triangles (78, m) of the element blocks, element index last: scattered to their CSR
-        # positions, then the matrix is symmetrised with the transpose permutation of the pattern
+        # upper triangles (78, m) of the element blocks, element index last: each entry's CSR position (upper
+        # or lower: an element's local order is not the global one), and the transpose permutation
         iu = np.triu_indices(12)
         self.upper_index = np.ascontiguousarray(self.element_index.reshape(-1, 12, 12)[:, iu[0], iu[1]].T).ravel()
         self.transpose = np.searchsorted(keys, (keys % N) * np.int64(N) + keys // N)
-        # the same scatter as a gather: the contributions of each position, in a fixed order, summed by one
-        # compiled pass over the positions (in parallel, no write conflicts; faster than np.bincount)
-        order = np.argsort(self.upper_index, kind="stable")
-        self._gather_ptr = np.searchsorted(self.upper_index[order], np.arange(self.nnz + 1)).astype(np.int64)
+        # the same scatter as a gather, symmetrised in the same pass: each position of the upper triangle
+        # (diagonal included) sums, in a fixed order, the element entries landing on it or on its transpose,
+        # and writes both (one compiled pass over the positions, in parallel, no write conflicts)
+        upper = np.flatnonzero(self.rows <= self.indices)
+        rank = np.empty(self.nnz, dtype=np.int64)
+        rank[upper] = np.arange(len(upper))
+        rank[self.transpose[upper]] = np.arange(len(upper))
+        target = rank[self.upper_index]
+        order = np.argsort(target, kind="stable")
+        self._gather_ptr = np.searchsorted(target[order], np.arange(len(upper) + 1)).astype(np.int64)
         self._gather_order = order.astype(np.uint64)  # unsigned: no wrap-around test per access in numba
+        self._owner = upper.astype(np.uint64)
+        self._mirror = self.transpose[upper].astype(np.uint64)
         self.diag_index = inv[144 * len(cells):]
-        self._is_diag = np.zeros(self.nnz, dtype=bool)
-        self._is_diag[self.diag_index] = True
+        self._cells = len(cells)
+        self._order_em = None
         self._dirichlet = None  # (fixed mask, zeroed positions, diagonal positions) of the last call
 
     def assemble(self, blocks: np.ndarray | None = None, diag: np.ndarray | None = None, *,
@@ -58,7 +67,8 @@ class HessianPattern:
         Args:
             blocks: element matrices (m, 12, 12), or with ``upper`` their upper triangles (78, m) in the
                 order of ``np.triu_indices(12)`` (``element_hessians(..., upper=True)``; about half the
-                scatter work).
+                scatter work): C-ordered, or the transposed view of an (m, 78) array (what
+                ``element_hessians`` returns; read element by element, no copy).
             diag: added to the diagonal (3n,).
             upper: the layout of ``blocks``.
         """
@@ -67,16 +77,25 @@ class HessianPattern:
         elif upper:
             from modalfem.tet import _kernels
 
-            half = np.empty(self.nnz)
-            _kernels.gather_sum(self._gather_ptr, self._gather_order, np.ascontiguousarray(blocks, dtype=float).ravel(),
-                                half)
             data = np.empty(self.nnz)
-            _kernels.symmetrise(half, self.transpose, self._is_diag, data)  # the diagonal counted once
+            blocks = np.asarray(blocks, dtype=float)
+            if blocks.T.flags.c_contiguous and not blocks.flags.c_contiguous:  # an (m, 78) array's view
+                values, order = blocks.T.ravel(), self._element_major_order()
+            else:
+                values, order = np.ascontiguousarray(blocks).ravel(), self._gather_order
+            _kernels.assemble_upper(self._gather_ptr, order, values, self._owner, self._mirror, data)
         else:
             data = np.bincount(self.element_index, weights=blocks.ravel(), minlength=self.nnz)
         if diag is not None:
             data[self.diag_index] += diag
         return data
+
+    def _element_major_order(self) -> np.ndarray:
+        """The gather order for upper triangles stored (m, 78) (element index first), made once."""
+        if self._order_em is None:
+            k, e = np.divmod(self._gather_order.astype(np.int64), self._cells)
+            self._order_em = (e * 78 + k).astype(np.uint64)
+        return self._order_em
 
     def positions(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """CSR positions of entries ``(rows, cols)`` (DOF indices); every entry must be in the pattern (two DOFs

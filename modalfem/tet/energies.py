@@ -310,11 +310,10 @@ def element_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, grad: np.ndar
     """
     m = len(U)
     d2 = d.d2
-    lam = np.concatenate([d.twist, d.flip], axis=1)
     if project:
         d2 = _project_d2(d2)
-    H = _hessians_upper(np.moveaxis(U, 0, -1), np.moveaxis(V, 0, -1), d2, lam,
-                        np.moveaxis(grad, 0, -1), vol, project=bool(project))
+    H = _hessians_upper(np.moveaxis(U, 0, -1), np.moveaxis(V, 0, -1), d2, d, np.moveaxis(grad, 0, -1), vol,
+                        project=bool(project))
     if upper:
         return H
     full = np.empty((12, 12, m))
@@ -347,16 +346,17 @@ def element_forces_and_hessians(U: np.ndarray, V: np.ndarray, d: SigmaDerivs, gr
     if not element_last:
         U, V, grad = np.moveaxis(U, 0, -1), np.moveaxis(V, 0, -1), np.moveaxis(grad, 0, -1)
     m = U.shape[-1]
-    lam = np.concatenate([d.twist, d.flip], axis=1)
     d2 = _project_d2(d.d2) if project else d.d2
     f = np.empty((4, 3, m))
-    H = _hessians_upper(U, V, d2, lam, grad, vol, d.d1, f, project=bool(project))
+    H = _hessians_upper(U, V, d2, d, grad, vol, f, project=bool(project))
     return f, H
 
 
-def _hessians_upper(Ut, Vt, d2, lam, gt, vol, d1=None, f=None, *, project: bool = True) -> np.ndarray:
-    """Upper triangles (78, m) of the element Hessians from the (projected) eigensystem; with
-    ``d1 = d psi / d sigma`` (m, 3) also the element forces into ``f`` (4, 3, m).
+def _hessians_upper(Ut, Vt, d2, d, gt, vol, f=None, *, project: bool = True) -> np.ndarray:
+    """Upper triangles (78, m) of the element Hessians from the (projected) eigensystem (``d2`` (m, 3, 3)
+    and the twist and flip eigenvalues of ``d``); with ``f`` also the element forces (from ``d.d1``) into
+    ``f`` (4, 3, m). The result is the transposed view of an (m, 78) array (each element's values
+    together, as the kernel writes them; ``HessianPattern.assemble`` reads that layout without a copy).
 
     Element index last: ``Ut``, ``Vt`` (3, 3, m) are U and V, ``gt`` (4, 3, m) the shape gradients.
     Per element (:func:`modalfem.tet._kernels.hessians_upper`, compiled, elements in parallel): the 9
@@ -369,11 +369,13 @@ def _hessians_upper(Ut, Vt, d2, lam, gt, vol, d1=None, f=None, *, project: bool 
     from modalfem.tet import _kernels
 
     m = Ut.shape[-1]
-    H = np.empty((78, m))
-    forces = d1 is not None
-    _kernels.hessians_upper(np.ascontiguousarray(Ut, dtype=float), np.ascontiguousarray(Vt, dtype=float),
-                            np.ascontiguousarray(d2, dtype=float), np.ascontiguousarray(lam, dtype=float),
-                            np.ascontiguousarray(gt, dtype=float), np.ascontiguousarray(vol, dtype=float),
-                            np.ascontiguousarray(d1, dtype=float) if forces else np.zeros((0, 3)), H,
+    H = np.empty((m, 78))
+    forces = f is not None
+    # the densities' columns element index last (``StableCorotated`` stores them so: views, no copies)
+    lam = np.concatenate([np.asarray(d.twist, dtype=float).T, np.asarray(d.flip, dtype=float).T], axis=0)
+    c = np.ascontiguousarray
+    _kernels.hessians_upper(c(Ut, dtype=float), c(Vt, dtype=float), c(np.moveaxis(d2, 0, -1), dtype=float), lam,
+                            c(gt, dtype=float), c(vol, dtype=float),
+                            c(np.asarray(d.d1, dtype=float).T) if forces else np.zeros((3, 0)), H,
                             f if forces else np.zeros((4, 3, 0)), forces, project)
-    return H
+    return H.T

@@ -23,25 +23,31 @@ class Preconditioner:
 
     Args:
         inv: inverse diagonal (N,).
-        P, Pt: prolongation (N, c) and its transpose, CSR (or None).
-        Ac_inv: inverse coarse matrix (c, c) (or None).
+        P: prolongation (N, c), CSR (or None).
+        Ac_inv: inverse coarse matrix (c, c), exactly symmetric (or None).
     """
 
-    def __init__(self, inv: np.ndarray, P: sp.csr_matrix | None = None, Pt: sp.csr_matrix | None = None,
-                 Ac_inv: np.ndarray | None = None) -> None:
+    def __init__(self, inv: np.ndarray, P: sp.csr_matrix | None = None, Ac_inv: np.ndarray | None = None) -> None:
         from modalfem.tet import _kernels
 
         self.inv = np.ascontiguousarray(inv, dtype=float)
         if P is None:
-            empty_i, empty_f = np.zeros(1, dtype=np.int64), np.zeros(0)
-            self._arrays = (self.inv, empty_i, empty_i, empty_f, empty_i, empty_i, empty_f, np.zeros((0, 0)))
+            empty_i = np.zeros(1, dtype=np.int64)
+            self._arrays = (self.inv, empty_i, empty_i, np.zeros(0), np.zeros((0, 0)))
         else:
-            self._arrays = (self.inv, P.indptr, _kernels.unsigned(P.indices), P.data, Pt.indptr,
-                            _kernels.unsigned(Pt.indices), Pt.data, np.ascontiguousarray(Ac_inv))
-        self.P, self.Pt, self.Ac_inv = P, Pt, Ac_inv
+            self._arrays = (self.inv, P.indptr, _kernels.unsigned(P.indices), P.data, np.ascontiguousarray(Ac_inv))
+        self.P, self.Ac_inv = P, Ac_inv
+        self._Pt = None
+
+    @property
+    def Pt(self) -> sp.csr_matrix | None:
+        """``P^T`` (CSR; made on first use: the compiled CG restricts with ``P`` itself)."""
+        if self._Pt is None and self.P is not None:
+            self._Pt = self.P.T.tocsr()
+        return self._Pt
 
     def arrays(self) -> tuple:
-        """``(inv, P indptr, indices, data, P^T indptr, indices, data, Ac_inv)``."""
+        """``(inv, P indptr, indices, data, Ac_inv)``."""
         return self._arrays
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
@@ -83,7 +89,11 @@ class TwoLevel:
         self._indices = cols.ravel()
         self._indptr = (3 * np.arange(3 * n + 1)).astype(np.int32)
         self._mass = np.bincount(self.agg, minlength=self.count).astype(float)
-        self._coarse = None  # (free mask, P, P^T, inverse coarse matrix) of the last setup
+        # the DOFs of each group in increasing order (the rows of P whose columns are that group's)
+        by_group = np.argsort(self.agg, kind="stable")
+        self._group_rows = (3 * by_group[:, None] + np.arange(3)).ravel().astype(np.int64)
+        self._group_ptr = 3 * np.searchsorted(self.agg[by_group], np.arange(self.count + 1)).astype(np.int64)
+        self._coarse = None  # (free mask, P, inverse coarse matrix) of the last setup
         self.rebuilt = False  # whether the last setup made a new coarse space
 
     def prolongation(self, x: np.ndarray, free: np.ndarray) -> sp.csr_matrix:
@@ -112,21 +122,27 @@ class TwoLevel:
         self.rebuilt = not (reuse and coarse is not None and np.array_equal(coarse[0], free))
         if self.rebuilt:
             coarse = self._coarse = (free.copy(), *self._coarse_space(A, x, free))
-        _, P, Pt, Ac_inv = coarse
+        _, P, Ac_inv = coarse
         if Ac_inv is None:
             return Preconditioner(inv)
-        return Preconditioner(inv, P, Pt, Ac_inv)
+        return Preconditioner(inv, P, Ac_inv)
 
     def _coarse_space(self, A: sp.csr_matrix, x: np.ndarray, free: np.ndarray):
-        """``(P, P^T, (P^T A P)^-1 or None)``.
+        """``(P, (P^T A P)^-1 or None)``.
 
-        The coarse matrix is inverted explicitly from its Cholesky factor (LAPACK ``potri``): one dense
-        matrix-vector product per CG iteration instead of two triangular solves (about 3x faster at the
-        ~300 coarse DOFs here; the inverse costs about one factorisation more per rebuild).
+        ``P^T A P`` is formed by a compiled kernel (:func:`modalfem.tet._kernels.galerkin`, groups in
+        parallel; ~4x faster than SciPy's two sparse products). The coarse matrix is inverted explicitly
+        from its Cholesky factor (LAPACK ``potri``): one dense matrix-vector product per CG iteration
+        instead of two triangular solves (about 3x faster at the ~300 coarse DOFs here; the inverse costs
+        about one factorisation more per rebuild).
         """
+        from modalfem.tet import _kernels
+
         P = self.prolongation(x, free)
-        Pt = P.T.tocsr()
-        Ac = (Pt @ (A @ P)).toarray()
+        A = A.tocsr()
+        Ac = np.zeros((6 * self.count, 6 * self.count))
+        _kernels.galerkin(A.indptr, _kernels.unsigned(A.indices), np.ascontiguousarray(A.data, dtype=float),
+                          P.indptr, _kernels.unsigned(P.indices), P.data, self._group_ptr, self._group_rows, Ac)
         d = np.diag(Ac).copy()
         dmax = max(float(d.max(initial=0.0)), 1e-300)
         empty = d <= 1e-14 * dmax
@@ -135,10 +151,10 @@ class TwoLevel:
         try:
             c, _ = sla.cho_factor(Ac, lower=False, check_finite=False)
         except (np.linalg.LinAlgError, ValueError):
-            return P, Pt, None
+            return P, None
         ci, info = sla.lapack.dpotri(c, lower=False)
         if info != 0:
-            return P, Pt, None
+            return P, None
         Ac_inv = np.triu(ci)
-        Ac_inv += np.triu(ci, 1).T
-        return P, Pt, Ac_inv
+        Ac_inv += np.triu(ci, 1).T  # exactly symmetric (the compiled CG reads it by columns)
+        return P, Ac_inv
