@@ -8,7 +8,7 @@ every value is computed by one thread in a fixed order, so results are bit-ident
 * ``csr_matvec``: ``y = A x`` for a CSR matrix, rows in parallel; ``pcg_twolevel`` the solver's whole
   preconditioned CG (two-level or Jacobi), three fused passes per iteration, dot products summed per
   chunk in chunk order.
-* ``assemble_upper``: the assembly's scatter of element upper triangles written as a gather per upper
+* ``gather_sum``: element forces summed per vertex DOF as a gather; ``assemble_upper``: the assembly's scatter of element upper triangles written as a gather per upper
   position (no write conflicts), symmetrised in the same pass; ``galerkin`` the two-level
   preconditioner's coarse matrix ``P^T A P``, groups of rows in parallel.
 """
@@ -23,7 +23,7 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["assemble_upper", "csr_matvec", "element_forces", "galerkin", "hessians_upper", "pcg_twolevel",
+__all__ = ["assemble_upper", "csr_matvec", "element_forces", "galerkin", "gather_sum", "hessians_upper", "pcg_twolevel",
            "svd_of_positions", "svd_rv", "unsigned"]
 
 _apply_threads()
@@ -168,6 +168,21 @@ def csr_matvec(indptr, indices, data, x, y) -> None:
             for p in range(indptr[i], indptr[i + 1]):
                 t += data[p] * x[indices[p]]
             y[i] = t
+
+
+@numba.njit(cache=True, parallel=True)
+def gather_sum(ptr, order, values, out) -> None:
+    """``out[p] = sum of values[order[ptr[p]:ptr[p + 1]]]`` (in that order: a scatter-add written as a
+    gather, no write conflicts); entries in parallel chunks."""
+    n = len(ptr) - 1
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for p in range(start, stop):
+            t = 0.0
+            for s in range(ptr[p], ptr[p + 1]):
+                t += values[order[s]]
+            out[p] = t
 
 
 @numba.njit(cache=True, parallel=True)
@@ -360,6 +375,77 @@ def _search(indptr, indices, data, z, p, Ap, beta: float, part) -> float:
 
 
 @numba.njit(cache=True, parallel=True)
+def _search3(indptr, indices, data, z, p, Ap, beta: float, part) -> float:
+    """:func:`_search` for a matrix of full 3x3 vertex blocks (rows ``3i..3i+2`` have the same columns,
+    in triples ``3j..3j+2``: every matrix of ``HessianPattern``): each vertex's three rows in one sweep of
+    row ``3i``'s block columns, reading each column index and ``z`` triple once (the index traffic of a
+    CSR product cut 9-fold); every row summed in the same order as :func:`_search`, so the same bits."""
+    nv = (len(indptr) - 1) // 3
+    chunks = chunk_count(nv, ROW_CHUNK // 3)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(nv, chunks, ch)
+        t = 0.0
+        for v in range(start, stop):
+            i = 3 * v
+            q0 = indptr[i]
+            L = indptr[i + 1] - q0
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+            for q in range(q0, q0 + L, 3):
+                j = indices[q]
+                z0 = z[j]
+                z1 = z[j + 1]
+                z2 = z[j + 2]
+                s0 += data[q] * z0
+                s0 += data[q + 1] * z1
+                s0 += data[q + 2] * z2
+                s1 += data[q + L] * z0
+                s1 += data[q + L + 1] * z1
+                s1 += data[q + L + 2] * z2
+                s2 += data[q + 2 * L] * z0
+                s2 += data[q + 2 * L + 1] * z1
+                s2 += data[q + 2 * L + 2] * z2
+            for c in range(3):
+                s = s0 if c == 0 else (s1 if c == 1 else s2)
+                if beta == 0.0:
+                    pi, api = z[i + c], s
+                else:
+                    pi, api = z[i + c] + beta * p[i + c], s + beta * Ap[i + c]
+                p[i + c] = pi
+                Ap[i + c] = api
+                t += pi * api
+        part[ch] = t
+    s = 0.0
+    for ch in range(chunks):
+        s += part[ch]
+    return s
+
+
+@numba.njit(cache=True)
+def is_blocked3(indptr, indices) -> bool:
+    """The CSR pattern is made of full 3x3 vertex blocks (what :func:`_search3` needs): rows ``3i..3i+2``
+    of equal length with the same columns, which come in triples ``3j, 3j+1, 3j+2``."""
+    n = len(indptr) - 1
+    if n % 3 != 0:
+        return False
+    for v in range(n // 3):
+        i = 3 * v
+        q0 = indptr[i]
+        L = indptr[i + 1] - q0
+        if L % 3 != 0 or indptr[i + 2] - indptr[i + 1] != L or indptr[i + 3] - indptr[i + 2] != L:
+            return False
+        for q in range(q0, q0 + L, 3):
+            j = indices[q]
+            if j % 3 != 0 or indices[q + 1] != j + 1 or indices[q + 2] != j + 2:
+                return False
+            for c in (1, 2):
+                if indices[q + c * L] != j or indices[q + c * L + 1] != j + 1 or indices[q + c * L + 2] != j + 2:
+                    return False
+    return True
+
+
+@numba.njit(cache=True, parallel=True)
 def _update(x, r, p, Ap, alpha: float, Pp, Pi, Pd, Ac_inv, cpart, cr, cz, part) -> float:
     """``x += alpha p``, ``r -= alpha Ap`` and the coarse part of the next preconditioning in the same pass:
     ``cr = P^T r`` (per-chunk partial sums ``cpart`` (chunks, nc), added in chunk order), then
@@ -427,7 +513,8 @@ def _precondition(r, inv, Pp, Pi, Pd, cz, z, part) -> float:
 
 
 @numba.njit(cache=True)
-def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_inv, rtol: float, maxiter: int):
+def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_inv, rtol: float, maxiter: int,
+                 blocked: bool):
     """Preconditioned CG for ``A x = b`` (CSR ``A``) with ``M^-1 r = inv * r + P Ac_inv P^T r`` (P as CSR
     ``(Pp, Pi, Pd)``; Jacobi alone when ``Ac_inv`` is (0, 0)), compiled: three parallel passes per
     iteration (thread launches cost ~5-10 us each here, a pass over the vectors a few tens): the direction
@@ -435,13 +522,15 @@ def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_in
     coarse restriction (:func:`_update`), the preconditioner with ``r . z`` (:func:`_precondition`); dot
     products summed per chunk in chunk order, so any thread count gives the same bits.
 
-    ``x`` (len(b),) is the start when ``warm`` (else set to 0) and the solution on return. Stops when
+    ``blocked``: ``A`` is made of full 3x3 vertex blocks (:func:`is_blocked3`; its products then by
+    :func:`_search3`, the same bits). ``x`` (len(b),) is the start when ``warm`` (else set to 0) and the
+    solution on return. Stops when
     ``|r| <= rtol |b|``. Returns ``(iterations, definite)``: ``definite`` False when a search direction
     ``p != 0`` had ``p^T A p <= 0`` (``A`` not positive definite) before the tolerance was reached.
     """
     n = len(b)
     chunks = chunk_count(n, ROW_CHUNK)
-    part = np.empty(chunks)
+    part = np.empty(max(chunks, chunk_count(n // 3, ROW_CHUNK // 3)))
     r = np.empty(n)
     Ap = np.zeros(n)
     p = np.zeros(n)
@@ -466,7 +555,10 @@ def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_in
     rz = _precondition(r, inv, Pp, Pi, Pd, cz, z, part)
     beta = 0.0
     for it in range(1, maxiter + 1):
-        pAp = _search(indptr, indices, data, z, p, Ap, beta, part)
+        if blocked:
+            pAp = _search3(indptr, indices, data, z, p, Ap, beta, part)
+        else:
+            pAp = _search(indptr, indices, data, z, p, Ap, beta, part)
         if not pAp > 0.0:  # a zero search direction (exactly solved) or lost definiteness: stop here
             return it, not _dot(p, p, part) > 0.0
         alpha = rz / pAp

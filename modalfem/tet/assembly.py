@@ -58,6 +58,10 @@ class HessianPattern:
         self.diag_index = inv[144 * len(cells):]
         self._cells = len(cells)
         self._order_em = None
+        from modalfem.tet import _kernels
+
+        #: full 3x3 vertex blocks (every vertex in a tetrahedron): the CG's products read them by blocks
+        self.blocked = bool(_kernels.is_blocked3(self.indptr, self.indices))
         self._dirichlet = None  # (fixed mask, zeroed positions, diagonal positions) of the last call
 
     def assemble(self, blocks: np.ndarray | None = None, diag: np.ndarray | None = None, *,

@@ -126,21 +126,25 @@ def _matvec(A, x: np.ndarray, out: np.ndarray) -> np.ndarray:
     return out
 
 
-def _pcg(A, b: np.ndarray, prec: Preconditioner, rtol: float, maxiter: int, x0: np.ndarray | None = None
-         ) -> tuple[np.ndarray, int, bool]:
+def _pcg(A, b: np.ndarray, prec: Preconditioner, rtol: float, maxiter: int, x0: np.ndarray | None = None, *,
+         blocked: bool | None = None) -> tuple[np.ndarray, int, bool]:
     """Preconditioned conjugate gradients for ``A x = b`` (scipy CSR ``A``; ``prec`` applies M^-1) from
     ``x0`` (default 0), to ``|r| <= rtol |b|``: compiled (:func:`modalfem.tet._kernels.pcg_twolevel`).
 
     Returns ``(x, iterations, definite)``; ``definite`` is False when CG stopped at a direction ``p`` with
     ``p^T A p <= 0`` before reaching the tolerance (``A`` is not positive definite). (A 3x3 block-Jacobi
     preconditioner was measured too: the same iteration counts as Jacobi on the benchmark bar.)
+    ``blocked``: ``A`` is made of full 3x3 vertex blocks (every ``HessianPattern`` matrix; its products
+    then read each column index once per block); None: checked here.
     """
     from modalfem.tet import _kernels
 
     x = np.zeros(len(b)) if x0 is None else np.array(x0, dtype=float)
+    if blocked is None:
+        blocked = _kernels.is_blocked3(A.indptr, A.indices)
     it, definite = _kernels.pcg_twolevel(A.indptr, _kernels.unsigned(A.indices), A.data,
                                          np.ascontiguousarray(b, dtype=float), x, x0 is not None, *prec.arrays(),
-                                         float(rtol), int(maxiter))
+                                         float(rtol), int(maxiter), bool(blocked))
     return x, int(it), bool(definite)
 
 
@@ -248,7 +252,11 @@ class TetSolver:
         self._V = None
         self._grad_t = np.ascontiguousarray(np.moveaxis(model.grad, 0, -1))  # (4, 3, m)
         # DOF of each entry of element forces laid out (4 vertices, 3 components, m)
-        self._force_index = np.moveaxis(3 * model.cells[:, :, None] + np.arange(3), 0, -1).ravel()
+        force_index = np.moveaxis(3 * model.cells[:, :, None] + np.arange(3), 0, -1).ravel()
+        # ... summed per DOF by a compiled gather (the order of np.bincount's scatter: the same sums)
+        order = np.argsort(force_index, kind="stable")
+        self._force_ptr = np.searchsorted(force_index[order], np.arange(3 * n + 1)).astype(np.int64)
+        self._force_order = order.astype(np.uint64)
         self._svd_cache = None  # (x, (U, s, V)) of the last evaluated positions
         self._previous = None  # (x, velocity change (3n,), h) of the last step
         self._lag = (0, 0, 0)  # coarse space: solves since its rebuild, CG iterations then, last CG iterations
@@ -288,7 +296,8 @@ class TetSolver:
             else:
                 f, H = np.empty((4, 3, m.cell_count)), None
                 _kernels.element_forces(U, V, np.ascontiguousarray(d.d1), self._grad_t, m.rest_volumes, f)
-            g = np.bincount(self._force_index, weights=f.ravel(), minlength=3 * m.point_count).reshape(-1, 3)
+            g = np.empty((m.point_count, 3))
+            _kernels.gather_sum(self._force_ptr, self._force_order, f.ravel(), g.ravel())
             return E, g, H
         U, V = np.moveaxis(U, -1, 0), np.moveaxis(V, -1, 0)
         P = first_piola(U, V, d.d1)
@@ -530,7 +539,8 @@ class TetSolver:
             else:
                 prec = Preconditioner(1.0 / diag)
             self._system = (A, prec)
-            x, it, definite = _pcg(A, g, prec, self.cg_rtol if rtol is None else rtol, 10 * len(g), guess)
+            x, it, definite = _pcg(A, g, prec, self.cg_rtol if rtol is None else rtol, 10 * len(g), guess,
+                                   blocked=self.pattern.blocked)
             info.linear_iterations += it
             if self.twolevel is not None:  # (solves since the rebuild, its iterations, the last iterations)
                 self._lag = (0, it, it) if self.twolevel.rebuilt else (self._lag[0] + 1, self._lag[1], it)
@@ -546,7 +556,7 @@ class TetSolver:
         """``_solve`` with the matrix (and preconditioner or factors) of the last ``_solve``."""
         A, prec = self._system
         if self.linear_solver == "cg":
-            x, it, definite = _pcg(A, g, prec, self.cg_rtol, 10 * len(g))
+            x, it, definite = _pcg(A, g, prec, self.cg_rtol, 10 * len(g), blocked=self.pattern.blocked)
             info.linear_iterations += it
             return x, definite
         if self.linear_solver == "splu":
