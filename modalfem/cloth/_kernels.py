@@ -35,7 +35,8 @@ CHUNK = 256
 #: 22.0 / 24.8, drape 128x128 (12) 20.5 / 20.7 / 21.2 / 23.8, pile 128x128 (12) 73.1 / 71.5 / 70.7 / 76.4
 COARSE_WEIGHT = 0.5
 
-__all__ = ["aggregate", "bsr_matvec", "level_matrices", "pcg", "scatter_blocks"]
+__all__ = ["aggregate", "bsr_matvec", "gather_stiffness", "level_matrices", "pcg", "scale_plus_diagonal",
+           "scatter_blocks"]
 
 _apply_threads()
 
@@ -64,6 +65,79 @@ def bsr_matvec(indptr, indices, data, x, out):
         start, stop = chunk_bounds(n, chunks, ch)
         for i in range(start, stop):
             out[i, 0], out[i, 1], out[i, 2] = _row_product(indptr, indices, data, x, i)
+
+
+@numba.njit(cache=True, parallel=True)
+def gather_stiffness(indptr, mptr, moff, mblocks, bptr, bh, boff, w, g, out):
+    """``out`` (nnzb, 3, 3) = the block matrix of the triangles' 9x9 blocks ``mblocks`` (m, 9, 9) plus the
+    hinges' Gauss-Newton blocks ``w[h] g_a g_b^T`` (``w`` (h,), ``g`` (h, 12)), gathered per block: block
+    ``p`` sums the triangle sub-blocks ``q`` in ``mptr[p]:mptr[p+1]`` (flat offset ``moff[q]`` of the
+    sub-block's first entry in ``mblocks``; in triangle order), then the hinge sub-blocks ``q`` in
+    ``bptr[p]:bptr[p+1]`` (hinge ``bh[q]``, flat offsets ``boff[q, 0]``, ``boff[q, 1]`` of ``g_a``, ``g_b``
+    in ``g``; in hinge order): the additions of a serial scatter over the triangles then the hinges, in the
+    same order, so the same bits, with the block rows in parallel chunks (``CHUNK`` vertices)."""
+    n = len(indptr) - 1
+    mb = mblocks.reshape(-1)
+    gf = g.reshape(-1)
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for p in range(indptr[start], indptr[stop]):
+            a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+            for q in range(mptr[p], mptr[p + 1]):
+                o = moff[q]
+                a00 += mb[o]
+                a01 += mb[o + 1]
+                a02 += mb[o + 2]
+                a10 += mb[o + 9]
+                a11 += mb[o + 10]
+                a12 += mb[o + 11]
+                a20 += mb[o + 18]
+                a21 += mb[o + 19]
+                a22 += mb[o + 20]
+            for q in range(bptr[p], bptr[p + 1]):
+                wh = w[bh[q]]
+                oa = boff[q, 0]
+                ob = boff[q, 1]
+                g0, g1, g2 = gf[ob], gf[ob + 1], gf[ob + 2]
+                t = wh * gf[oa]
+                a00 += t * g0
+                a01 += t * g1
+                a02 += t * g2
+                t = wh * gf[oa + 1]
+                a10 += t * g0
+                a11 += t * g1
+                a12 += t * g2
+                t = wh * gf[oa + 2]
+                a20 += t * g0
+                a21 += t * g1
+                a22 += t * g2
+            out[p, 0, 0] = a00
+            out[p, 0, 1] = a01
+            out[p, 0, 2] = a02
+            out[p, 1, 0] = a10
+            out[p, 1, 1] = a11
+            out[p, 1, 2] = a12
+            out[p, 2, 0] = a20
+            out[p, 2, 1] = a21
+            out[p, 2, 2] = a22
+
+
+@numba.njit(cache=True, parallel=True)
+def scale_plus_diagonal(K, indptr, diag, scale, d, out):
+    """``out = scale K + diag(d)`` for block matrices (nnzb, 3, 3) and ``d`` (n, 3) (block rows in parallel
+    chunks; the same operations as ``K * scale`` then adding ``d`` on the diagonal)."""
+    n = len(indptr) - 1
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for p in range(indptr[start], indptr[stop]):
+            for r in range(3):
+                for c in range(3):
+                    out[p, r, c] = K[p, r, c] * scale
+        for i in range(start, stop):
+            for c in range(3):
+                out[diag[i], c, c] += d[i, c]
 
 
 @numba.njit(cache=True)

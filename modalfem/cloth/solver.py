@@ -18,8 +18,9 @@ once), block Jacobi of each level's Galerkin matrix for piecewise-constant trans
 solve on the coarsest level. The slow, smooth modes that block Jacobi leaves to CG are the levels'
 work: on the 64x64 pile it takes 58 iterations instead of 94 (implicit step, 1e-4) and 64 instead of
 ~135 (smoothing, 1e-2; it now stops at 0.1, ``SMOOTH_RTOL``) for about the cost of one matrix product each. Matrices live in a 3x3-block
-sparse pattern built once (every vertex's diagonal block included); each step the energies scatter
-their element blocks straight into its data. Which solver is faster: ``modalfem bench cloth``.
+sparse pattern built once (every vertex's diagonal block included); each step the triangles' blocks are
+computed in parallel and every matrix block gathers its element sub-blocks (parallel over block rows, the
+additions of a serial scatter in its order: the same bits on any thread count). Which solver is faster: ``modalfem bench cloth``.
 
 ``smooth`` is the post-collision smoothing: a velocity change ``dv`` (from the collision pipeline) is
 replaced by the solution of ``(M + dt beta_s K) dv_s = M dv`` (CG to ``SMOOTH_RTOL``; without fixed
@@ -91,6 +92,22 @@ class _Pattern:
                      for i, s in enumerate(stencils)]
         #: (n,) position of each vertex's diagonal block
         self.diag = np.ascontiguousarray(inv[sizes[-1]:])
+        #: the element sub-blocks each block gathers (``_kernels.gather_stiffness``), in element order: for the
+        #: triangles (stencil 0, 9x9 blocks) ``(ptr (nnzb + 1,), flat offsets)``, for the hinges (stencil 1,
+        #: Gauss-Newton factors ``g`` (h, 12)) ``(ptr, hinge, offsets (., 2) of g_a and g_b)``
+        self.gathers = []
+        for s, mp in enumerate(self.maps):
+            k = mp.shape[1] if mp.ndim == 3 else 0
+            flat = mp.reshape(-1)
+            order = np.argsort(flat, kind="stable").astype(np.int64)  # ids k^2 e + k a + b, e ascending
+            ptr = np.searchsorted(flat[order], np.arange(self.nnzb + 1)).astype(np.int64)
+            e, ab = np.divmod(order, max(k * k, 1))
+            a, b = np.divmod(ab, max(k, 1))
+            if s == 0:
+                self.gathers.append((ptr, np.ascontiguousarray(81 * e + 27 * a + 3 * b)))
+            else:
+                self.gathers.append((ptr, np.ascontiguousarray(e), np.ascontiguousarray(
+                    np.stack([3 * k * e + 3 * a, 3 * k * e + 3 * b], axis=1))))
 
     def zeros(self) -> np.ndarray:
         return np.zeros((self.nnzb, 3, 3))
@@ -263,6 +280,7 @@ class ImplicitEuler:
         self._levels = _Levels(self._pattern.indptr, self._pattern.indices)
         self._m3 = np.repeat(model.masses, 3)
         self._Kdata = None
+        self._mblocks = None
         self._last_dv = None
         #: CG iterations of the last ``smooth`` call
         self.smooth_iterations = 0
@@ -273,16 +291,33 @@ class ImplicitEuler:
         return self._pattern.csr(self._Kdata)
 
     def _stiffness_data(self, x: np.ndarray) -> np.ndarray:
-        from modalfem.cloth import _energy_kernels
+        """K's block data (nnzb, 3, 3): the triangles' blocks computed in parallel, then gathered per block in
+        parallel (``_kernels.gather_stiffness``: the sums of a serial scatter, in its order)."""
+        from modalfem.cloth import _energy_kernels, _kernels
 
         m, pat = self.model, self._pattern
-        data = pat.zeros()
-        m.membrane.add_hessian(x, data, pat.maps[0])
+        if self._mblocks is None:
+            self._mblocks = np.empty((len(pat.maps[0]), 9, 9))
+        _energy_kernels.membrane_hessian(*m.membrane._args(x), True, self._mblocks, np.zeros((0, 3, 3), np.int64))
         if len(pat.maps[1]):
             w, g = m.bending.gauss_newton_factors(x)
-            _energy_kernels.scatter_outer(data, pat.maps[1], w, g)
+        else:
+            w, g = np.zeros(0), np.zeros((0, 12))
+        data = np.empty((pat.nnzb, 3, 3))
+        _kernels.gather_stiffness(pat.indptr, *pat.gathers[0], self._mblocks, *pat.gathers[1],
+                                  np.ascontiguousarray(w, dtype=float), np.ascontiguousarray(g, dtype=float), data)
         self._Kdata = data
         return data
+
+    def _scale_plus_diagonal(self, K: np.ndarray, scale: float, d: np.ndarray) -> np.ndarray:
+        """``scale K + diag(d)`` (block data; ``d`` (3n,) node-major)."""
+        from modalfem.cloth import _kernels
+
+        pat = self._pattern
+        out = np.empty_like(K)
+        _kernels.scale_plus_diagonal(K, pat.indptr, pat.diag, float(scale), np.ascontiguousarray(d.reshape(-1, 3)),
+                                     out)
+        return out
 
     def _matvec(self, data: np.ndarray, u: np.ndarray) -> np.ndarray:
         from modalfem.cloth import _kernels
@@ -352,8 +387,7 @@ class ImplicitEuler:
         a, beta = mdl.mass_damping, mdl.stiffness_damping
         m = mdl.masses[:, None]
         Cv = a * m * v + beta * Kv
-        data = Kd * (dt * dt + dt * beta)
-        pat.add_diagonal(data, self._m3 * (1.0 + dt * a))
+        data = self._scale_plus_diagonal(Kd, dt * dt + dt * beta, self._m3 * (1.0 + dt * a))
         if damping_blocks is not None:
             Cw = pat.zeros()
             _kernels.scatter_blocks(Cw, pat.maps[0], np.ascontiguousarray(damping_blocks, dtype=float), 1.0)
@@ -398,8 +432,7 @@ class ImplicitEuler:
         if strength <= 0 or self._Kdata is None or not np.any(dv):
             return dv
         pat = self._pattern
-        data = self._Kdata * (dt * strength)
-        pat.add_diagonal(data, self._m3)
+        data = self._scale_plus_diagonal(self._Kdata, dt * strength, self._m3)
         fixed = np.zeros(0, np.int64) if fixed is None else np.asarray(fixed, dtype=np.int64)
         kind, normal, z = _constraints(pat.n, fixed, np.zeros((fixed.size, 3)), None)
         m = self.model.masses

@@ -165,6 +165,28 @@ def test_stiffness_pattern_holds_the_energies_hessians_and_the_diagonal_blocks()
     assert np.allclose(s._matvec(s._Kdata, u).reshape(-1), K @ u.reshape(-1), rtol=0, atol=1e-12 * np.abs(K).sum())
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_gathered_stiffness_is_the_serial_scatter_bit_for_bit(threads):
+    # the parallel per-block gather adds the same element sub-blocks in the same order (triangles, then
+    # hinges, each in element order) as a serial scatter over the elements: the same bits on any thread count
+    from modalfem._threads import thread_count
+    from modalfem.cloth import _energy_kernels, _kernels
+
+    s, _, model, x, _ = _cloth_system(n=24)  # 576 vertices: the gather runs in 2 chunks
+    pat = s._pattern
+    ref = pat.zeros()
+    _kernels.scatter_blocks(ref, pat.maps[0], model.membrane.hessian_blocks(x), 1.0)
+    w, g = model.bending.gauss_newton_factors(x)
+    _energy_kernels.scatter_outer(ref, pat.maps[1], w, g)
+    with thread_count(threads):
+        K = s._stiffness_data(x)
+        A = s._scale_plus_diagonal(K, 0.37, s._m3 * 1.5)
+    assert np.abs(ref).max() > 0 and np.array_equal(K, ref)
+    ref_a = ref * 0.37
+    pat.add_diagonal(ref_a, s._m3 * 1.5)
+    assert np.array_equal(A, ref_a)
+
+
 def test_filtered_cg_matches_a_direct_solve_with_handles_and_contacts():
     _, A, model, _, rng = _cloth_system()
     n = model.mesh.point_count
