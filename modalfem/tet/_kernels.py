@@ -273,7 +273,12 @@ def _svd_element(e, F, V0t, warm, U, s, V, AV) -> None:
             done = False
             # t = tan of the rotation angle = sign(z) / (|z| + sqrt(1 + z^2)), z = (be - al) / (2 ga)
             tau, g2 = be - al, 2.0 * ga
-            t = math.copysign(1.0, tau) * g2 / (abs(tau) + math.hypot(tau, g2))
+            big = max(abs(tau), abs(g2))
+            if 1e-140 < big < 1e140:  # the squares neither overflow nor underflow: sqrt of their sum, a
+                hyp = math.sqrt(tau * tau + g2 * g2)  # quarter of the SVD's time less than math.hypot
+            else:
+                hyp = math.hypot(tau, g2)
+            t = math.copysign(1.0, tau) * g2 / (abs(tau) + hyp)
             c = 1.0 / math.sqrt(1.0 + t * t)
             for r in range(6):
                 mp, mq = AV[r, p], AV[r, q]
