@@ -48,7 +48,7 @@ from modalfem._threads import serial_blas
 #: response): 0.1 takes 33 CG iterations (1e-2: 60, converged: 276) and its smoothed change is within
 #: 3.5 % (L2; 5 % in the largest entry, 3.4 % of the thickness over the step) of the converged one; over
 #: the whole pile 31 instead of 55 iterations per step, no more impact-zone vertices in the re-check,
-#: 0 intersections
+#: 0 intersections; started from the last step's smoothed change (``smooth``), 27.7 instead of 31.2
 SMOOTH_RTOL = 0.1
 
 __all__ = ["ImplicitEuler", "LinearSolveInfo", "pcg_constrained"]
@@ -282,6 +282,7 @@ class ImplicitEuler:
         self._Kdata = None
         self._mblocks = None
         self._last_dv = None
+        self._last_smooth = None  # the last smoothed change: the next smoothing solve's start
         #: CG iterations of the last ``smooth`` call
         self.smooth_iterations = 0
 
@@ -417,7 +418,8 @@ class ImplicitEuler:
 
     @serial_blas
     def smooth(self, dv: np.ndarray, dt: float, *, strength: float, fixed=None) -> np.ndarray:
-        """Smoothed velocity change: solve ``(M + dt * strength * K) dv_s = M dv`` with ``dv_s[fixed] = 0``.
+        """Smoothed velocity change: solve ``(M + dt * strength * K) dv_s = M dv`` with ``dv_s[fixed] = 0``
+        (CG from the last call's answer: in a resting pile the contact response changes little from step to step).
 
         Args:
             dv: velocity change (n, 3) [m/s] (e.g. collision response minus the implicit prediction).
@@ -436,8 +438,11 @@ class ImplicitEuler:
         fixed = np.zeros(0, np.int64) if fixed is None else np.asarray(fixed, dtype=np.int64)
         kind, normal, z = _constraints(pat.n, fixed, np.zeros((fixed.size, 3)), None)
         m = self.model.masses
+        last = self._last_smooth
         y, self.smooth_iterations, _ = self._solve(data, m[:, None] * dv, kind, normal, z,
+                                                   guess=last if last is not None and last.shape == dv.shape else None,
                                                    rtol=max(self.cg_rtol, SMOOTH_RTOL))
+        self._last_smooth = y.copy()
         if fixed.size == 0:  # the exact solution keeps the momentum of dv: restore what the residual changed
             y += (m @ dv - m @ y) / m.sum()
         return y

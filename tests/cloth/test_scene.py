@@ -71,6 +71,29 @@ def test_smoothing_with_fixed_vertices_solves_its_system(linear_solver, monkeypa
     assert np.all(sm[fixed] == 0.0)
 
 
+def test_smoothing_starts_from_the_last_answer_and_still_solves_its_system(monkeypatch):
+    from modalfem.cloth import solver as solver_module
+
+    monkeypatch.setattr(solver_module, "SMOOTH_RTOL", 1e-8)
+    model = ClothModel(MESH, MAT)
+    s = ImplicitEuler(model, cg_rtol=1e-8)
+    K = s.stiffness(MESH.points * 1.01).toarray()
+    rng = np.random.default_rng(4)
+    dv = rng.standard_normal((MESH.point_count, 3))
+    m3 = np.repeat(model.masses, 3)
+    A = np.diag(m3) + 0.01 * 0.05 * K
+    s.smooth(dv, 0.01, strength=0.05)
+    cold = s.smooth_iterations
+    assert cold > 0
+    s.smooth(dv, 0.01, strength=0.05)  # the same change again: its start is the answer
+    assert s.smooth_iterations < cold
+    dv2 = dv + 0.1 * rng.standard_normal(dv.shape)  # a nearby change: fewer iterations, the same tolerance
+    sm = s.smooth(dv2, 0.01, strength=0.05)
+    assert s.smooth_iterations < cold
+    ref = np.linalg.solve(A, m3 * dv2.reshape(-1))
+    assert np.allclose(sm.reshape(-1), ref, rtol=0, atol=3e-6 * np.abs(ref).max())
+
+
 def _scene(pipeline, smoothing):
     sc = ClothScene(ClothModel(MESH, MAT), gravity=(0, 0, -9.81), smoothing=smoothing)
     sc.pipeline = pipeline
