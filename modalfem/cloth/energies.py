@@ -197,6 +197,19 @@ class Bending:
         ek.scatter_rows(out, h, g, self._coef * self._wrapped(theta))
         return out
 
+    def gradient_and_factors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``gradient(x)`` and ``gauss_newton_factors(x)`` from one evaluation of the angles: (dW/dx (n, 3)
+        [N], weights (h,) [J], angle gradients (h, 12) [rad/m])."""
+        h = self.mesh.hinges.vertices
+        out = np.zeros((len(x), 3))
+        if not len(h):
+            return out, self._coef, np.zeros((0, 12))
+        from modalfem.cloth import _energy_kernels as ek
+
+        theta, g = dihedral_angles(x, h)
+        ek.scatter_rows(out, h, g, self._coef * self._wrapped(theta))
+        return out, self._coef, g.reshape(len(h), 12)
+
     def gauss_newton_factors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The projected Hessian of each hinge as ``w g g^T``: weights ``w`` (h,) [J] and the angle
         gradients ``g`` (h, 12) [rad/m] at positions ``x`` (n, 3) [m] (for assembly without forming blocks)."""

@@ -291,19 +291,20 @@ class ImplicitEuler:
         self._stiffness_data(x)
         return self._pattern.csr(self._Kdata)
 
-    def _stiffness_data(self, x: np.ndarray) -> np.ndarray:
+    def _stiffness_data(self, x: np.ndarray, bending_factors=None) -> np.ndarray:
         """K's block data (nnzb, 3, 3): the triangles' blocks computed in parallel, then gathered per block in
-        parallel (``_kernels.gather_stiffness``: the sums of a serial scatter, in its order)."""
+        parallel (``_kernels.gather_stiffness``: the sums of a serial scatter, in its order). ``bending_factors``:
+        ``Bending.gauss_newton_factors(x)`` if already computed."""
         from modalfem.cloth import _energy_kernels, _kernels
 
         m, pat = self.model, self._pattern
         if self._mblocks is None:
             self._mblocks = np.empty((len(pat.maps[0]), 9, 9))
         _energy_kernels.membrane_hessian(*m.membrane._args(x), True, self._mblocks, np.zeros((0, 3, 3), np.int64))
-        if len(pat.maps[1]):
-            w, g = m.bending.gauss_newton_factors(x)
-        else:
+        if not len(pat.maps[1]):
             w, g = np.zeros(0), np.zeros((0, 12))
+        else:
+            w, g = m.bending.gauss_newton_factors(x) if bending_factors is None else bending_factors
         data = np.empty((pat.nnzb, 3, 3))
         _kernels.gather_stiffness(pat.indptr, *pat.gathers[0], self._mblocks, *pat.gathers[1],
                                   np.ascontiguousarray(w, dtype=float), np.ascontiguousarray(g, dtype=float), data)
@@ -382,8 +383,9 @@ class ImplicitEuler:
         mdl, pat = self.model, self._pattern
         t0 = time.perf_counter()
         v = np.asarray(v, dtype=float)
-        Kd = self._stiffness_data(x)
-        f = forces - mdl.membrane.gradient(x) - mdl.bending.gradient(x)
+        grad_b, w_b, g_b = mdl.bending.gradient_and_factors(x)  # one evaluation of the dihedral angles
+        Kd = self._stiffness_data(x, (w_b, g_b))
+        f = forces - mdl.membrane.gradient(x) - grad_b
         Kv = self._matvec(Kd, v)
         a, beta = mdl.mass_damping, mdl.stiffness_damping
         m = mdl.masses[:, None]

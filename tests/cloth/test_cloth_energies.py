@@ -153,3 +153,12 @@ def test_compiled_projected_membrane_hessian_is_the_eigenvalue_clamped_one(stret
         Hp = (V * np.maximum(w, 0)) @ V.T
         ref = E._area[t] * np.einsum("aj,ijkl,bl->aibk", G, Hp.reshape(3, 2, 3, 2), G).reshape(9, 9)
         assert np.allclose(K[t], ref, atol=1e-5 * np.abs(ref).max())
+
+
+def test_bending_gradient_and_factors_from_one_angle_evaluation_equal_the_separate_calls():
+    b = Bending(MESH, 1e-3)
+    x = MESH.points @ _rotation(7).T + 0.01 * np.random.default_rng(7).standard_normal(MESH.points.shape)
+    grad, w, g = b.gradient_and_factors(x)
+    w2, g2 = b.gauss_newton_factors(x)
+    assert np.abs(grad).max() > 0
+    assert np.array_equal(grad, b.gradient(x)) and np.array_equal(w, w2) and np.array_equal(g, g2)
