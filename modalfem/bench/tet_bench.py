@@ -138,7 +138,7 @@ def _section(rows: list[tuple], command: str, seconds: float) -> str:
              "line search, an iteration after a full step under 300 x tol reusing the previous matrix, PCG "
              "(rtol 1e-3 for the solve that can end a step, 0.03 for earlier ones; compiled; the first solve of a "
              "`linearised` step warm-started from the previous step's velocity change) with the two-level preconditioner (Jacobi + rigid motions of ~48 vertex aggregates, "
-             "coarse space reused for up to 4 solves); `linearised`: one Newton step per time "
+             "coarse space reused for up to 6 solves); `linearised`: one Newton step per time "
              "step (Baraff-Witkin); `splu`: SuperLU factorisation per solve. Median of the measured steps "
              "after 2 warm-up steps; `CPU ms/step` is the process CPU time of a step (less sensitive to other "
              f"load on the machine). Goal: >= {GOAL_STEPS_PER_S:.0f} steps/s at 10k tets on one core.")

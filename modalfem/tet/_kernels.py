@@ -612,3 +612,54 @@ def galerkin(indptr, indices, data, Pp, Pi, Pd, group_ptr, group_rows, Ac) -> No
                 j = touched[u]
                 w[j] = 0.0
                 mark[j] = False
+
+
+@numba.njit(cache=True, parallel=True)
+def stable_corotated(s, mu: float, lam: float, order: int, psi, d1, d2, twist, flip) -> None:
+    """:class:`modalfem.tet.energies.StableCorotated` with scalar moduli at signed singular values ``s``
+    (m, 3): ``psi`` (m,) [Pa], and with ``order`` 2 also ``d1`` (3, m), ``d2`` (3, 3, m), ``twist``,
+    ``flip`` (3, m) [Pa], element index last; the operations of its NumPy form in the same order (the same
+    numbers), elements in parallel chunks."""
+    m = s.shape[0]
+    chunks = chunk_count(m, ELEMENT_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        for e in range(start, stop):
+            s0, s1, s2 = s[e, 0], s[e, 1], s[e, 2]
+            e0, e1_, e2 = s0 - 1.0, s1 - 1.0, s2 - 1.0
+            p = e0 * e0
+            p += e1_ * e1_
+            p += e2 * e2
+            p *= mu
+            if order < 2:
+                jm = s0 * s1 * s2 - 1.0
+                psi[e] = p + 0.5 * lam * jm * jm
+                continue
+            dj0, dj1, dj2 = s1 * s2, s0 * s2, s0 * s1
+            jm = s0 * dj0 - 1.0
+            g = lam * jm
+            psi[e] = p + 0.5 * lam * jm * jm
+            d1[0, e] = e0 * (2.0 * mu) + g * dj0
+            d1[1, e] = e1_ * (2.0 * mu) + g * dj1
+            d1[2, e] = e2 * (2.0 * mu) + g * dj2
+            d2[0, 0, e] = dj0 * dj0 * lam + 2.0 * mu
+            d2[1, 1, e] = dj1 * dj1 * lam + 2.0 * mu
+            d2[2, 2, e] = dj2 * dj2 * lam + 2.0 * mu
+            o0, o1, o2 = g * s0, g * s1, g * s2  # pair k = (1, 2), (0, 2), (0, 1) couples with sigma_k
+            t = dj1 * dj2 * lam + o0
+            d2[1, 2, e] = t
+            d2[2, 1, e] = t
+            t = dj0 * dj2 * lam + o1
+            d2[0, 2, e] = t
+            d2[2, 0, e] = t
+            t = dj0 * dj1 * lam + o2
+            d2[0, 1, e] = t
+            d2[1, 0, e] = t
+            for k in range(3):
+                i, j = (1, 0, 0)[k], (2, 2, 1)[k]
+                o = o0 if k == 0 else (o1 if k == 1 else o2)
+                pair = s[e, i] + s[e, j]
+                if pair < 1e-12:  # kept >= _EPS (as np.maximum; a NaN stays NaN)
+                    pair = 1e-12
+                twist[k, e] = 2.0 * mu - 4.0 * mu / pair + o
+                flip[k, e] = 2.0 * mu - o

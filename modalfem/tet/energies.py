@@ -161,61 +161,25 @@ class StableCorotated:
 
     def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
         """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2."""
-        if np.ndim(self.mu) == 0 and np.ndim(self.lam) == 0:
-            if order >= 2:
-                return self._derivs2(s)
-            if order == 0:  # the line search's energies: psi only, on whole columns
-                st = np.ascontiguousarray(np.asarray(s, dtype=float).T)
-                e = st - 1.0
-                psi = e[0] * e[0]
-                psi += e[1] * e[1]
-                psi += e[2] * e[2]
-                psi *= float(self.mu)
-                jm = st[0] * st[1] * st[2] - 1.0
-                psi += 0.5 * float(self.lam) * jm * jm
+        if np.ndim(self.mu) == 0 and np.ndim(self.lam) == 0 and order != 1:
+            # scalar moduli: one compiled pass, elements in parallel (the sums of _arap and _volumetric)
+            from modalfem.tet import _kernels
+
+            s = np.ascontiguousarray(s, dtype=float)
+            m = len(s)
+            psi = np.empty(m)
+            if order == 0:  # the line search's energies: psi only
+                e = np.empty((0, 0))
+                _kernels.stable_corotated(s, float(self.mu), float(self.lam), 0, psi, e, np.empty((0, 0, 0)), e, e)
                 return SigmaDerivs(psi)
+            d1, d2, twist, flip = np.empty((3, m)), np.empty((3, 3, m)), np.empty((3, m)), np.empty((3, m))
+            _kernels.stable_corotated(s, float(self.mu), float(self.lam), 2, psi, d1, d2, twist, flip)
+            # stored with the element index last (what the Hessians read), returned as (m, ...) views
+            return SigmaDerivs(psi, d1.T, np.moveaxis(d2, -1, 0), twist.T, flip.T)
         d = _det(s) - 1.0
         lam = np.asarray(self.lam, dtype=float)
         e2 = np.broadcast_to(lam, d.shape).astype(float)
         return _arap(s, self.mu, order) + _volumetric(s, 0.5 * lam * d * d, lam * d, e2, order)
-
-    def _derivs2(self, s: np.ndarray) -> SigmaDerivs:
-        """Order 2 for scalar moduli in one pass: the sum of ``_arap`` and ``_volumetric`` written out,
-        as operations on whole columns (m,) (no (m, 3, 3) broadcasting)."""
-        mu, lam = float(self.mu), float(self.lam)
-        m = len(s)
-        st = np.ascontiguousarray(np.asarray(s, dtype=float).T)  # (3, m)
-        e = st - 1.0
-        dJ = np.empty((3, m))  # d J / d sigma
-        np.multiply(st[1], st[2], out=dJ[0])
-        np.multiply(st[0], st[2], out=dJ[1])
-        np.multiply(st[0], st[1], out=dJ[2])
-        jm = st[0] * dJ[0] - 1.0
-        e1 = lam * jm
-        psi = e[0] * e[0]
-        psi += e[1] * e[1]
-        psi += e[2] * e[2]
-        psi *= mu
-        psi += 0.5 * lam * jm * jm
-        # stored with the element index last (what the Hessians read), returned as (m, ...) views
-        d1 = np.empty((3, m))
-        d2 = np.empty((3, 3, m))
-        off = e1 * st  # (3, m): e1 times the Hessian of J: pair k = (i, j) couples with sigma_k
-        for i in range(3):
-            np.multiply(e[i], 2.0 * mu, out=d1[i])
-            d1[i] += e1 * dJ[i]
-            np.multiply(dJ[i], dJ[i], out=d2[i, i])
-            d2[i, i] *= lam
-            d2[i, i] += 2.0 * mu
-        for k, (i, j) in enumerate(PAIRS):
-            np.multiply(dJ[i], dJ[j], out=d2[i, j])
-            d2[i, j] *= lam
-            d2[i, j] += off[k]
-            d2[j, i] = d2[i, j]
-        pair = np.maximum(st[_I] + st[_J], _EPS)  # sigma_i + sigma_j per pair (3, m)
-        twist = 2.0 * mu - 4.0 * mu / pair + off
-        flip = 2.0 * mu - off
-        return SigmaDerivs(psi, d1.T, np.moveaxis(d2, -1, 0), twist.T, flip.T)
 
 
 @dataclass(frozen=True)
