@@ -35,6 +35,9 @@ CHUNK = 256
 #: 22.0 / 24.8, drape 128x128 (12) 20.5 / 20.7 / 21.2 / 23.8, pile 128x128 (12) 73.1 / 71.5 / 70.7 / 76.4
 COARSE_WEIGHT = 0.5
 
+#: most chunks of ``level_matrices`` (each sums into its own copy of the level matrices, added at the end)
+LEVEL_CHUNKS = 4
+
 __all__ = ["aggregate", "bsr_matvec", "gather_stiffness", "level_matrices", "pcg", "scale_plus_diagonal",
            "scatter_blocks"]
 
@@ -339,13 +342,16 @@ def aggregate(indptr, indices):
     return agg, k
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def level_matrices(indptr, indices, data, kind, normal, agg, up, off):
     """Galerkin matrices of the aggregation levels, ``P_l^T S A S P_l`` with ``P_l`` the piecewise-constant
     prolongation (3 translations per aggregate) of level ``l``: the aggregates of all levels are numbered
     together, level ``l`` from ``off[l]``; ``agg`` (n,): each vertex's level-0 aggregate, ``up`` (off[L-1],):
     each aggregate's parent on the next level. Returns the inverses (off[L-1], 3, 3) of the diagonal blocks
     of levels 0..L-2 and the full matrix (3 nc, 3 nc) of the coarsest level.
+
+    The block rows run in ``LEVEL_CHUNKS`` (at most) parallel chunks fixed by the vertex count, each into
+    its own sums, added in chunk order: the same bits on any thread count.
 
     A block singular because its vertices are constrained (``S P u = 0``) is inverted after adding
     ``1e-10 tr / 3`` to its diagonal (a zero one as the identity): restricted residuals have no component
@@ -354,13 +360,34 @@ def level_matrices(indptr, indices, data, kind, normal, agg, up, off):
     n = len(indptr) - 1
     L = len(off) - 1
     nd = off[L - 1]
-    D = np.zeros((nd, 3, 3))
     nc = off[L] - nd
-    C = np.zeros((3 * nc, 3 * nc))
+    chunks = min(chunk_count(n, CHUNK), LEVEL_CHUNKS)
+    Dp = np.zeros((chunks, nd, 3, 3))
+    Cp = np.zeros((chunks, 3 * nc, 3 * nc))
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        _level_rows(indptr, indices, data, kind, normal, agg, up, nd, start, stop, Dp[ch], Cp[ch])
+    D = Dp[0]
+    C = Cp[0]
+    for ch in range(1, chunks):
+        D += Dp[ch]
+        C += Cp[ch]
+    Dinv = np.empty((nd, 3, 3))
+    for g in range(nd):
+        tr = (D[g, 0, 0] + D[g, 1, 1] + D[g, 2, 2]) / 3.0
+        for a in range(3):
+            D[g, a, a] += 1e-10 * tr
+        _inverse3(D[g], Dinv[g])
+    return Dinv, C
+
+
+@numba.njit(cache=True)
+def _level_rows(indptr, indices, data, kind, normal, agg, up, nd, start, stop, D, C):
+    """The contributions of block rows ``start..stop-1`` to ``level_matrices``' D (nd, 3, 3) and C."""
     T = np.empty((3, 3))
     Si = np.empty((3, 3))
     Sj = np.empty((3, 3))
-    for i in range(n):
+    for i in range(start, stop):
         if kind[i] == 2:
             continue
         _projector(kind, normal, i, Si)
@@ -395,13 +422,6 @@ def level_matrices(indptr, indices, data, kind, normal, agg, up, off):
             for a in range(3):
                 for b in range(3):
                     C[3 * I + a, 3 * J + b] += T[a, b]
-    Dinv = np.empty((nd, 3, 3))
-    for g in range(nd):
-        tr = (D[g, 0, 0] + D[g, 1, 1] + D[g, 2, 2]) / 3.0
-        for a in range(3):
-            D[g, a, a] += 1e-10 * tr
-        _inverse3(D[g], Dinv[g])
-    return Dinv, C
 
 
 @numba.njit(cache=True)

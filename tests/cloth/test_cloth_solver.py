@@ -255,6 +255,45 @@ def test_filtered_cg_with_whole_aggregates_constrained():
     assert np.allclose(y, ref, rtol=0, atol=1e-8 * np.abs(ref).max()) and 0 < it < 100
 
 
+def test_level_matrices_are_the_galerkin_products_on_any_thread_count():
+    # the coarsest level's matrix P^T S A S P (P: piecewise-constant translations of the aggregates) and the
+    # finer levels' diagonal blocks, summed in parallel chunks: the same bits on 1 and 2 threads
+    from modalfem._threads import thread_count
+    from modalfem.cloth import _kernels
+    from modalfem.cloth.solver import _Levels
+
+    s, A, model, _, rng = _cloth_system(n=24)  # 576 vertices: 2 chunks
+    n = model.mesh.point_count
+    pat = s._pattern
+    data = np.ascontiguousarray(sp.bsr_matrix(A, blocksize=(3, 3)).data)
+    kind = np.zeros(n, np.int8)
+    normal = np.zeros((n, 3))
+    kind[:24] = 2  # a fixed edge
+    kind[100:140] = 1  # contacts
+    normal[100:140] = rng.standard_normal((40, 3))
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+    lv = _Levels(pat.indptr, pat.indices)
+    B = sp.bsr_matrix(A, blocksize=(3, 3))
+    assert np.array_equal(B.indptr, pat.indptr) and np.array_equal(B.indices, pat.indices)
+    out = []
+    for threads in (1, 2):
+        with thread_count(threads):
+            out.append(_kernels.level_matrices(pat.indptr, pat.indices, data, kind, normal, lv.agg, lv.up, lv.off))
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    S = np.zeros((n, 3, 3))
+    S[kind == 0] = np.eye(3)
+    c = kind == 1
+    S[c] = np.eye(3) - normal[c][:, :, None] * normal[c][:, None, :]
+    Sd = sp.block_diag(list(S)).toarray()
+    g = lv.agg.copy()
+    nd = lv.off[-2]
+    while np.any(g < nd):
+        g = np.where(g < nd, lv.up[np.minimum(g, nd - 1)], g)
+    P = np.kron(np.eye(lv.off[-1] - nd)[g - nd], np.eye(3))
+    ref = P.T @ Sd @ A.toarray() @ Sd @ P
+    assert np.allclose(out[0][1], ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
 def test_cg_on_many_separate_pieces_uses_one_global_aggregate():
     # 200 separate two-vertex pieces: aggregation stalls at one aggregate per piece (more than COARSEST),
     # so the coarsest level becomes one aggregate of everything instead of a 600x600 dense solve
