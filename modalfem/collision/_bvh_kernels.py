@@ -89,14 +89,18 @@ def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, slot_a, slo
                     tests += slot_b[ib, c] >= 0
             else:
                 tests += nb
-            da = filt and dirty_tris[ta]
-            for c in range(c0, Lb):
-                if ok[c]:
+            # written always, kept by the count: no branch on the box tests, which fail unpredictably
+            # (empty slots never overlap, so their -1 is never kept)
+            if filt:
+                da = dirty_tris[ta]
+                for c in range(c0, Lb):
                     tb = slot_b[ib, c]
-                    if filt and not (da or (same and dirty_tris[tb])):
-                        continue
                     out[n, 0], out[n, 1] = ta, tb
-                    n += 1
+                    n += ok[c] & (da | (same & dirty_tris[max(tb, 0)]))
+            else:
+                for c in range(c0, Lb):
+                    out[n, 0], out[n, 1] = ta, slot_b[ib, c]
+                    n += ok[c]
     return out[:n].copy(), tests
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from modalfem._threads import chunk_bounds, chunk_count
 
 __all__ = [
+    "close_frames",
     "contact_frames",
     "edge_edge_batch",
     "edge_edge_closest",
@@ -278,3 +279,40 @@ def _frames_range(vf: bool, X, quads, Xref, start: int, stop: int, W, N, D) -> N
         else:
             dd = d if d > 0 else 1.0
             N[q, 0], N[q, 1], N[q, 2] = sep0 / dd, sep1 / dd, sep2 / dd
+
+
+@numba.njit(cache=True, parallel=True)
+def close_frames(vf: bool, X: np.ndarray, quads: np.ndarray, Xref: np.ndarray, thickness: float) -> tuple:
+    """:func:`contact_frames` of the pairs ``quads`` (k, 4) closer than ``thickness`` [m] only, in their
+    order: ``(q, W, N, D)`` with (p, 4) quads, (p, 4) weights, (p, 3) unit normals and (p,) distances [m].
+    The frames and the per-chunk counts in parallel chunks, then the close rows copied, each chunk to the
+    offset of the chunks before it (the same rows on any thread count; stage (a)'s pairs without numpy
+    masks over all candidates)."""
+    k = len(quads)
+    W, N, D = np.empty((k, 4)), np.empty((k, 3)), np.empty(k)
+    chunks = chunk_count(k, FRAME_CHUNK)
+    offsets = np.zeros(chunks + 1, dtype=np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        _frames_range(vf, X, quads, Xref, start, stop, W, N, D)
+        c = 0
+        for q in range(start, stop):
+            c += D[q] < thickness
+        offsets[ch + 1] = c
+    for ch in range(chunks):
+        offsets[ch + 1] += offsets[ch]
+    p = offsets[chunks]
+    qo, Wo, No, Do = np.empty((p, 4), dtype=np.int64), np.empty((p, 4)), np.empty((p, 3)), np.empty(p)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        o = offsets[ch]
+        for q in range(start, stop):
+            if D[q] < thickness:
+                for c in range(4):
+                    qo[o, c] = quads[q, c]
+                    Wo[o, c] = W[q, c]
+                for c in range(3):
+                    No[o, c] = N[q, c]
+                Do[o] = D[q]
+                o += 1
+    return qo, Wo, No, Do

@@ -80,3 +80,22 @@ def test_pair_expansion_ccd_and_frames_are_the_same_on_one_and_two_threads():
     for f1, f2 in zip(frames1, frames2):
         for a, b in zip(f1, f2):
             np.testing.assert_array_equal(a, b)
+
+
+def test_close_frames_are_the_masked_contact_frames_on_one_and_two_threads():
+    """Stage (a)'s compiled selection of the pairs closer than h equals the frames of every candidate
+    masked by d < h (numpy), rows in candidate order, bit for bit on 1 and 2 threads."""
+    pts, tri, x0, _ = _sheets(11)
+    system = System(tri, ())
+    system.build_cloth_bvh(pts)
+    h = 0.012
+    c = system.candidates(x0, x0, margin=0.5 * h, self_collision=True, culling=False)
+    for kind, q in (("vf", c.vf), ("ee", c.ee)):
+        W, N, D = _distance_kernels.contact_frames(kind == "vf", x0, q, x0)
+        close = D < h
+        assert 0 < close.sum() < len(q) and len(q) > 2000  # some pairs kept, some dropped, several chunks
+        for t in (1, 2):
+            with thread_count(t):
+                got = _distance_kernels.close_frames(kind == "vf", x0, q, x0, h)
+            for a, b in zip(got, (q[close], W[close], N[close], D[close])):
+                np.testing.assert_array_equal(a, b)
