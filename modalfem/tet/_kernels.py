@@ -451,43 +451,53 @@ def is_blocked3(indptr, indices) -> bool:
 
 
 @numba.njit(cache=True, parallel=True)
-def _update(x, r, p, Ap, alpha: float, Pp, Pi, Pd, Ac_inv, cpart, cr, cz, part) -> float:
+def _update(x, r, p, Ap, alpha: float, Pp, Pi, Pd, Ac_inv, gptr, grows, cr, cz, part) -> float:
     """``x += alpha p``, ``r -= alpha Ap`` and the coarse part of the next preconditioning in the same pass:
-    ``cr = P^T r`` (per-chunk partial sums ``cpart`` (chunks, nc), added in chunk order), then
-    ``cz = Ac_inv cr`` (serial: O(nc^2), a column sweep of the symmetric ``Ac_inv``, vectorised). Returns
-    ``r . r``. ``alpha = 0`` with zero ``p`` and ``Ap``: only the restriction of ``r``."""
+    ``cr = P^T r`` (rows visited group by group, ``grows[gptr[g]:gptr[g + 1]]``, each group's coarse
+    entries summed by one thread: no partial arrays, no write conflicts), then ``cz = Ac_inv cr`` (serial:
+    O(nc^2), a column sweep of the symmetric ``Ac_inv``, vectorised). Without a coarse part rows go in
+    chunks. Returns ``r . r`` (per group or chunk, added in order). ``alpha = 0`` with zero ``p`` and
+    ``Ap``: only the restriction of ``r``."""
     n = len(x)
     nc = len(cr)
-    chunks = chunk_count(n, ROW_CHUNK)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(n, chunks, ch)
-        t = 0.0
-        if nc > 0:
-            for j in range(nc):
-                cpart[ch, j] = 0.0
-        for i in range(start, stop):
-            x[i] += alpha * p[i]
-            ri = r[i] - alpha * Ap[i]
-            r[i] = ri
-            t += ri * ri
-            if nc > 0:
-                for q in range(Pp[i], Pp[i + 1]):
-                    cpart[ch, Pi[q]] += Pd[q] * ri
-        part[ch] = t
-    s = 0.0
-    for ch in range(chunks):
-        s += part[ch]
     if nc > 0:
+        groups = len(gptr) - 1
         for j in range(nc):
-            c = 0.0
-            for ch in range(chunks):
-                c += cpart[ch, j]
-            cr[j] = c
+            cr[j] = 0.0
+        for g in numba.prange(groups):
+            t = 0.0
+            for k in range(gptr[g], gptr[g + 1]):
+                i = grows[k]
+                x[i] += alpha * p[i]
+                ri = r[i] - alpha * Ap[i]
+                r[i] = ri
+                t += ri * ri
+                for q in range(Pp[i], Pp[i + 1]):
+                    cr[Pi[q]] += Pd[q] * ri
+            part[g] = t
+        s = 0.0
+        for g in range(groups):
+            s += part[g]
+        for j in range(nc):
             cz[j] = 0.0
         for j in range(nc):  # cz = Ac_inv cr by columns (Ac_inv symmetric): cz[i] summed over j in order
             c = cr[j]
             for i in range(nc):
                 cz[i] += Ac_inv[j, i] * c
+        return s
+    chunks = chunk_count(n, ROW_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        t = 0.0
+        for i in range(start, stop):
+            x[i] += alpha * p[i]
+            ri = r[i] - alpha * Ap[i]
+            r[i] = ri
+            t += ri * ri
+        part[ch] = t
+    s = 0.0
+    for ch in range(chunks):
+        s += part[ch]
     return s
 
 
@@ -518,10 +528,11 @@ def _precondition(r, inv, Pp, Pi, Pd, cz, z, part) -> float:
 
 
 @numba.njit(cache=True)
-def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_inv, rtol: float, maxiter: int,
-                 blocked: bool):
+def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_inv, gptr, grows, rtol: float,
+                 maxiter: int, blocked: bool):
     """Preconditioned CG for ``A x = b`` (CSR ``A``) with ``M^-1 r = inv * r + P Ac_inv P^T r`` (P as CSR
-    ``(Pp, Pi, Pd)``; Jacobi alone when ``Ac_inv`` is (0, 0)), compiled: three parallel passes per
+    ``(Pp, Pi, Pd)``, whose row ``i`` has its columns in the coarse block of the group listing ``i`` in
+    ``grows[gptr[g]:gptr[g + 1]]``; Jacobi alone when ``Ac_inv`` is (0, 0)), compiled: three parallel passes per
     iteration (thread launches cost ~5-10 us each here, a pass over the vectors a few tens): the direction
     update with the CSR product and ``p . Ap`` (:func:`_search`), the vector updates with ``r . r`` and the
     coarse restriction (:func:`_update`), the preconditioner with ``r . z`` (:func:`_precondition`); dot
@@ -535,13 +546,12 @@ def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_in
     """
     n = len(b)
     chunks = chunk_count(n, ROW_CHUNK)
-    part = np.empty(max(chunks, chunk_count(n // 3, ROW_CHUNK // 3)))
+    part = np.empty(max(chunks, chunk_count(n // 3, ROW_CHUNK // 3), len(gptr) - 1))
     r = np.empty(n)
     Ap = np.zeros(n)
     p = np.zeros(n)
     z = np.empty(n)
     nc = Ac_inv.shape[0]
-    cpart = np.empty((chunks, nc))
     cr = np.empty(nc)
     cz = np.empty(nc)
     if warm:
@@ -555,7 +565,7 @@ def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_in
             r[i] = b[i]
     stop = rtol * rtol * _dot(b, b, part)
     # the restriction of the first residual (alpha = 0 with p = Ap = 0 leaves x and r unchanged)
-    if _update(x, r, p, Ap, 0.0, Pp, Pi, Pd, Ac_inv, cpart, cr, cz, part) <= stop:
+    if _update(x, r, p, Ap, 0.0, Pp, Pi, Pd, Ac_inv, gptr, grows, cr, cz, part) <= stop:
         return 0, True  # already solved (e.g. b = 0: every DOF held, nothing to move)
     rz = _precondition(r, inv, Pp, Pi, Pd, cz, z, part)
     beta = 0.0
@@ -567,7 +577,7 @@ def pcg_twolevel(indptr, indices, data, b, x, warm: bool, inv, Pp, Pi, Pd, Ac_in
         if not pAp > 0.0:  # a zero search direction (exactly solved) or lost definiteness: stop here
             return it, not _dot(p, p, part) > 0.0
         alpha = rz / pAp
-        if _update(x, r, p, Ap, alpha, Pp, Pi, Pd, Ac_inv, cpart, cr, cz, part) <= stop:
+        if _update(x, r, p, Ap, alpha, Pp, Pi, Pd, Ac_inv, gptr, grows, cr, cz, part) <= stop:
             return it, True
         rz_new = _precondition(r, inv, Pp, Pi, Pd, cz, z, part)
         beta = rz_new / rz

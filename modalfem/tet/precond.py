@@ -25,17 +25,21 @@ class Preconditioner:
         inv: inverse diagonal (N,).
         P: prolongation (N, c), CSR (or None).
         Ac_inv: inverse coarse matrix (c, c), exactly symmetric (or None).
+        groups: ``(ptr, rows)`` with P: the rows of group ``g`` are ``rows[ptr[g]:ptr[g + 1]]`` (every row
+            once), and a row's columns are in its group's coarse block (what :class:`TwoLevel` builds).
     """
 
-    def __init__(self, inv: np.ndarray, P: sp.csr_matrix | None = None, Ac_inv: np.ndarray | None = None) -> None:
+    def __init__(self, inv: np.ndarray, P: sp.csr_matrix | None = None, Ac_inv: np.ndarray | None = None,
+                 groups: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         from modalfem.tet import _kernels
 
         self.inv = np.ascontiguousarray(inv, dtype=float)
         if P is None:
             empty_i = np.zeros(1, dtype=np.int64)
-            self._arrays = (self.inv, empty_i, empty_i, np.zeros(0), np.zeros((0, 0)))
+            self._arrays = (self.inv, empty_i, empty_i, np.zeros(0), np.zeros((0, 0)), empty_i, empty_i)
         else:
-            self._arrays = (self.inv, P.indptr, _kernels.unsigned(P.indices), P.data, np.ascontiguousarray(Ac_inv))
+            self._arrays = (self.inv, P.indptr, _kernels.unsigned(P.indices), P.data, np.ascontiguousarray(Ac_inv),
+                            np.asarray(groups[0], dtype=np.int64), _kernels.unsigned(np.asarray(groups[1], dtype=np.int64)))
         self.P, self.Ac_inv = P, Ac_inv
         self._Pt = None
 
@@ -47,7 +51,7 @@ class Preconditioner:
         return self._Pt
 
     def arrays(self) -> tuple:
-        """``(inv, P indptr, indices, data, Ac_inv)``."""
+        """``(inv, P indptr, indices, data, Ac_inv, group ptr, group rows)``."""
         return self._arrays
 
     def __call__(self, r: np.ndarray) -> np.ndarray:
@@ -125,7 +129,7 @@ class TwoLevel:
         _, P, Ac_inv = coarse
         if Ac_inv is None:
             return Preconditioner(inv)
-        return Preconditioner(inv, P, Ac_inv)
+        return Preconditioner(inv, P, Ac_inv, (self._group_ptr, self._group_rows))
 
     def _coarse_space(self, A: sp.csr_matrix, x: np.ndarray, free: np.ndarray):
         """``(P, (P^T A P)^-1 or None)``.
