@@ -28,9 +28,11 @@ __all__ = ["assemble_upper", "csr_matvec", "element_forces", "galerkin", "gather
 
 _apply_threads()
 
-#: elements per chunk of ``hessians_upper``; rows per chunk of ``csr_matvec`` / ``gather_sum``
+#: elements per chunk of ``hessians_upper``; rows per chunk of ``csr_matvec`` / ``gather_sum`` and the CG
+#: passes: small enough for ~50 chunks at ~6k rows (10k tets), so that numba's even split of the chunks
+#: between threads is balanced (13 chunks of 512 rows left one of 2 threads 7 chunks, the other 6)
 ELEMENT_CHUNK = 128
-ROW_CHUNK = 512
+ROW_CHUNK = 129
 #: (i, j) of the three pair modes, as in ``modalfem.tet.energies.PAIRS``
 _PI = (1, 0, 0)
 _PJ = (2, 2, 1)

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="need
 
 
 def _run(threads: int, steps: int = 6):
-    mesh = box(size=(0.8, 0.3, 0.2), cells=(16, 6, 4))  # 2304 tets: 18 element chunks, 3 row chunks
+    mesh = box(size=(0.8, 0.3, 0.2), cells=(16, 6, 4))  # 2304 tets: 18 element chunks, 13 row chunks
     model = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
     with thread_count(threads):
         solver = TetSolver(model, effects=[Gravity(), Pins(mesh.tag_points("x0"))])
