@@ -72,18 +72,22 @@ def contact_velocities(V, ptr, off, nd, jptr, J):
 
 
 @numba.njit(cache=True)
-def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, iterations, lam_n, lam_t):
+def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, iterations, lam_n, lam_t, vtol=0.0):
     """Projected Gauss-Seidel on the contacts, in place on ``V``; returns the sweeps taken.
 
     Each contact wants its normal relative velocity ``>= target[c]`` [m/s] with a normal impulse
     ``lam_n[c] >= 0`` [N s], and Coulomb friction ``|lam_t[c]| <= mu[c] lam_n[c]`` against its sliding
-    (the tangential impulse along the sliding velocity that stops it, clamped to the disc).
+    (the tangential impulse along the sliding velocity that stops it, clamped to the disc). Stops after
+    ``iterations`` sweeps, or once a sweep changes no impulse by more than 1e-10 of the largest, or no
+    contact's velocity by more than ``vtol`` [m/s] (the change of its impulse times its normal effective
+    inverse mass).
     """
     k = len(ptr) - 1
     sweeps = 0
     for it in range(iterations):
         sweeps += 1
         change = 0.0
+        vchange = 0.0
         scale = 0.0
         for c in range(k):
             n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
@@ -127,8 +131,9 @@ def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, it
             if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
                 _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2)
                 change = max(change, abs(d0) + abs(d1) + abs(d2))
+                vchange = max(vchange, kn * (abs(d0) + abs(d1) + abs(d2)))
             scale = max(scale, lam_n[c])
-        if change <= 1e-10 * scale:
+        if change <= 1e-10 * scale or vchange <= vtol:
             break
     return sweeps
 

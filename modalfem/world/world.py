@@ -256,6 +256,17 @@ class World:
             if obs:
                 self._world_obstacles[n] = obs
         self._pairs = [(a, b) for i, a in enumerate(self._solid) for b in self._solid[i + 1:]]
+        # the modal bodies' contacts with each other and with static planes: compiled search and entries
+        self._fast = None
+        self._fast_planes = set()
+        if self._modal_contact:
+            from modalfem.world.modal_contacts import ModalContacts
+
+            planes = [(i, o.normal, float(o.point @ o.normal)) for i, o in enumerate(self.obstacles)
+                      if self._shared and isinstance(o, Plane) and not o.moving]
+            self._fast_planes = {p[0] for p in planes}
+            self._fast = ModalContacts({n: self._modal[n]["body"] for n in self._modal_contact},
+                                       {n: self._one(n, fx.Contact) for n in self._modal_contact}, planes, slow=SLOW)
         self._obstacle_surf = {i: SurfaceProximity(o.triangles, o.vertices) for i, o in enumerate(self.obstacles)
                                if isinstance(o, TriangleMesh)}
         self._build_deformable()
@@ -785,12 +796,14 @@ class World:
 
     def _stage_contacts(self, ctx) -> None:
         """Solid bodies (modal, tet) against each other and modal bodies against moving and mesh obstacles: one
-        compiled sequential-impulse solve (see the module docstring)."""
+        compiled sequential-impulse solve (see the module docstring). Modal bodies against each other and static
+        planes are found and written by ``modal_contacts.ModalContacts`` (compiled); the rest by ``_ContactBuilder``."""
         dt = ctx.dt
         t0 = ctx.state_in.time
         names = self._solid
         seg, V_parts, pos, speed = {}, [], {}, {}
         n_off = 0
+        fast = self._fast
         for name in names:
             if name in self._modal:
                 m = self._modal[name]
@@ -798,7 +811,6 @@ class World:
                 body = m["body"]
                 w = body.angular_velocity(s)
                 V_parts.append(np.concatenate([s.velocity + m["g"] * dt, w, s.qdot]))
-                pos[name] = body.positions(s, precise=True)
                 speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
                                     + np.linalg.norm(m["g"]) * dt)
                 if body.mode_count:
@@ -812,29 +824,42 @@ class World:
                 seg[name] = (n_off, 3 * len(out.v))
             n_off += seg[name][1]
         V = np.concatenate(V_parts)
+
+        def where(name):  # world surface of a modal body at the step start, computed once when needed
+            x = pos.get(name)
+            if x is None:
+                x = pos[name] = self._modal[name]["body"].positions(ctx.state_in.bodies[name], precise=True)
+            return x
+
         builder = _ContactBuilder(self, ctx, seg, names)
+        driven = False  # a moving obstacle in contact: it may do work on the bodies (no energy rule then)
         for name, obs in self._world_obstacles.items():  # modal bodies: moving obstacles and meshes (all if shared)
             c = self._one(name, fx.Contact)
-            x = pos[name]
             for o in obs:
+                tag = self.obstacles.index(o)
+                if tag in self._fast_planes:
+                    continue
+                x = where(name)
                 reach = c.margin + speed[name] * dt
                 if o.moving:
                     reach += float(np.linalg.norm(o.path.velocity(t0, dt))) * dt
                 if isinstance(o, TriangleMesh):
-                    hits = self._obstacle_surf[self.obstacles.index(o)].query(x, o.vertices + o.offset(t0), reach)
+                    hits = self._obstacle_surf[tag].query(x, o.vertices + o.offset(t0), reach)
                     idx, gap, nrm = hits.point, hits.gap, hits.normal
                 else:
                     gap_all, n_all = o.signed_distance(x, t0)
                     idx = np.flatnonzero(gap_all < reach)
                     gap, nrm = gap_all[idx], np.asarray(n_all)[idx]
                 if len(idx):
-                    builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c,
-                                     tag=self.obstacles.index(o))
-        for i, a in enumerate(names):  # every pair: vertices on faces both ways, edges on edges
+                    builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c, tag=tag)
+                    driven |= o.moving
+        for i, a in enumerate(names):  # every pair with a tet body: vertices on faces both ways, edges on edges
             for b in names[i + 1:]:
+                if fast is not None and a in self._modal and b in self._modal:
+                    continue  # compiled below
                 ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
                 reach = max(ca.margin, cb.margin) + (speed[a] + speed[b]) * dt
-                xa, xb = pos[a], pos[b]
+                xa, xb = where(a), where(b)
                 lo = np.maximum(xa.min(0), xb.min(0)) - reach
                 hi = np.minimum(xa.max(0), xb.max(0)) + reach
                 if np.any(lo > hi):
@@ -857,40 +882,41 @@ class World:
                         builder.general(a, ea[sel[h.mine]], np.column_stack([1.0 - h.s, h.s]), b,
                                         self._edges[b].edges[h.other], np.column_stack([1.0 - h.t, h.t]),
                                         h.gap, h.normal, ca, cb)
-        k = builder.count
+        fdata = None
+        if fast is not None:
+            fdata = fast.collect(ctx.state_in.bodies, {n: seg[n][0] for n in fast.names}, speed, dt,
+                                 {n: names.index(n) for n in fast.names}, ctx.state_in.contacts.get(_FAST_KEY))
+        kp = builder.count
+        k = kp + (len(fdata["gap"]) if fdata is not None else 0)
         ctx.report.contacts["solid"] = k
+        ctx.contacts = {}
         if k == 0:
             return
-        data = builder.arrays()
-        K = _kernels.effective_masses(data["ptr"], data["off"], data["nd"], data["jptr"], data["J"], data["WJt"])
-        u = _kernels.contact_velocities(V, data["ptr"], data["off"], data["nd"], data["jptr"], data["J"])
+        data = _merge(builder.arrays() if kp else None, fdata)
         n = data["normal"]
-        vn = np.einsum("ij,ij->i", u, n) - data["vobs_n"]
-        gap = data["gap"]
-        skin = 0.5 * data["margin"]
-        target = np.where(gap > skin, -(gap - skin) / dt, PUSH_OUT * (skin - gap) / dt)
-        e = data["restitution"]
-        bounce = (vn < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
-        target = np.where(bounce, np.maximum(target, -e * vn), target) + data["vobs_n"]
         lam_n, lam_t = np.zeros(k), np.zeros((k, 3))
-        keys = data["keys"]
-        for c, key in enumerate(keys):  # warm start: the impulses these contacts had in the last step
+        old_lam = np.zeros((k, 3))
+        for c, key in enumerate(builder.keys):  # warm start: the impulses these contacts had in the last step
             old = ctx.state_in.contacts.get(key)
             if old is not None:
-                lam_n[c] = max(float(old @ n[c]), 0.0)
-                t = old - (old @ n[c]) * n[c]
-                tn = float(np.linalg.norm(t))
-                lim = data["mu"][c] * lam_n[c]
-                lam_t[c] = t if tn <= lim else t * (lim / tn)
-        V0 = V.copy()
-        _kernels.apply_impulses(V, data["ptr"], data["off"], data["nd"], data["jptr"], data["WJt"],
-                                lam_n[:, None] * n + lam_t)
-        ctx.report.sweeps = _kernels.sequential_impulses(V, data["ptr"], data["off"], data["nd"], data["jptr"],
-                                                         data["J"], data["WJt"], K, n, target, data["mu"],
-                                                         int(data["iterations"]), lam_n, lam_t)
-        lam = lam_n[:, None] * n + lam_t
-        ctx.contacts = {key: lam[c] for c, key in enumerate(keys) if lam_n[c] > 0.0}
-        dV = V - V0
+                old_lam[c] = old
+        if fdata is not None:
+            old_lam[kp:] = fdata["warm"]
+        lam_n[:] = np.maximum(np.einsum("ij,ij->i", old_lam, n), 0.0)
+        t = old_lam - np.einsum("ij,ij->i", old_lam, n)[:, None] * n
+        tn = np.sqrt(np.einsum("ij,ij->i", t, t))
+        lim = data["mu"] * lam_n
+        lam_t[:] = t * np.where(tn <= lim, 1.0, lim / np.where(tn > 0, tn, 1.0))[:, None]
+        lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, None if driven else
+                                     self._inverse_mass_blocks(ctx, seg, names))
+        ctx.report.sweeps = sweeps
+        ctx.contacts = {key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0}
+        if fdata is not None:
+            fk = fdata["keys"]
+            held = lam_n[kp:] > 0.0
+            order = np.argsort(fk[held], kind="stable")
+            ctx.contacts[_FAST_KEY] = (fk[held][order], lam[kp:][held][order])
+        dV = data["dV"]
         for name, (o, nd) in seg.items():
             if name in self._modal:
                 ctx.dV[name] = dV[o:o + nd]  # taken at the step start by the modal step
@@ -915,7 +941,32 @@ class World:
                 i = names.index(name)
                 sel = np.flatnonzero(bounce & ((data["body"] == i) | (data["other"] == i)))
                 if len(sel):
-                    ctx.impacts[name] = builder.modal_change(name, sel, lam)
+                    dq = builder.modal_change(name, sel[sel < kp], lam) if np.any(sel < kp) else 0.0
+                    if fdata is not None and name in fast.names and np.any(sel >= kp):
+                        dq = dq + fast.modal_change(name, fdata, sel[sel >= kp] - kp, lam[kp:])
+                    ctx.impacts[name] = dq
+
+    def _inverse_mass_blocks(self, ctx, seg: dict, names: list) -> list:
+        """Per body ``(offset, size, mass, inertia, shift)`` to measure the energy of velocity changes: a modal
+        body's mass [kg] and world inertia [kg m^2] (its modal coordinates have unit mass), a tet body's vertex
+        masses (inf, pinned: 0) and no inertia; ``shift`` (3,) [m/s] is ``g dt``, which the solve's velocities hold
+        but the energy must not count: a velocity change dv at the step start moves the body by ``dv dt`` in the
+        gravity field, which costs ``-m g . dv dt``, so the energy change is ``dv . M (V - g dt) + 0.5 dv . M dv``."""
+        out = []
+        for name in names:
+            o, nd = seg[name]
+            g = np.zeros(3)
+            for e in self.effects_of(name):
+                if isinstance(e, fx.Gravity):
+                    g += np.asarray(e.g)
+            if name in self._modal:
+                body = self._modal[name]["body"]
+                R = ctx.state_in.bodies[name].rotation()
+                out.append((o, nd, body.mass, R @ body.inertia @ R.T, g * ctx.dt))
+            else:
+                m = self._tet[name]["masses"]
+                out.append((o, nd, np.where(np.isfinite(m), m, 0.0), None, g * ctx.dt))
+        return out
 
     def _stage_modal_step(self, ctx) -> None:
         dt = ctx.dt
@@ -1113,6 +1164,71 @@ class _StepContext:
 
 #: the control of a step given none (never changed: stages only read it)
 _NO_CONTROL = WorldControl()
+
+
+#: the key of the compiled modal contacts' impulses in ``WorldState.contacts``: (sorted int64 keys, (k, 3) [N s])
+_FAST_KEY = "modal contacts"
+
+
+def _merge(a: dict | None, b: dict | None) -> dict:
+    """The solve arrays of the Python builder's contacts followed by the compiled modal contacts'."""
+    if a is None or b is None:
+        return dict(a if b is None else b)
+    out = {key: np.concatenate([a[key], b[key]]) for key in (
+        "off", "nd", "normal", "gap", "vobs_n", "mu", "restitution", "margin", "body", "other", "point", "J", "WJt")}
+    out["ptr"] = np.concatenate([a["ptr"], b["ptr"][1:] + a["ptr"][-1]])
+    out["jptr"] = np.concatenate([a["jptr"], b["jptr"] + len(a["J"])])
+    out["iterations"] = max(a["iterations"], b["iterations"])
+    return out
+
+
+#: the solve stops once a sweep changes no contact's velocity by more than this fraction of the velocity that
+#: closes its skin (half its margin) in one step
+VELOCITY_STOP = 1e-2
+
+
+def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: list | None):
+    """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
+    kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
+    ``World._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 by scaling
+    every impulse back (equal and opposite impulses stay so). Returns ``(lam (k, 3), bounce (k,), sweeps)`` and
+    leaves ``data["dV"]``."""
+    ptr, off, nd, jptr, J, WJt = (data[key] for key in ("ptr", "off", "nd", "jptr", "J", "WJt"))
+    K = _kernels.effective_masses(ptr, off, nd, jptr, J, WJt)
+    u = _kernels.contact_velocities(V, ptr, off, nd, jptr, J)
+    n = data["normal"]
+    vn = np.einsum("ij,ij->i", u, n) - data["vobs_n"]
+    gap = data["gap"]
+    skin = 0.5 * data["margin"]
+    target = np.where(gap > skin, -(gap - skin) / dt, PUSH_OUT * (skin - gap) / dt)
+    e = data["restitution"]
+    bounce = (vn < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
+    target = np.where(bounce, np.maximum(target, -e * vn), target) + data["vobs_n"]
+    V0 = V.copy()
+    _kernels.apply_impulses(V, ptr, off, nd, jptr, WJt, lam_n[:, None] * n + lam_t)
+    vtol = VELOCITY_STOP * float(np.min(skin)) / dt
+    sweeps = _kernels.sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, n, target, data["mu"],
+                                          int(data["iterations"]), lam_n, lam_t, vtol)
+    lam = lam_n[:, None] * n + lam_t
+    dV = V - V0
+    work = quad = 0.0
+    for o, m, mass, inertia, shift in blocks or ():
+        dv, v0 = dV[o:o + m], V0[o:o + m]
+        if inertia is not None:  # modal: (v, w, qdot)
+            work += (mass * float(dv[:3] @ (v0[:3] - shift)) + float(dv[3:6] @ (inertia @ v0[3:6]))
+                     + float(dv[6:] @ v0[6:]))
+            quad += mass * float(dv[:3] @ dv[:3]) + float(dv[3:6] @ (inertia @ dv[3:6])) + float(dv[6:] @ dv[6:])
+        else:
+            dv, v0 = dv.reshape(-1, 3), v0.reshape(-1, 3) - shift
+            work += float(mass @ np.einsum("ij,ij->i", dv, v0))
+            quad += float(mass @ np.einsum("ij,ij->i", dv, dv))
+    if blocks is not None and work + 0.5 * quad > 1e-12 * quad:  # the impulses would add energy: scale them back (never below 0)
+        scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
+        dV *= scale
+        lam *= scale
+        V[:] = V0 + dV
+    data["dV"] = dV
+    return lam, bounce, sweeps
 
 
 def _vertex(name: str, p, n: int) -> int:

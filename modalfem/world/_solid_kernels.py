@@ -1,0 +1,350 @@
+"""Compiled contact search and Jacobian rows for modal bodies in the World's solid solve (numba, cached on disk).
+
+Every modal body keeps a BVH of its rest surface (triangles, and edges as degenerate triangles) built once and
+never refitted: its deformed surface in body axes is the rest surface plus ``Phi q``, which moves no vertex by
+more than ``bound = max_v |Phi_v q|``. A query point of another body is taken into this body's axes (distances
+do not change under a rigid motion) and its box, grown by ``bound``, is walked against the rest tree: every
+triangle whose deformed box is within the search radius is found (a superset), and the exact point-triangle
+(edge-edge) distances to the deformed triangles select the contacts. No tree is refitted per step.
+
+``rows`` writes, for all contacts at once, the entries of ``modalfem.world._kernels`` (a body's block of
+``6 + r`` velocities ``(v, w, qdot)`` per side, J and W J^T) with each side's rigid lever arm at a given world
+point (the same point on both sides: the impulse conserves linear and angular momentum to rounding).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from modalfem.collision._bvh_kernels import _query_range
+from modalfem.collision._distance_kernels import edge_edge_closest, point_triangle_closest
+
+
+@numba.njit(cache=True)
+def _to_local(x, R, p, out):
+    d0, d1, d2 = x[0] - p[0], x[1] - p[1], x[2] - p[2]
+    for c in range(3):
+        out[c] = R[0, c] * d0 + R[1, c] * d1 + R[2, c] * d2
+
+
+@numba.njit(cache=True)
+def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
+    """Vertices of body a within ``reach`` [m] of body b's deformed surface, each with its closest triangle.
+
+    Args:
+        xa: (na, 3) world vertices of a [m]. Rb, pb: b's rotation (3, 3) and centre of mass (3,) [m].
+        Xb: (nb, 3) b's deformed vertices in body axes [m]; Tb: (mb, 3) its outward triangles.
+        bound: max |Phi q| of b [m]. reach: search radius [m]. blo, bhi: (3,) b's world box [m].
+        P ... shi: b's rest-surface tree (``BroadPhaseBVH`` arrays at the rest positions).
+
+    Returns:
+        ``(vertex, triangle, bary, gap, normal)``: (k,) vertices of a, (k,) triangles of b, (k, 3) barycentric
+        weights of the closest point, (k,) signed distance [m] to the triangle's plane along its unit normal
+        (negative behind it), (k, 3) the world unit normal of the triangle. The closest triangle is the one at
+        the least distance (ties: the one the point is most in front of), as ``proximity.SurfaceProximity``.
+    """
+    na = xa.shape[0]
+    near = np.empty(na, dtype=np.int64)
+    m = 0
+    for j in range(na):
+        if (blo[0] - reach <= xa[j, 0] <= bhi[0] + reach and blo[1] - reach <= xa[j, 1] <= bhi[1] + reach
+                and blo[2] - reach <= xa[j, 2] <= bhi[2] + reach):
+            near[m] = j
+            m += 1
+    y = np.empty((m, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = reach + bound
+    for i in range(m):
+        _to_local(xa[near[i]], Rb, pb, y[i])
+        for c in range(3):
+            qlo[i, c] = y[i, c] - grow
+            qhi[i, c] = y[i, c] + grow
+    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    best = np.full(m, -1, dtype=np.int64)
+    dbest = np.full(m, np.inf)
+    gbest = np.zeros(m)
+    bary = np.zeros((m, 3))
+    nloc = np.zeros((m, 3))
+    x = np.empty((4, 3))
+    w = np.empty(3)
+    for k in range(pairs.shape[0]):
+        i, t = pairs[k, 0], pairs[k, 1]
+        a, b, c = Tb[t, 0], Tb[t, 1], Tb[t, 2]
+        for d in range(3):
+            x[0, d] = y[i, d]
+            x[1, d] = Xb[a, d]
+            x[2, d] = Xb[b, d]
+            x[3, d] = Xb[c, d]
+        dist = point_triangle_closest(x, w)
+        if not dist <= reach:
+            continue
+        e10, e11, e12 = x[2, 0] - x[1, 0], x[2, 1] - x[1, 1], x[2, 2] - x[1, 2]
+        e20, e21, e22 = x[3, 0] - x[1, 0], x[3, 1] - x[1, 1], x[3, 2] - x[1, 2]
+        f0, f1, f2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+        ln = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+        if not ln > 0.0:
+            continue
+        f0, f1, f2 = f0 / ln, f1 / ln, f2 / ln
+        g = 0.0
+        for d in range(3):
+            q = w[0] * x[1, d] + w[1] * x[2, d] + w[2] * x[3, d]
+            g += (x[0, d] - q) * (f0 if d == 0 else (f1 if d == 1 else f2))
+        if dist < dbest[i] * (1.0 - 1e-12) or (dist <= dbest[i] * (1.0 + 1e-12) and g > gbest[i]):
+            best[i], dbest[i], gbest[i] = t, dist, g
+            bary[i, 0], bary[i, 1], bary[i, 2] = w[0], w[1], w[2]
+            nloc[i, 0], nloc[i, 1], nloc[i, 2] = f0, f1, f2
+    k = 0
+    for i in range(m):
+        if best[i] >= 0:
+            k += 1
+    vertex = np.empty(k, dtype=np.int64)
+    tri = np.empty(k, dtype=np.int64)
+    wb = np.empty((k, 3))
+    gap = np.empty(k)
+    normal = np.empty((k, 3))
+    k = 0
+    for i in range(m):
+        if best[i] < 0:
+            continue
+        vertex[k], tri[k], gap[k] = near[i], best[i], gbest[i]
+        for c in range(3):
+            wb[k, c] = bary[i, c]
+            normal[k, c] = Rb[c, 0] * nloc[i, 0] + Rb[c, 1] * nloc[i, 1] + Rb[c, 2] * nloc[i, 2]
+        k += 1
+    return vertex, tri, wb, gap, normal
+
+
+@numba.njit(cache=True)
+def edge_edge(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, bound, margin, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
+    """Pairs of a's edges with b's edges closer than ``margin`` [m], as ``proximity.EdgeProximity.query``: closest
+    points inside both edges, the edges at least ~12 degrees from parallel; the normal points from b to a's edge
+    on b's outward side (the sum of the normals of b's faces at its edge).
+
+    Args:
+        xa: (na, 3) world vertices of a; Ea: (ea, 2) its edges. Rb, pb, Xb, bound, blo, bhi: as ``vertex_face``.
+        Eb: (eb, 2) b's edges; adj: (eb, 2) their faces (-1: none); Tb: b's triangles. P ... shi: the rest tree of
+        b's edges (degenerate triangles ``e0 e1 e1``).
+
+    Returns:
+        ``(mine, other, s, t, gap, normal)``: (k,) edges of a and of b, (k,) closest-point parameters on each,
+        (k,) gap [m] (negative: a's edge behind b's surface), (k, 3) world normals.
+    """
+    ne = Ea.shape[0]
+    sel = np.empty(ne, dtype=np.int64)
+    m = 0
+    for e in range(ne):
+        i, j = Ea[e, 0], Ea[e, 1]
+        ok = True
+        for c in range(3):
+            if min(xa[i, c], xa[j, c]) > bhi[c] + margin or max(xa[i, c], xa[j, c]) < blo[c] - margin:
+                ok = False
+        if ok:
+            sel[m] = e
+            m += 1
+    y = np.empty((m, 2, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = margin + bound
+    for q in range(m):
+        _to_local(xa[Ea[sel[q], 0]], Rb, pb, y[q, 0])
+        _to_local(xa[Ea[sel[q], 1]], Rb, pb, y[q, 1])
+        for c in range(3):
+            qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
+            qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
+    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    scale = 1.0
+    for v in range(Xb.shape[0]):
+        for c in range(3):
+            scale = max(scale, abs(Xb[v, c]))
+    n = pairs.shape[0]
+    mine = np.empty(n, dtype=np.int64)
+    other = np.empty(n, dtype=np.int64)
+    so = np.empty(n)
+    to = np.empty(n)
+    gap = np.empty(n)
+    normal = np.empty((n, 3))
+    x = np.empty((4, 3))
+    k = 0
+    for p in range(n):
+        q, f = pairs[p, 0], pairs[p, 1]
+        for d in range(3):
+            x[0, d] = y[q, 0, d]
+            x[1, d] = y[q, 1, d]
+            x[2, d] = Xb[Eb[f, 0], d]
+            x[3, d] = Xb[Eb[f, 1], d]
+        dist, s, t = edge_edge_closest(x)
+        if not (dist <= margin and 1e-6 < s < 1 - 1e-6 and 1e-6 < t < 1 - 1e-6):
+            continue
+        u0, u1, u2 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
+        v0, v1, v2 = x[3, 0] - x[2, 0], x[3, 1] - x[2, 1], x[3, 2] - x[2, 2]
+        c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+        if not (math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+                > 0.2 * math.sqrt(u0 * u0 + u1 * u1 + u2 * u2) * math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)):
+            continue
+        s0 = s1 = s2 = 0.0
+        for j in range(2):
+            fc = adj[f, j]
+            if fc < 0:
+                continue
+            a, b, c = Tb[fc, 0], Tb[fc, 1], Tb[fc, 2]
+            e10, e11, e12 = Xb[b, 0] - Xb[a, 0], Xb[b, 1] - Xb[a, 1], Xb[b, 2] - Xb[a, 2]
+            e20, e21, e22 = Xb[c, 0] - Xb[a, 0], Xb[c, 1] - Xb[a, 1], Xb[c, 2] - Xb[a, 2]
+            f0, f1, f2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+            ln = max(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2), 1e-300)
+            s0, s1, s2 = s0 + f0 / ln, s1 + f1 / ln, s2 + f2 / ln
+        dd = max(dist, 1e-300)
+        n0 = (x[0, 0] + s * u0 - x[2, 0] - t * v0) / dd
+        n1 = (x[0, 1] + s * u1 - x[2, 1] - t * v1) / dd
+        n2 = (x[0, 2] + s * u2 - x[2, 2] - t * v2) / dd
+        g = dist
+        if n0 * s0 + n1 * s1 + n2 * s2 < 0:
+            n0, n1, n2, g = -n0, -n1, -n2, -dist
+        if dist <= 1e-12 * scale:
+            ls = max(math.sqrt(s0 * s0 + s1 * s1 + s2 * s2), 1e-300)
+            n0, n1, n2 = s0 / ls, s1 / ls, s2 / ls
+        if not math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) > 0.5:
+            continue
+        mine[k], other[k], so[k], to[k], gap[k] = sel[q], f, s, t, g
+        for c in range(3):
+            normal[k, c] = Rb[c, 0] * n0 + Rb[c, 1] * n1 + Rb[c, 2] * n2
+        k += 1
+    return mine[:k], other[:k], so[:k], to[:k], gap[:k], normal[:k]
+
+
+@numba.njit(cache=True)
+def plane_contacts(X, voff, center, radius, reach, normals, offsets):
+    """Vertices within ``reach[b]`` [m] of static planes ``n . x = d`` (outward unit normals (p, 3), offsets (p,)
+    [m]), over every body's world vertices ``X`` (concatenated; body b's are ``voff[b]:voff[b + 1]``); bodies
+    whose bounding sphere (``center`` (nb, 3), ``radius`` (nb,) [m]) is farther are skipped.
+
+    Returns: ``(body, vertex, plane, gap)``, (k,) each (vertex local to its body).
+    """
+    nb = voff.shape[0] - 1
+    npl = normals.shape[0]
+    cnt = 0
+    for b in range(nb):
+        for p in range(npl):
+            sd = (normals[p, 0] * center[b, 0] + normals[p, 1] * center[b, 1] + normals[p, 2] * center[b, 2]
+                  - offsets[p])
+            if sd - radius[b] >= reach[b]:
+                continue
+            for v in range(voff[b], voff[b + 1]):
+                g = normals[p, 0] * X[v, 0] + normals[p, 1] * X[v, 1] + normals[p, 2] * X[v, 2] - offsets[p]
+                if g < reach[b]:
+                    cnt += 1
+    body = np.empty(cnt, dtype=np.int64)
+    vertex = np.empty(cnt, dtype=np.int64)
+    plane = np.empty(cnt, dtype=np.int64)
+    gap = np.empty(cnt)
+    k = 0
+    for b in range(nb):
+        for p in range(npl):
+            sd = (normals[p, 0] * center[b, 0] + normals[p, 1] * center[b, 1] + normals[p, 2] * center[b, 2]
+                  - offsets[p])
+            if sd - radius[b] >= reach[b]:
+                continue
+            for v in range(voff[b], voff[b + 1]):
+                g = normals[p, 0] * X[v, 0] + normals[p, 1] * X[v, 1] + normals[p, 2] * X[v, 2] - offsets[p]
+                if g < reach[b]:
+                    body[k], vertex[k], plane[k], gap[k] = b, v - voff[b], p, g
+                    k += 1
+    return body, vertex, plane, gap
+
+
+@numba.njit(cache=True)
+def _side(c, body, verts, wts, sign, point, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off, mask, vel_off,
+          off, nd, jptr, J, WJt, e, jbase):
+    """Entry ``e`` of contact ``c``: body ``body``'s block (6 + r) at the world point ``point[c]``, the modal
+    part at ``sum_j wts[c, j] verts[c, j]``; J and W J^T written from ``jbase``. Returns the next jbase."""
+    r = nm[body]
+    n = 6 + r
+    off[e] = vel_off[body]
+    nd[e] = n
+    jptr[e] = jbase
+    r0 = point[c, 0] - pos[body, 0]
+    r1 = point[c, 1] - pos[body, 1]
+    r2 = point[c, 2] - pos[body, 2]
+    # S = [r]x; J rows: (I, -S, R Phi); W J^T rows: (I / m, Iw^-1 S, (R Phi)^T)
+    S = np.empty((3, 3))
+    S[0, 0], S[0, 1], S[0, 2] = 0.0, -r2, r1
+    S[1, 0], S[1, 1], S[1, 2] = r2, 0.0, -r0
+    S[2, 0], S[2, 1], S[2, 2] = -r1, r0, 0.0
+    im = 1.0 / mass[body]
+    for a in range(3):
+        for j in range(3):
+            J[jbase + a * n + j] = sign if a == j else 0.0
+            J[jbase + a * n + 3 + j] = -sign * S[a, j]
+            WJt[jbase + j * 3 + a] = sign * im if a == j else 0.0
+            s = 0.0
+            for l in range(3):
+                s += Iw_inv[body, j, l] * S[l, a]
+            WJt[jbase + (3 + j) * 3 + a] = sign * s
+    Rb = R[body]
+    base = phi_off[body]
+    for mo in range(r):
+        p0 = p1 = p2 = 0.0
+        if mask[mask_off[body] + mo]:
+            for q in range(verts.shape[1]):
+                wq = wts[c, q]
+                if wq == 0.0:
+                    continue
+                o = base + (verts[c, q] * 3) * r + mo
+                p0 += wq * phi[o]
+                p1 += wq * phi[o + r]
+                p2 += wq * phi[o + 2 * r]
+        for a in range(3):
+            v = sign * (Rb[a, 0] * p0 + Rb[a, 1] * p1 + Rb[a, 2] * p2)
+            J[jbase + a * n + 6 + mo] = v
+            WJt[jbase + (6 + mo) * 3 + a] = v
+    return jbase + 3 * n
+
+
+@numba.njit(cache=True)
+def rows(body_a, verts_a, w_a, body_b, verts_b, w_b, point, point_b, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off,
+         mask, vel_off):
+    """Entries of k contacts between modal bodies (``body_b`` -1: a static obstacle, one entry).
+
+    Args:
+        body_a, body_b: (k,) body indices. verts_a, verts_b: (k, 3) vertices of the touching feature (unused
+            slots weight 0) with weights w_a, w_b (k, 3). point, point_b: (k, 3) the world points [m] of the rigid
+            lever arms of sides a and b (the same point for a momentum-exact impulse).
+        R, Iw_inv: (nb, 3, 3) rotations and world inverse inertias [1/(kg m^2)]; pos: (nb, 3) centres of mass
+            [m]; mass: (nb,) [kg]; nm: (nb,) mode counts. phi: every body's mode shapes flattened, body b's
+            (nv, 3, r) from ``phi_off[b]``; mask: modes taking part (1) or not (0) from ``mask_off[b]``.
+            vel_off: (nb,) offsets of the bodies' blocks in the velocity vector.
+
+    Returns:
+        ``(ptr, off, nd, jptr, J, WJt)`` in the layout of ``modalfem.world._kernels``.
+    """
+    k = body_a.shape[0]
+    ne = 0
+    jl = 0
+    for c in range(k):
+        ne += 1
+        jl += 3 * (6 + nm[body_a[c]])
+        if body_b[c] >= 0:
+            ne += 1
+            jl += 3 * (6 + nm[body_b[c]])
+    ptr = np.empty(k + 1, dtype=np.int64)
+    off = np.empty(ne, dtype=np.int64)
+    nd = np.empty(ne, dtype=np.int64)
+    jptr = np.empty(ne, dtype=np.int64)
+    J = np.empty(jl)
+    WJt = np.empty(jl)
+    e = 0
+    jb = 0
+    ptr[0] = 0
+    for c in range(k):
+        jb = _side(c, body_a[c], verts_a, w_a, 1.0, point, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off, mask,
+                   vel_off, off, nd, jptr, J, WJt, e, jb)
+        e += 1
+        if body_b[c] >= 0:
+            jb = _side(c, body_b[c], verts_b, w_b, -1.0, point_b, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off,
+                       mask, vel_off, off, nd, jptr, J, WJt, e, jb)
+            e += 1
+        ptr[c + 1] = e
+    return ptr, off, nd, jptr, J, WJt

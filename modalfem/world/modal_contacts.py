@@ -1,0 +1,248 @@
+"""The modal part of the World's solid contact solve, compiled: contacts between modal bodies and of modal bodies
+with static planes (the ground, box walls), found and turned into solve entries without a Python loop per pair
+of vertices or per contact (``modalfem.world._solid_kernels``).
+
+Per step: every body's deformed surface (body axes and world), a body-level broad phase (world boxes grown by the
+search radius), then per pair of bodies whose boxes meet the compiled vertex-face search both ways and the
+edge-edge search, and one compiled call writing every contact's Jacobian entries. The contacts found are the same
+as ``proximity.SurfaceProximity`` / ``EdgeProximity`` find (same distances and selection; the trees are walked in
+rest axes with boxes grown by the deformation bound instead of being refitted); both sides of a body-body contact
+take the impulse at the same world point when they touch (gap within the margin), so it conserves linear and
+angular momentum exactly; a speculative contact farther apart acts at each body's own surface point.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from modalfem.collision.bvh import BroadPhaseBVH
+from modalfem.world import _solid_kernels as SK
+from modalfem.world.proximity import surface_edges
+
+__all__ = ["ModalContacts"]
+
+#: contact kinds in the warm-start keys
+_VF, _EE, _PLANE = 0, 1, 2
+_FEATURES = 1 << 24  # feature indices (vertex, edge) below this in a key
+
+
+class ModalContacts:
+    """Compiled contact search and entries for the modal bodies of a World's solid solve.
+
+    Args:
+        bodies: ``{name: runtime.ModalBody}`` of the modal bodies with contact, in the solve's order.
+        contacts: ``{name: effects.Contact}`` of those bodies.
+        planes: static planes as ``(tag, normal (3,), offset [m])`` with ``normal . x = offset`` on the plane
+            (outward unit normal); ``tag`` names the obstacle in the warm-start keys.
+        slow: modes with ``omega dt`` above this take no part in the contact (as the Python builder).
+    """
+
+    def __init__(self, bodies: dict, contacts: dict, planes: list, *, slow: float) -> None:
+        self.names = list(bodies)
+        self.bodies = [bodies[n] for n in self.names]
+        self.contacts = [contacts[n] for n in self.names]
+        self.slow = float(slow)
+        self.planes = planes
+        self.plane_n = np.array([p[1] for p in planes], dtype=np.float64).reshape(-1, 3)
+        self.plane_d = np.array([p[2] for p in planes], dtype=np.float64)
+        self.plane_tag = np.array([p[0] for p in planes], dtype=np.int64)
+        self.trees, self.etrees, self.edges, self.adj = [], [], [], []
+        for b in self.bodies:
+            t = BroadPhaseBVH(b.triangles, b.rest)
+            t.refit(b.rest, margin=0.0)
+            self.trees.append(t)
+            e, adj = surface_edges(b.triangles)
+            et = BroadPhaseBVH(np.ascontiguousarray(np.column_stack([e[:, 0], e[:, 1], e[:, 1]])), b.rest)
+            et.refit(b.rest, margin=0.0)
+            self.etrees.append(et)
+            self.edges.append(np.ascontiguousarray(e))
+            self.adj.append(np.ascontiguousarray(adj))
+        nm = np.array([b.mode_count for b in self.bodies], dtype=np.int64)
+        self.nm = nm
+        self.phi = np.concatenate([np.moveaxis(b._modes3, 0, -1).astype(np.float64).reshape(-1)
+                                   for b in self.bodies]) if len(self.bodies) else np.zeros(0)
+        sizes = np.array([b._modes3.size for b in self.bodies], dtype=np.int64)
+        self.phi_off = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        self.mask_off = np.concatenate([[0], np.cumsum(nm)[:-1]]).astype(np.int64)
+        self.mass = np.array([b.mass for b in self.bodies], dtype=np.float64)
+        self._mask_dt = None
+        self._voff = np.concatenate([[0], np.cumsum([b.vertex_count for b in self.bodies])]).astype(np.int64)
+        self._tris = np.concatenate([b.triangles for b in self.bodies]) if self.bodies else np.zeros((0, 3), int)
+        self._toff = np.concatenate([[0], np.cumsum([len(b.triangles) for b in self.bodies])]).astype(np.int64)
+        self._edges = np.concatenate(self.edges) if self.bodies else np.zeros((0, 2), int)
+        self._eoff = np.concatenate([[0], np.cumsum([len(e) for e in self.edges])]).astype(np.int64)
+        self.mask = np.zeros(int(nm.sum()), dtype=np.int64)
+
+    def _masks(self, dt: float) -> np.ndarray:
+        if self._mask_dt != dt:
+            self.mask = np.concatenate([(b.omega * dt <= self.slow).astype(np.int64) for b in self.bodies])
+            self._mask_dt = dt
+        return self.mask
+
+    def collect(self, states: dict, vel_off: dict, speed: dict, dt: float, index: dict, warm) -> dict | None:
+        """This step's modal contacts and their entries.
+
+        Args:
+            states: ``{name: runtime.State}`` at the step start. vel_off: ``{name: offset}`` of each body's block in
+                the solve's velocity vector. speed: ``{name: bound of a surface point's speed [m/s]}``.
+            dt: step [s]. index: ``{name: index of the body in the solve}`` (for ``body`` / ``other``).
+            warm: the last step's ``(keys, impulses)`` of these contacts, or None.
+
+        Returns:
+            None without contacts, else the arrays of ``_ContactBuilder.arrays`` (``ptr``, ``off``, ``nd``, ``jptr``,
+            ``J``, ``WJt``, ``normal``, ``gap``, ``vobs_n``, ``mu``, ``restitution``, ``margin``, ``body``, ``other``,
+            ``point``, ``iterations``) plus ``keys`` (k,) int64 and ``warm`` (k, 3) [N s] start impulses.
+        """
+        nb = len(self.bodies)
+        R = np.empty((nb, 3, 3))
+        Iw_inv = np.empty((nb, 3, 3))
+        pos = np.empty((nb, 3))
+        Xl, Xw, bound, reach = [], [], np.empty(nb), np.empty(nb)
+        lo, hi = np.empty((nb, 3)), np.empty((nb, 3))
+        for i, (n, b) in enumerate(zip(self.names, self.bodies)):
+            s = states[n]
+            R[i] = s.rotation()
+            Iw_inv[i] = R[i] @ b.inertia_inv @ R[i].T
+            pos[i] = s.position
+            x = b.positions(s, precise=True, frame="body")
+            d = x - b.rest
+            bound[i] = math.sqrt(float(np.max(np.einsum("ij,ij->i", d, d)))) if b.mode_count else 0.0
+            Xl.append(np.ascontiguousarray(x))
+            w = x @ R[i].T + s.position
+            Xw.append(w)
+            lo[i], hi[i] = w.min(axis=0), w.max(axis=0)
+            reach[i] = speed[n] * dt
+        marg = np.array([c.margin for c in self.contacts])
+        parts = []  # (body_a, verts_a, w_a, body_b, verts_b, w_b, point, normal, gap, kind, feature, other)
+        # static planes
+        voff = self._voff
+        X = np.concatenate(Xw)
+        if len(self.plane_d):
+            radius = np.array([b.radius for b in self.bodies]) + bound
+            ba, v, p, g = SK.plane_contacts(X, voff, pos, radius, marg + reach, self.plane_n, self.plane_d)
+            if len(ba):
+                k = len(ba)
+                va = np.zeros((k, 3), dtype=np.int64)
+                va[:, 0] = v
+                wa = np.zeros((k, 3))
+                wa[:, 0] = 1.0
+                parts.append((ba, va, wa, np.full(k, -1), np.zeros((k, 3), dtype=np.int64), np.zeros((k, 3)),
+                              X[voff[ba] + v], self.plane_n[p], g, np.full(k, _PLANE), v, nb + p))
+        # body pairs whose boxes meet within the search radius
+        mm = np.maximum(marg[:, None], marg[None, :])
+        rr = mm + reach[:, None] + reach[None, :]
+        meet = np.all((lo[:, None, :] - rr[:, :, None] <= hi[None, :, :])
+                      & (lo[None, :, :] - rr[:, :, None] <= hi[:, None, :]), axis=2)
+        vf, ee = [], []  # raw kernel outputs per pair, turned into contacts together below
+        for a, b in zip(*np.nonzero(np.triu(meet, 1))):
+            a, b = int(a), int(b)
+            m, r = float(mm[a, b]), float(rr[a, b])
+            for p, q in ((a, b), (b, a)):
+                t = self.trees[q]
+                out = SK.vertex_face(Xw[p], R[q], pos[q], Xl[q], self.bodies[q].triangles, bound[q], r, lo[q], hi[q],
+                                     t.P, t.lo, t.hi, t.nonempty, t.slot_tri, t._slo, t._shi)
+                if len(out[0]):
+                    vf.append((p, q) + out)
+            t = self.etrees[b]
+            out = SK.edge_edge(Xw[a], self.edges[a], R[b], pos[b], Xl[b], self.edges[b], self.adj[b],
+                               self.bodies[b].triangles, bound[b], m, lo[b], hi[b], t.P, t.lo, t.hi, t.nonempty,
+                               t.slot_tri, t._slo, t._shi)
+            if len(out[0]):
+                ee.append((a, b) + out)
+        if vf:
+            cnt = np.array([len(x[2]) for x in vf])
+            p = np.repeat([x[0] for x in vf], cnt)
+            q = np.repeat([x[1] for x in vf], cnt)
+            v = np.concatenate([x[2] for x in vf])
+            tri = np.concatenate([x[3] for x in vf])
+            k = len(v)
+            va = np.zeros((k, 3), dtype=np.int64)
+            va[:, 0] = v
+            wa = np.zeros((k, 3))
+            wa[:, 0] = 1.0
+            parts.append((p, va, wa, q, self._tris[self._toff[q] + tri], np.concatenate([x[4] for x in vf]),
+                          X[voff[p] + v], np.concatenate([x[6] for x in vf]), np.concatenate([x[5] for x in vf]),
+                          np.full(k, _VF), v, q))
+        if ee:
+            cnt = np.array([len(x[2]) for x in ee])
+            a = np.repeat([x[0] for x in ee], cnt)
+            b = np.repeat([x[1] for x in ee], cnt)
+            mine = np.concatenate([x[2] for x in ee])
+            other = np.concatenate([x[3] for x in ee])
+            s = np.concatenate([x[4] for x in ee])
+            tt = np.concatenate([x[5] for x in ee])
+            k = len(mine)
+            ea, eb = self._edges[self._eoff[a] + mine], self._edges[self._eoff[b] + other]
+            va = np.zeros((k, 3), dtype=np.int64)
+            va[:, :2] = ea
+            wa = np.zeros((k, 3))
+            wa[:, 0], wa[:, 1] = 1.0 - s, s
+            vb = np.zeros((k, 3), dtype=np.int64)
+            vb[:, :2] = eb
+            wb = np.zeros((k, 3))
+            wb[:, 0], wb[:, 1] = 1.0 - tt, tt
+            pa = X[voff[a] + ea[:, 0]] * wa[:, :1] + X[voff[a] + ea[:, 1]] * wa[:, 1:2]
+            pb = X[voff[b] + eb[:, 0]] * wb[:, :1] + X[voff[b] + eb[:, 1]] * wb[:, 1:2]
+            parts.append((a, va, wa, b, vb, wb, 0.5 * (pa + pb), np.concatenate([x[7] for x in ee]),
+                          np.concatenate([x[6] for x in ee]), np.full(k, _EE), mine, b))
+        if not parts:
+            return None
+        cols = [np.concatenate([p[j] for p in parts]) for j in range(12)]
+        body_a, verts_a, w_a, body_b, verts_b, w_b, point, normal, gap, kind, feat, other = cols
+        body_a = body_a.astype(np.int64)
+        body_b = body_b.astype(np.int64)
+        vel = np.array([vel_off[n] for n in self.names], dtype=np.int64)
+        # the rigid lever arms: one world point for both sides of a contact whose gap is within its margin (touching
+        # or inside: the impulse conserves angular momentum exactly); a speculative contact farther apart acts on
+        # each body at its own surface point (at a shared point the far body would be turned about a point off its
+        # surface: at dt = 0.1 s bars then tunnelled), which conserves linear momentum exactly and angular momentum
+        # up to (x_a - x_b) x impulse
+        pb = np.zeros_like(point)
+        pair = body_b >= 0
+        for j in range(3):
+            pb[pair] += w_b[pair, j:j + 1] * X[voff[body_b[pair]] + verts_b[pair, j]]
+        near = ~pair | (gap <= np.maximum(marg[body_a], marg[np.maximum(body_b, 0)]))
+        point_b = np.where(near[:, None], point, pb)
+        ptr, off, nd, jptr, J, WJt = SK.rows(body_a, np.ascontiguousarray(verts_a, dtype=np.int64), w_a, body_b,
+                                             np.ascontiguousarray(verts_b, dtype=np.int64), w_b,
+                                             np.ascontiguousarray(point), np.ascontiguousarray(point_b), R, Iw_inv, pos, self.mass, self.nm,
+                                             self.phi_off, self.phi, self.mask_off, self._masks(dt), vel)
+        k = len(gap)
+        cont = self.contacts
+        fr = np.array([c.friction for c in cont])
+        rs = np.array([c.restitution for c in cont])
+        pair = body_b >= 0
+        bb = np.where(pair, body_b, body_a)
+        mu = np.where(pair, np.sqrt(fr[body_a] * fr[bb]), fr[body_a])
+        e = np.where(pair, np.minimum(rs[body_a], rs[bb]), rs[body_a])
+        margin = np.where(pair, np.maximum(marg[body_a], marg[bb]), marg[body_a])
+        keys = (((body_a * (nb + len(self.plane_d)) + other) * 3 + kind) * _FEATURES + feat).astype(np.int64)
+        lam0 = np.zeros((k, 3))
+        if warm is not None and len(warm[0]):
+            wk, wl = warm
+            j = np.minimum(np.searchsorted(wk, keys), len(wk) - 1)
+            hit = wk[j] == keys
+            lam0[hit] = wl[j[hit]]
+        names_idx = np.array([index[n] for n in self.names], dtype=np.int64)
+        return {"ptr": ptr, "off": off, "nd": nd, "jptr": jptr, "J": J, "WJt": WJt,
+                "normal": np.ascontiguousarray(normal, dtype=np.float64), "gap": gap.astype(np.float64),
+                "vobs_n": np.zeros(k), "mu": mu, "restitution": e, "margin": margin,
+                "body": names_idx[body_a], "other": np.where(pair, names_idx[bb], -1), "point": point,
+                "iterations": max(c.iterations for c in cont), "keys": keys, "warm": lam0,
+                "_modal": (body_a, verts_a, w_a, body_b, verts_b, w_b, R)}
+
+    def modal_change(self, name: str, data: dict, sel: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """The modal velocity change (r,) that the impulses ``lam`` (k, 3) [N s] of contacts ``sel`` (indices into
+        ``data``, this object's contacts) give every mode of body ``name`` (what its sound hears)."""
+        i = self.names.index(name)
+        b = self.bodies[i]
+        body_a, verts_a, w_a, body_b, verts_b, w_b, R = data["_modal"]
+        dq = np.zeros(b.mode_count)
+        for bod, verts, w, sign in ((body_a, verts_a, w_a, 1.0), (body_b, verts_b, w_b, -1.0)):
+            s = sel[bod[sel] == i]
+            if len(s):
+                phi = np.einsum("kj,kjcr->kcr", w[s], b.vertex_shapes(verts[s].reshape(-1)).reshape(len(s), 3, 3, -1))
+                dq += sign * np.einsum("ab,kbr,ka->r", R[i], phi, lam[s])
+        return dq

@@ -1,0 +1,210 @@
+"""The compiled modal contacts of the World's solid solve (``world.modal_contacts``): the same contacts as the
+Python search (``proximity.SurfaceProximity`` / ``EdgeProximity``, and a brute-force scan over every vertex and
+triangle), Jacobian rows that give the contact point's true relative velocity, and a pile of bodies whose every
+body-body impulse conserves momentum and whose contacts never add energy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modalfem import world as mw
+from modalfem.collision.distance import point_triangle
+from modalfem.effects import Contact, Gravity
+from modalfem.runtime.rotation import quat_from_axis_angle
+from modalfem.world.proximity import EdgeProximity
+
+#: coordinates here are below ~0.5 m; a rigid change of frame rounds them by ~1e-16 relative, so two codes computing
+#: one distance in different frames agree to ~1e-16 m; this allows 1000x that
+ROUND = 1e-13
+
+
+def _pair_world(bar_model, rng, overlap: float):
+    """Two bars crossed on each other (the second's lower face about ``overlap`` [m] into the first's upper face,
+    turned about the vertical and tilted a little), deformed by modal coordinates giving ~1 mm displacements."""
+    axis = np.array([0.05 * rng.normal(), 0.05 * rng.normal(), 1.0])  # turned about z, tilted a little
+    q = quat_from_axis_angle(axis / np.linalg.norm(axis), rng.uniform(0.2, 1.2))
+    bodies = [mw.Modal(bar_model, name="a", position=(0, 0, 0)),
+              mw.Modal(bar_model, name="b", position=(0.02, 0.01, 0.05 - overlap), orientation=q)]
+    w = mw.World(bodies=bodies, effects=[Contact(margin=3e-3)])
+    s = w.state()
+    for n in ("a", "b"):
+        body = w._modal[n]["body"]
+        amp = 1e-3 / np.abs(body.shapes).max()
+        s[n].q[:] = amp * rng.normal(size=body.mode_count) / np.sqrt(body.mode_count)
+        s[n].qdot[:] = rng.normal(size=body.mode_count)
+        s[n].velocity[:] = rng.normal(size=3)
+        s[n].angular_momentum[:] = 1e-3 * rng.normal(size=3)
+    return w, s
+
+
+def _collect(w, s, dt=1e-5):
+    fast = w._fast
+    names = fast.names
+    off = {n: 0 if i == 0 else 6 + w._modal[names[0]]["body"].mode_count for i, n in enumerate(names)}
+    speed = {n: 0.0 for n in names}
+    return fast.collect(s.bodies, off, speed, dt, {n: i for i, n in enumerate(names)}, None), off
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_vertex_contacts_are_the_brute_force_closest_triangles(bar_model, seed):
+    """Every vertex within the margin of the other deformed surface is found (none missed by the rest-frame tree
+    and its deformation bound), with a closest triangle at the least distance and its plane gap and normal."""
+    rng = np.random.default_rng(seed)
+    w, s = _pair_world(bar_model, rng, overlap=2e-3)
+    data, _ = _collect(w, s)
+    margin = 3e-3
+    x = {n: w.surface(s, n)[0] for n in ("a", "b")}
+    tri = w._modal["a"]["body"].triangles
+    kind = data["keys"] // (1 << 24) % 3
+    found = 0
+    for p, q, ip in (("a", "b", 0), ("b", "a", 1)):
+        X, Y = x[p], x[q]
+        A, B, C = Y[tri[:, 0]], Y[tri[:, 1]], Y[tri[:, 2]]
+        sel = np.flatnonzero((kind == 0) & (data["body"] == ip))
+        verts = data["keys"][sel] % (1 << 24)
+        ref = []
+        for v in range(len(X)):
+            d, _ = point_triangle(np.repeat(X[v:v + 1], len(tri), axis=0), A, B, C)
+            if d.min() <= margin:
+                ref.append(v)
+                j = np.flatnonzero(verts == v)
+                assert len(j) == 1, f"vertex {v} of {p} within the margin of {q} not found once"
+                c = sel[j[0]]
+                # the chosen triangle is one of those at the least distance; its plane gap and normal
+                ties = np.flatnonzero(d <= d.min() + ROUND)
+                nrm = np.cross(B - A, C - A)
+                nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+                match = [t for t in ties if np.allclose(nrm[t], data["normal"][c], atol=1e-9)]
+                assert match, f"vertex {v}: normal of no closest triangle"
+                t = match[0]
+                ww = data["_modal"][5][c]
+                closest = ww[0] * A[t] + ww[1] * B[t] + ww[2] * C[t]
+                assert abs(data["gap"][c] - (X[v] - closest) @ nrm[t]) < ROUND
+                assert np.allclose(data["point"][c], X[v], atol=ROUND)
+        assert sorted(verts.tolist()) == ref
+        found += len(ref)
+    assert found >= 4  # the bars do touch
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_edge_contacts_are_the_python_searchs(bar_model, seed):
+    rng = np.random.default_rng(seed)
+    w, s = _pair_world(bar_model, rng, overlap=1e-3)
+    data, _ = _collect(w, s)
+    xa, xb = w.surface(s, "a")[0], w.surface(s, "b")[0]
+    ep = EdgeProximity(w._modal["b"]["body"].triangles, w._modal["b"]["body"].rest)
+    ea = ep.edges
+    h = ep.query(xa[ea[:, 0]], xa[ea[:, 1]], xb, 3e-3)
+    kind = data["keys"] // (1 << 24) % 3
+    sel = np.flatnonzero(kind == 1)
+    mine = data["keys"][sel] % (1 << 24)
+    assert len(h.mine) > 0
+    ref = sorted(zip(h.mine.tolist(), np.round(h.gap / ROUND).astype(np.int64).tolist()))
+    got = sorted(zip(mine.tolist(), np.round(data["gap"][sel] / ROUND).astype(np.int64).tolist()))
+    assert len(ref) == len(got)
+    for (e1, g1), (e2, g2) in zip(ref, got):
+        assert e1 == e2 and abs(g1 - g2) <= 2
+
+
+def test_rows_give_the_contact_points_relative_velocity(bar_model):
+    """J V is the velocity of the contact point on a minus that of the touching point on b (rigid motion at the
+    shared world point, modes at each body's own point), from the states alone."""
+    rng = np.random.default_rng(5)
+    w, s = _pair_world(bar_model, rng, overlap=2e-3)
+    data, off = _collect(w, s, dt=1e-6)  # every mode slow enough to take part
+    from modalfem.world import _kernels
+
+    V = np.concatenate([np.concatenate([s[n].velocity, w._modal[n]["body"].angular_velocity(s[n]), s[n].qdot])
+                        for n in ("a", "b")])
+    u = _kernels.contact_velocities(V, data["ptr"], data["off"], data["nd"], data["jptr"], data["J"])
+    body_a, verts_a, w_a, body_b, verts_b, w_b, R = data["_modal"]
+    names = ("a", "b")
+
+    def vel(i, verts, wts, point):
+        n = names[i]
+        body = w._modal[n]["body"]
+        st = s[n]
+        om = body.angular_velocity(st)
+        phi = np.einsum("j,jcr->cr", wts, body.vertex_shapes(verts))
+        return st.velocity + np.cross(om, point - st.position) + st.rotation() @ (phi @ st.qdot)
+
+    assert len(u) > 10
+    for c in range(len(u)):
+        ref = vel(body_a[c], verts_a[c], w_a[c], data["point"][c])
+        if body_b[c] >= 0:
+            ref = ref - vel(body_b[c], verts_b[c], w_b[c], data["point"][c])
+        assert np.allclose(u[c], ref, rtol=1e-12, atol=1e-12 * np.abs(V).max())
+
+
+def _momenta(w, s):
+    p, L = np.zeros(3), np.zeros(3)
+    for b in w.bodies:
+        a, b_ = w.momentum(s, b.name)
+        p += a
+        L += b_
+    return p, L
+
+
+def test_a_pile_of_modal_bodies_conserves_momentum_and_never_gains_energy(bar_model):
+    """Five bars thrown at each other without gravity or obstacles: only body-body impulses act, so the total linear
+    and angular momentum stay what they were (to rounding) and the total energy never rises (beyond the free step's
+    own energy error: never above the free step's); their surfaces never cross."""
+    rng = np.random.default_rng(3)
+    bodies = []
+    for i in range(5):
+        axis = rng.normal(size=3)
+        pos = 0.09 * np.array([np.cos(1.3 * i), np.sin(1.3 * i), 0.6 * (i - 2)])
+        bodies.append(mw.Modal(bar_model, name=f"b{i}", position=pos,
+                               orientation=quat_from_axis_angle(axis / np.linalg.norm(axis), rng.uniform(0, 3)),
+                               velocity=-4.0 * pos + 0.1 * rng.normal(size=3),
+                               angular_velocity=rng.normal(size=3)))
+    # the free step keeps the energy only to ~1e-9 of itself per step (the rigid rotation step), so each step is
+    # compared with the free step of the same start state (a world without contact)
+    free = mw.World(bodies=bodies)
+    w = mw.World(bodies=bodies, effects=[Contact(restitution=0.5, friction=0.4, margin=2e-3)])
+    s = w.state()
+    p0, L0 = _momenta(w, s)
+    E0 = sum(w.energy(s, b.name)["total"] for b in bodies)
+    scale_p = sum(np.linalg.norm(w.momentum(s, b.name)[0]) for b in bodies)
+    scale_L = sum(np.linalg.norm(w.momentum(s, b.name)[1]) for b in bodies) + scale_p * 0.3
+    touched = 0
+    E_prev = E0
+    for _ in range(250):
+        fs = s.copy()
+        free.step(fs, fs, None, 1e-3)
+        E_free = sum(free.energy(fs, b.name)["total"] for b in bodies)
+        r = w.step(s, s, None, 1e-3)
+        touched += r.contacts.get("solid", 0)
+        for a, b, J, L in r.exchanged:
+            assert np.all(np.isfinite(J)) and np.all(np.isfinite(L))
+        p, L = _momenta(w, s)
+        assert np.linalg.norm(p - p0) <= 1e-12 * scale_p
+        assert np.linalg.norm(L - L0) <= 1e-12 * scale_L
+        E = sum(w.energy(s, b.name)["total"] for b in bodies)
+        assert E <= max(E_prev, E_free) + 1e-12 * E0
+        E_prev = E
+    assert touched > 100
+    assert E_prev < E0  # restitution 0.5: the impacts lost energy
+    assert w.intersections(s) == []
+
+
+def test_a_stack_on_the_ground_settles_without_energy_gain_or_crossing(bar_model):
+    """Three bars dropped on each other onto the ground (body-body and body-ground contacts in the one solve): the
+    total energy (kinetic, elastic, gravity) never rises by more than the rounding of the step, and no surfaces
+    cross at any step."""
+    bodies = [mw.Modal(bar_model, name=f"b{i}", position=(0.01 * i, 0.0, 0.03 + 0.055 * i)) for i in range(3)]
+    w = mw.World(bodies=bodies, obstacles=[mw.Ground(0.0)], effects=[Gravity(), Contact(friction=0.5)])
+    s = w.state()
+    E_prev = sum(w.energy(s, b.name)["total"] for b in bodies)
+    m_g_h = sum(w._modal[b.name]["body"].mass for b in bodies) * 9.81 * 0.2
+    pairs = 0
+    for i in range(300):
+        r = w.step(s, s, None, 1e-3)
+        pairs += len(r.exchanged)
+        E = sum(w.energy(s, b.name)["total"] for b in bodies)
+        assert E <= E_prev + 1e-9 * m_g_h, i
+        E_prev = E
+        if i % 10 == 9:
+            assert w.intersections(s) == [], i
+    assert pairs > 0
