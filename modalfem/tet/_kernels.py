@@ -455,8 +455,11 @@ def is_blocked3(indptr, indices) -> bool:
 @numba.njit(cache=True, parallel=True)
 def _update(x, r, p, Ap, alpha: float, Pp, Pi, Pd, Ac_inv, gptr, grows, cr, cz, part) -> float:
     """``x += alpha p``, ``r -= alpha Ap`` and the coarse part of the next preconditioning in the same pass:
-    ``cr = P^T r`` (rows visited group by group, ``grows[gptr[g]:gptr[g + 1]]``, each group's coarse
-    entries summed by one thread: no partial arrays, no write conflicts), then ``cz = Ac_inv cr`` (serial:
+    ``cr = P^T r`` (rows visited group by group, ``grows[gptr[g]:gptr[g + 1]]``, a vertex's three DOFs
+    together; each group's 6 coarse entries summed in registers by one thread: no partial arrays, no
+    write conflicts, no chain of stores through memory; ``P`` in :class:`modalfem.tet.precond.TwoLevel`'s
+    layout: row ``3v + k`` holds the group's translation ``k`` and its rotations ``a < b`` other than
+    ``k``, in that order), then ``cz = Ac_inv cr`` (serial:
     O(nc^2), a column sweep of the symmetric ``Ac_inv``, vectorised). Without a coarse part rows go in
     chunks. Returns ``r . r`` (per group or chunk, added in order). ``alpha = 0`` with zero ``p`` and
     ``Ap``: only the restriction of ``r``."""
@@ -464,18 +467,41 @@ def _update(x, r, p, Ap, alpha: float, Pp, Pi, Pd, Ac_inv, gptr, grows, cr, cz, 
     nc = len(cr)
     if nc > 0:
         groups = len(gptr) - 1
-        for j in range(nc):
-            cr[j] = 0.0
         for g in numba.prange(groups):
             t = 0.0
-            for k in range(gptr[g], gptr[g + 1]):
-                i = grows[k]
+            a0 = a1 = a2 = a3 = a4 = a5 = 0.0  # the group's 6 coarse entries, summed in registers
+            for k in range(gptr[g], gptr[g + 1], 3):
+                i = grows[k]  # vertex DOFs i, i + 1, i + 2; P entries q..q + 8 (TwoLevel's layout)
+                q = Pp[i]
                 x[i] += alpha * p[i]
-                ri = r[i] - alpha * Ap[i]
-                r[i] = ri
-                t += ri * ri
-                for q in range(Pp[i], Pp[i + 1]):
-                    cr[Pi[q]] += Pd[q] * ri
+                x[i + 1] += alpha * p[i + 1]
+                x[i + 2] += alpha * p[i + 2]
+                r0 = r[i] - alpha * Ap[i]
+                r1 = r[i + 1] - alpha * Ap[i + 1]
+                r2 = r[i + 2] - alpha * Ap[i + 2]
+                r[i] = r0
+                r[i + 1] = r1
+                r[i + 2] = r2
+                t += r0 * r0
+                t += r1 * r1
+                t += r2 * r2
+                a0 += Pd[q] * r0  # row x: translation x, rotations about y and z
+                a4 += Pd[q + 1] * r0
+                a5 += Pd[q + 2] * r0
+                a1 += Pd[q + 3] * r1  # row y: translation y, rotations about x and z
+                a3 += Pd[q + 4] * r1
+                a5 += Pd[q + 5] * r1
+                a2 += Pd[q + 6] * r2  # row z: translation z, rotations about x and y
+                a3 += Pd[q + 7] * r2
+                a4 += Pd[q + 8] * r2
+            if gptr[g + 1] > gptr[g]:
+                c0 = Pi[Pp[grows[gptr[g]]]]  # the group's first coarse column (translation x)
+                cr[c0] = a0
+                cr[c0 + 1] = a1
+                cr[c0 + 2] = a2
+                cr[c0 + 3] = a3
+                cr[c0 + 4] = a4
+                cr[c0 + 5] = a5
             part[g] = t
         s = 0.0
         for g in range(groups):
@@ -505,24 +531,34 @@ def _update(x, r, p, Ap, alpha: float, Pp, Pi, Pd, Ac_inv, gptr, grows, cr, cz, 
 
 @numba.njit(cache=True, parallel=True)
 def _precondition(r, inv, Pp, Pi, Pd, cz, z, part) -> float:
-    """``z = inv * r + P cz`` (``cz = Ac_inv P^T r`` from :func:`_update`; no coarse part when ``cz`` is
-    empty); returns ``r . z``."""
+    """``z = inv * r + P cz`` (``cz = Ac_inv P^T r`` from :func:`_update`; ``P`` with 3 entries per row,
+    vertices in parallel chunks; no coarse part when ``cz`` is empty: rows in chunks); returns ``r . z``."""
     nc = len(cz)
     n = len(r)
-    chunks = chunk_count(n, ROW_CHUNK)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(n, chunks, ch)
-        t = 0.0
-        for i in range(start, stop):
-            zi = inv[i] * r[i]
-            if nc > 0:
-                c = 0.0
-                for p in range(Pp[i], Pp[i + 1]):
-                    c += Pd[p] * cz[Pi[p]]
-                zi += c
-            z[i] = zi
-            t += r[i] * zi
-        part[ch] = t
+    if nc > 0:
+        nv = n // 3
+        chunks = chunk_count(nv, ROW_CHUNK // 3)
+        for ch in numba.prange(chunks):
+            start, stop = chunk_bounds(nv, chunks, ch)
+            t = 0.0
+            for v in range(start, stop):
+                for k in range(3):
+                    i = 3 * v + k
+                    q = Pp[i]
+                    zi = inv[i] * r[i] + (Pd[q] * cz[Pi[q]] + Pd[q + 1] * cz[Pi[q + 1]] + Pd[q + 2] * cz[Pi[q + 2]])
+                    z[i] = zi
+                    t += r[i] * zi
+            part[ch] = t
+    else:
+        chunks = chunk_count(n, ROW_CHUNK)
+        for ch in numba.prange(chunks):
+            start, stop = chunk_bounds(n, chunks, ch)
+            t = 0.0
+            for i in range(start, stop):
+                zi = inv[i] * r[i]
+                z[i] = zi
+                t += r[i] * zi
+            part[ch] = t
     s = 0.0
     for ch in range(chunks):
         s += part[ch]

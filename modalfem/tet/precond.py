@@ -26,7 +26,9 @@ class Preconditioner:
         P: prolongation (N, c), CSR (or None).
         Ac_inv: inverse coarse matrix (c, c), exactly symmetric (or None).
         groups: ``(ptr, rows)`` with P: the rows of group ``g`` are ``rows[ptr[g]:ptr[g + 1]]`` (every row
-            once), and a row's columns are in its group's coarse block (what :class:`TwoLevel` builds).
+            once, a vertex's three together), and P is in :class:`TwoLevel`'s layout (row ``3v + k``: the
+            translation ``k`` and the two rotations other than ``k`` of the vertex's group, in that order;
+            what the compiled CG's restriction reads).
     """
 
     def __init__(self, inv: np.ndarray, P: sp.csr_matrix | None = None, Ac_inv: np.ndarray | None = None,

@@ -171,3 +171,28 @@ def test_compiled_stable_corotated_is_its_numpy_form():
                 a, b = getattr(got, name), getattr(want, name)
                 # the same operations in another grouping: a few ulps of the largest value
                 np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-13 * np.abs(b).max(), err_msg=name)
+
+
+def test_compiled_preconditioner_is_the_two_level_operator(bar):
+    """The CG's restriction (group by group, TwoLevel's layout of P), coarse product and prolongation give
+    ``inv * r + P Ac_inv P^T r`` (the preconditioner's SciPy form) to roundoff, on 1 and 2 threads alike."""
+    _, _, _, A, prec = bar
+    inv, Pp, Pi, Pd, Ac_inv, gptr, grows = prec.arrays()
+    n, nc = A.shape[0], Ac_inv.shape[0]
+    assert nc > 0
+    r0 = np.random.default_rng(6).standard_normal(n)
+    want = prec(r0)
+    outs = []
+    for t in THREADS:
+        r, x, zero = r0.copy(), np.zeros(n), np.zeros(n)
+        cr, cz, z, part = np.empty(nc), np.empty(nc), np.empty(n), np.empty(128)
+        with thread_count(t):
+            rr = K._update(x, r, zero, zero, 0.0, Pp, Pi, Pd, Ac_inv, gptr, grows, cr, cz, part)
+            rz = K._precondition(r, inv, Pp, Pi, Pd, cz, z, part)
+        np.testing.assert_array_equal(r, r0)  # alpha = 0: the residual untouched
+        np.testing.assert_allclose(cr, prec.Pt @ r0, rtol=1e-12, atol=1e-13 * np.abs(prec.Pt @ r0).max())
+        np.testing.assert_allclose(z, want, rtol=1e-10, atol=1e-12 * np.abs(want).max())
+        assert abs(rr - r0 @ r0) <= 1e-12 * (r0 @ r0) and abs(rz - r0 @ want) <= 1e-10 * abs(r0) @ abs(want)
+        outs.append(z)
+    for z in outs[1:]:
+        np.testing.assert_array_equal(z, outs[0])
