@@ -9,7 +9,8 @@ processes of ``runtime_bench`` (one core each):
   and carried to a fine render surface of ~50k vertices (``reduction.embed.carry_modes``); it stands
   on its 0.1 x 0.1 m end (~3.7k contacts);
 * the pile: 20 bodies (small bars, tuning forks, bells from ``modalfem.mesh`` generators, 8 modes
-  each) dropped into a box (ground and four walls), stepped by one ``runtime.pairs.ContactGroup``.
+  each) dropped into a box (ground and four walls as static obstacles), stepped by a ``world.World`` (its solid
+  contact solve: ``world.modal_contacts`` and ``world._kernels``).
 
 Every case times the free step of the same bodies (``ModalSolver.step`` without effects) in the same
 process, so the contact cost is a ratio to it.
@@ -29,7 +30,8 @@ TALL = {"size": (0.1, 0.1, 0.3), "cells": (3, 3, 9), "k": 30, "h": 1.67e-3}
 PILE_COUNT = 20
 PILE_DT = 1e-3  # [s]
 PILE_STEPS = 600
-PILE_MARGIN = 2e-3  # [m] contact margin of the pile (1e-3: ~20 % faster, ~40 % more position corrections)
+PILE_MARGIN = 2e-3  # [m] contact margin of the pile
+PILE_SWEEPS = 10  # most sweeps of the pile's contact solve (what the former runtime.pairs.ContactGroup did)
 GOALS = {"bar": 5000.0, "tall": 300.0, "pile": 200.0}  # steps/s
 
 
@@ -159,53 +161,61 @@ def measure_resting(path: str, *, dt: float = 1e-3, settle: int = 300) -> dict:
 
 
 def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEPS, dt: float = PILE_DT) -> dict:
-    """``count`` bodies dropped into a box, ``steps`` group steps: seconds per step, largest contact counts,
-    position corrections (pairs separated beyond the tolerance). Momentum of the exchanges is tested in
-    tests/runtime/test_pairs.py, not here."""
+    """``count`` modal bodies dropped into a box (ground and four walls: static obstacles of a ``World``), ``steps``
+    world steps: seconds per step (wall and CPU), largest contact counts, sweeps of the solve, intersecting triangle
+    pairs at the end (the exact test), beside the free step of the same bodies (``ModalSolver.step`` without
+    effects) in the same process. Momentum of every body-body impulse and the no-energy-gain rule are tested in
+    tests/world/test_modal_contacts.py, not here."""
     import modalfem.runtime as rt
-    from modalfem.runtime.pairs import ContactGroup
+    from modalfem import world as mw
+    from modalfem.effects import Contact, Gravity
+    from modalfem.model import ModalModel
     from modalfem.runtime.rotation import quat_from_axis_angle
 
     load0 = os.getloadavg()[0]
     kinds = ["small_bar", "fork", "bell"]
-    bodies = {k: rt.load(paths[k], dtype=np.float64) for k in kinds}
+    models = {k: ModalModel.load(paths[k]) for k in kinds}
     rng = np.random.default_rng(1)
-    solvers, states = [], []
+    bodies = []
     for i in range(count):
-        body = bodies[kinds[i % 3]]
-        s = rt.ModalSolver(body, effects=[rt.Gravity()])
         axis = rng.normal(size=3)
         pos = (-0.12 + 0.12 * (i % 3), -0.06 + 0.12 * ((i // 3) % 2), 0.08 + 0.1 * (i // 6))
-        solvers.append(s)
-        states.append(s.state(position=pos, orientation=quat_from_axis_angle(axis / np.linalg.norm(axis),
-                                                                           rng.uniform(0, np.pi)),
-                              velocity=0.2 * rng.normal(size=3)))
-    walls = rt.Obstacles([rt.Ground(0.0), rt.Plane((1, 0, 0), (-0.25, 0, 0)), rt.Plane((-1, 0, 0), (0.25, 0, 0)),
-                          rt.Plane((0, 1, 0), (0, -0.2, 0)), rt.Plane((0, -1, 0), (0, 0.2, 0))],
-                         restitution=0.3, friction=0.4)
-    group = ContactGroup(solvers, obstacles=walls, restitution=0.3, friction=0.4, margin=PILE_MARGIN)
-    free = [rt.ModalSolver(s.body) for s in solvers]
-    fst = [st.copy() for st in states]
+        bodies.append(mw.Modal(models[kinds[i % 3]], name=f"{kinds[i % 3]}{i}", position=pos,
+                               orientation=quat_from_axis_angle(axis / np.linalg.norm(axis), rng.uniform(0, np.pi)),
+                               velocity=0.2 * rng.normal(size=3)))
+    walls = [mw.Ground(0.0), mw.Plane((1, 0, 0), (-0.25, 0, 0)), mw.Plane((-1, 0, 0), (0.25, 0, 0)),
+             mw.Plane((0, 1, 0), (0, -0.2, 0)), mw.Plane((0, -1, 0), (0, 0.2, 0))]
+    world = mw.World(bodies=bodies, obstacles=walls,
+                     effects=[Gravity(), Contact(restitution=0.3, friction=0.4, margin=PILE_MARGIN,
+                                                 iterations=PILE_SWEEPS)])
+    state = world.state()
+    free = [rt.ModalSolver(rt.ModalBody(models[kinds[i % 3]], dtype=np.float64)) for i in range(count)]
+    fst = [f.state() for f in free]
+    for f, st, b in zip(free, fst, state.bodies.values()):
+        st.assign(b)
 
     def free_step():
         for f, st in zip(free, fst):
             f.step(st, st, None, None, dt)
 
     t_free, c_free = _timeit(free_step)
-    group.step(states, dt)  # compile
-    contacts = pair_contacts = separated = 0
+    compile_state = state.copy()
+    world.step(compile_state, compile_state, None, dt)  # compile
+    contacts = pair_contacts = 0
+    sweeps = []
     t0, c0 = time.perf_counter(), time.process_time()
     for _ in range(steps):
-        rep = group.step(states, dt)
-        contacts = max(contacts, rep.contacts)
-        pair_contacts = max(pair_contacts, rep.pair_contacts)
-        separated += len(rep.separated)
+        rep = world.step(state, state, None, dt)
+        contacts = max(contacts, rep.contacts.get("solid", 0))
+        pair_contacts = max(pair_contacts, len(rep.exchanged))
+        sweeps.append(rep.sweeps)
     elapsed = (time.perf_counter() - t0) / steps
     elapsed_cpu = (time.process_time() - c0) / steps
-    top = _profile(lambda: group.step(states, dt), 20)
-    heights = [float(st.position[2]) for st in states]
+    top = _profile(lambda: world.step(state, state, None, dt), 20)
+    heights = [float(st.position[2]) for st in state.bodies.values()]
     return {"count": count, "steps": steps, "dt": dt, "step": elapsed, "free": t_free, "step_cpu": elapsed_cpu,
-            "free_cpu": c_free, "contacts": contacts,
-            "pair_contacts": pair_contacts, "separated": separated, "max_height": max(heights),
-            "vertices": int(sum(s.body.vertex_count for s in solvers)), "profile": top,
+            "free_cpu": c_free, "contacts": contacts, "pair_contacts": pair_contacts,
+            "sweeps": [float(np.mean(sweeps)), int(np.max(sweeps)), PILE_SWEEPS],
+            "intersections": sum(k for _, _, k in world.intersections(state)), "max_height": max(heights),
+            "vertices": int(sum(world._modal[b.name]["body"].vertex_count for b in bodies)), "profile": top,
             "load": [load0, os.getloadavg()[0]]}

@@ -195,16 +195,20 @@ class ModalContacts:
         body_b = body_b.astype(np.int64)
         vel = np.array([vel_off[n] for n in self.names], dtype=np.int64)
         # the rigid lever arms: one world point for both sides of a contact whose gap is within its margin (touching
-        # or inside: the impulse conserves angular momentum exactly); a speculative contact farther apart acts on
-        # each body at its own surface point (at a shared point the far body would be turned about a point off its
-        # surface: at dt = 0.1 s bars then tunnelled), which conserves linear momentum exactly and angular momentum
-        # up to (x_a - x_b) x impulse
+        # or inside: exact linear and angular momentum); a speculative contact farther apart has no friction (it is
+        # not touching yet) and acts on body b at the foot of a's point on b's tangent plane when that is within the
+        # margin of b's closest point (a's point minus a multiple of the normal: the normal impulse's moment is the
+        # same at both, so momentum stays exact), else at b's closest point itself (at a's point the far body
+        # would be turned about a point off its surface: at dt = 0.1 s bars then tunnelled; the angular momentum
+        # then changes by (x_a - x_b) x impulse)
         pb = np.zeros_like(point)
         pair = body_b >= 0
         for j in range(3):
             pb[pair] += w_b[pair, j:j + 1] * X[voff[body_b[pair]] + verts_b[pair, j]]
-        near = ~pair | (gap <= np.maximum(marg[body_a], marg[np.maximum(body_b, 0)]))
-        point_b = np.where(near[:, None], point, pb)
+        far = pair & (gap > np.maximum(marg[body_a], marg[np.maximum(body_b, 0)]))
+        foot = point - normal * np.einsum("ij,ij->i", point - pb, normal)[:, None]
+        lateral = np.sqrt(np.einsum("ij,ij->i", foot - pb, foot - pb))
+        point_b = np.where(far[:, None], np.where((lateral <= marg[body_a])[:, None], foot, pb), point)
         ptr, off, nd, jptr, J, WJt = SK.rows(body_a, np.ascontiguousarray(verts_a, dtype=np.int64), w_a, body_b,
                                              np.ascontiguousarray(verts_b, dtype=np.int64), w_b,
                                              np.ascontiguousarray(point), np.ascontiguousarray(point_b), R, Iw_inv, pos, self.mass, self.nm,
@@ -215,7 +219,7 @@ class ModalContacts:
         rs = np.array([c.restitution for c in cont])
         pair = body_b >= 0
         bb = np.where(pair, body_b, body_a)
-        mu = np.where(pair, np.sqrt(fr[body_a] * fr[bb]), fr[body_a])
+        mu = np.where(pair, np.sqrt(fr[body_a] * fr[bb]), fr[body_a]) * ~far
         e = np.where(pair, np.minimum(rs[body_a], rs[bb]), rs[body_a])
         margin = np.where(pair, np.maximum(marg[body_a], marg[bb]), marg[body_a])
         keys = (((body_a * (nb + len(self.plane_d)) + other) * 3 + kind) * _FEATURES + feat).astype(np.int64)

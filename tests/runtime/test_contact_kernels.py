@@ -194,38 +194,3 @@ def test_box_only_refit_gives_the_boxes_and_query_of_the_full_refit():
     qa, qb = a.query(p - 2e-3, p + 2e-3), b.query(p - 2e-3, p + 2e-3)
     assert np.array_equal(qa[0], qb[0]) and np.array_equal(qa[1], qb[1]) and len(qa[0]) > 50
     assert np.all(b.cone_angle == np.pi)  # no culling after a box-only refit
-
-
-def test_the_compiled_pair_search_finds_what_the_numpy_search_found(small_model):
-    """_pair_kernels.pair_contacts against the numpy + BroadPhaseBVH.query pipeline it replaced (vertices in the
-    other's box grown by r, one box query each, closest candidate triangle, kept within (-r, r)): the same
-    contacts in the same order, for two blocks overlapping at random poses."""
-    from modalfem.collision.bvh import BroadPhaseBVH
-    from modalfem.runtime._pair_kernels import pair_contacts
-
-    body = rt.ModalBody(small_model, dtype=np.float64)
-    tree = BroadPhaseBVH(body.triangles, body.rest, leaf_size=8)
-    solver = rt.ModalSolver(body)
-    rng = np.random.default_rng(2)
-    found = 0
-    for trial in range(8):
-        a = solver.state(position=(0.0, 0.0, 0.0))
-        b = solver.state(position=(rng.uniform(-0.05, 0.05), rng.uniform(-0.03, 0.03), 0.045 + 0.01 * rng.normal()))
-        b.orientation[:] = [np.cos(0.2 * trial), 0.0, 0.0, np.sin(0.2 * trial)]
-        b.q[:] = 1e-4 * rng.normal(size=body.mode_count)
-        xa, xb = body.positions(a, precise=True), body.positions(b, precise=True)
-        tree.refit_boxes(xb)
-        lo, hi = xb.min(axis=0), xb.max(axis=0)
-        r = 4e-3
-        got = pair_contacts(xa, lo, hi, r, tree.P, tree.lo, tree.hi, tree.nonempty, tree.slot_tri, tree._slo,
-                            tree._shi, xb, body.triangles, 1e-9)
-        near = np.flatnonzero(np.all((xa >= lo - r) & (xa <= hi + r), axis=1))
-        p = xa[near]
-        qi, tri = tree.query(p - r, p + r)
-        best, w, gap, nrm = K.closest_triangles(p, qi, tri, xb, body.triangles, 1e-9)
-        sel = (best >= 0) & (gap < r) & (gap > -r)
-        want = (near[sel], best[sel], w[sel], nrm[sel], gap[sel], p[sel])
-        for g_, w_ in zip(got, want):
-            assert np.array_equal(g_, w_)
-        found += len(got[0])
-    assert found > 20  # the poses did bring the blocks within reach
