@@ -148,12 +148,17 @@ def _primitive_range(tp, start: int, stop: int, tris, edges, own_v, own_e, vlo, 
     return vf, ee
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def drop_pairs(q: np.ndarray, alive: np.ndarray, dirty: np.ndarray) -> None:
-    """In place: ``alive[i] = False`` for the pairs ``q`` (k, 4) holding a vertex flagged in ``dirty``."""
-    for i in range(len(q)):
-        if alive[i] and (dirty[q[i, 0]] or dirty[q[i, 1]] or dirty[q[i, 2]] or dirty[q[i, 3]]):
-            alive[i] = False
+    """In place: ``alive[i] = False`` for the pairs ``q`` (k, 4) holding a vertex flagged in ``dirty`` (chunks
+    of pairs in parallel, each writing its own entries)."""
+    k = len(q)
+    chunks = chunk_count(k, SCAN_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        for i in range(start, stop):
+            if dirty[q[i, 0]] | dirty[q[i, 1]] | dirty[q[i, 2]] | dirty[q[i, 3]]:
+                alive[i] = False
 
 
 #: pairs per chunk of the parallel scans of the pair store (selections)

@@ -67,22 +67,32 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     skipping all-kinematic pairs, pairs inside one zone (``roots``) and, if ``only`` ((N,) bool) is
     given, pairs without a flagged vertex (their trajectories did not change since they were last found
     collision-free). The cheap index filters run first, then the trajectory boxes (within ``eta``),
-    then the CCD (one compiled pass, :func:`modalfem.collision._ccd_kernels.ccd_candidates`)."""
+    then the CCD (one compiled pass per store segment, :func:`modalfem.collision._ccd_kernels.ccd_block`;
+    the hits in the order of the store's pairs)."""
     from modalfem.collision import _ccd_kernels
 
     X0 = np.ascontiguousarray(X0)
     X1 = X0 + dt * V
     movable = invm > 0
     zones = np.zeros(0, dtype=np.int64) if roots is None else np.ascontiguousarray(roots, dtype=np.int64)
+    flags = np.zeros(0, dtype=bool) if only is None else np.ascontiguousarray(only, dtype=bool)
+    none = np.zeros(0, dtype=bool)
     out = []
     for kind in ("vf", "ee"):
-        q = store.pairs(kind, only)
-        if len(q) == 0:
-            continue
-        idx, toi = _ccd_kernels.ccd_candidates(kind == "vf", X0, X1, np.ascontiguousarray(q), movable, zones, eta,
-                                               PIPELINE_DEPTH, MAX_INTERVALS)
-        if len(idx):
-            out.append((kind, q[idx], toi))
+        qs, ts = [], []
+        # the store's large blocks go to the CCD as they are, with their alive masks and ``only`` (filtered in
+        # the CCD's parallel pass), the selected pairs of the small ones as a list: hits in the store's order
+        for q, alive in store.segments(kind, only):
+            if len(q) == 0:
+                continue
+            idx, toi = _ccd_kernels.ccd_block(kind == "vf", X0, X1, q, none if alive is None else alive,
+                                              none if alive is None else flags, movable, zones, eta, PIPELINE_DEPTH,
+                                              MAX_INTERVALS)
+            if len(idx):
+                qs.append(q[idx])
+                ts.append(toi)
+        if qs:
+            out.append((kind, np.concatenate(qs), np.concatenate(ts)))
     return out
 
 

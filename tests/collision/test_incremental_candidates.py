@@ -73,3 +73,53 @@ def test_indexed_drops_and_selections_equal_the_scans():
         _pair_kernels.drop_pairs(q, alive_scan, dirty)
         _pair_kernels.drop_indexed(alive_idx, ptr, pid, np.flatnonzero(dirty))
         assert np.array_equal(alive_idx, alive_scan)
+
+
+@pytest.mark.parametrize("indexed", [1, 10**9])  # every block to the CCD as stored / every block selected first
+def test_ccd_of_store_segments_equals_the_ccd_of_the_selected_pairs(indexed, monkeypatch):
+    """``ccd_hits`` hands large blocks to the CCD with their alive masks and the flagged vertices (filtered in
+    its pass): the hits, their order and times are those of the CCD of the selected pairs, on 1 and 2 threads."""
+    from modalfem._threads import thread_count
+    from modalfem.collision import _ccd_kernels, _stages
+    from modalfem.collision.ccd import MAX_INTERVALS
+
+    monkeypatch.setattr(PairStore, "INDEXED", indexed)
+    rng = np.random.default_rng(5)
+    x0, tri = stacked_sheets(3, 8, gap=0.004, seed=5)
+    dt, margin, eta = 0.01, 0.002, 1e-5
+    v = rng.normal(scale=0.3, size=x0.shape)
+    system = System(tri, ())
+    system.build_cloth_bvh(x0)
+    store = PairStore(system.candidates(x0, x0 + dt * v, margin=margin, self_collision=True, culling=False))
+    lo, hi = system.vertex_boxes(x0, x0 + dt * v, margin)
+    moved = rng.random(len(x0)) < 0.15
+    v[moved] += rng.normal(scale=1.0, size=(moved.sum(), 3))
+    x1 = x0 + dt * v
+    dirty = ((np.minimum(x0, x1) < lo) | (np.maximum(x0, x1) > hi)).any(axis=1)
+    lo[dirty], hi[dirty] = system.vertex_boxes(x0[dirty], x1[dirty], margin)
+    store.drop(dirty)
+    store.add(system.dirty_candidates(lo, hi, dirty, self_collision=True))
+    assert len(store.blocks) > 2
+    V = (x1 - x0) / dt
+    X1 = x0 + dt * V  # the end positions ccd_hits computes
+    invm = np.ones(len(x0))
+    roots = np.arange(len(x0))
+    roots[: len(x0) // 3] = 0  # one zone: its inner pairs are skipped
+    total = 0
+    for only in (None, rng.random(len(x0)) < 0.2):
+        want = []
+        for kind in ("vf", "ee"):
+            q = store.pairs(kind, only)
+            idx, toi = _ccd_kernels.ccd_candidates(kind == "vf", x0, X1, q, invm > 0, roots, eta, _stages.PIPELINE_DEPTH,
+                                                   MAX_INTERVALS)
+            if len(idx):
+                want.append((kind, q[idx], toi))
+        total += sum(len(w[1]) for w in want)
+        for t in (1, 2):
+            with thread_count(t):
+                got = _stages.ccd_hits(system, x0, V, dt, store, invm, eta, roots=roots, only=only)
+            assert [g[0] for g in got] == [w[0] for w in want]
+            for (_, qg, tg), (_, qw, tw) in zip(got, want):
+                np.testing.assert_array_equal(qg, qw)
+                np.testing.assert_array_equal(tg, tw)
+    assert total > 20  # hits to compare
