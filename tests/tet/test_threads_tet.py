@@ -10,7 +10,7 @@ import pytest
 
 from modalfem.material import Material
 from modalfem.mesh import box
-from modalfem.tet.effects import Gravity, Pins
+from modalfem.tet.effects import Gravity, Pins, RayleighDamping
 from modalfem.tet.model import tet_model
 from modalfem.tet.solver import TetSolver, TetState
 from modalfem._threads import thread_count
@@ -18,11 +18,11 @@ from modalfem._threads import thread_count
 pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 numba threads")
 
 
-def _run(threads: int, steps: int = 6):
+def _run(threads: int, steps: int = 6, effects=(), **options):
     mesh = box(size=(0.8, 0.3, 0.2), cells=(16, 6, 4))  # 2304 tets: 18 element chunks, 13 row chunks
     model = tet_model(mesh, Material(E=1e6, nu=0.3, rho=1000.0))
     with thread_count(threads):
-        solver = TetSolver(model, effects=[Gravity(), Pins(mesh.tag_points("x0"))])
+        solver = TetSolver(model, effects=[Gravity(), Pins(mesh.tag_points("x0")), *effects], **options)
         state = TetState.at_rest(model)
         infos = [solver.step(state, state, 1.0 / 30.0) for _ in range(steps)]
     return model, state, infos
@@ -38,6 +38,19 @@ def test_newton_steps_are_bit_identical_on_one_and_two_threads():
     np.testing.assert_array_equal(s1.v, s2.v)
     sag = model.rest_points[:, 2] - s1.x[:, 2]
     assert sag.max() > 1e-3  # the bar sagged under gravity: the steps did work
+
+
+@pytest.mark.parametrize("options", [
+    {"preconditioner": "jacobi"},  # the CG's Jacobi-only passes
+    {"projection": "always", "coarse_lag": 1},  # projected Hessians, a coarse space rebuilt every solve
+    {"effects": (RayleighDamping(alpha=0.5, beta=0.01),), "newton_max": 1},  # damping matrix K(x_n)
+], ids=["jacobi", "projected", "damped-linearised"])
+def test_other_solver_paths_are_bit_identical_on_one_and_two_threads(options):
+    _, s1, i1 = _run(1, 4, **options)
+    _, s2, i2 = _run(2, 4, **options)
+    assert [i.linear_iterations for i in i1] == [i.linear_iterations for i in i2]
+    np.testing.assert_array_equal(s1.x, s2.x)
+    np.testing.assert_array_equal(s1.v, s2.v)
 
 
 def test_svd_of_positions_is_the_svd_of_the_deformation_gradients():
