@@ -797,7 +797,8 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     the modes, so a vertex may end a step slightly inside. Lifting the body out by a shift d changes
     its potential energy in the load field by ``-m accel . d`` [J]; with ``accel`` (3,) [m/s^2] given,
     that gain is taken from the kinetic energy (all velocities scaled by one factor), so the
-    correction creates no energy (if the kinetic energy is smaller than the gain, the body stops).
+    correction creates no energy; when the motion cannot pay, the body's vibration that put the vertices inside is
+    shrunk instead (``_contact_step_kernels.push_and_pay``).
     Only the vertices that may be inside (rigid position within the deformation bound) are evaluated.
     The deformation is summed in float64 here; a float32 body's ``positions(precise=True)`` rounds it to
     float32 (~6e-8 of it), so a vertex is pushed to at least that rounding slack above the obstacle.
@@ -807,11 +808,13 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     body = solver.body
     plan = _plan(contacts.effects)
     q = state.q
+    if accel is not None:  # with the payment (KS.push_and_pay: the fused step's very function)
+        KS.push_and_pay(plan.kinds, plan.params, body.rest, vertex_modes(body), _row_scale(body), float(body.radius),
+                        _eps(body.shapes_t.dtype), _fast_terms(body)[0], _rotation(state), state.position,
+                        float(body.mass), np.asarray(accel, dtype=np.float64), body.inertia_inv, state.velocity,
+                        state.angular_momentum, q, state.qdot, int(passes))
+        return
     bound = deformation_bound(body, q)
     slack = 4.0 * (body.mode_count + 2) * _eps(body.shapes_t.dtype) * bound
-    total = KB.push_shift(plan.kinds, plan.params, body.rest, vertex_modes(body), q, _skip(body, q),
-                          _rotation(state), state.position, bound, slack, int(passes))
-    if accel is None:
-        return
-    KS.pay_lift(float(body.mass), np.asarray(accel, dtype=np.float64), total, _rotation(state), body.inertia_inv,
-                state.velocity, state.angular_momentum, state.qdot)
+    KB.push_shift(plan.kinds, plan.params, body.rest, vertex_modes(body), q, _skip(body, q), _rotation(state),
+                  state.position, bound, slack, int(passes))

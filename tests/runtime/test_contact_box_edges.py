@@ -1,0 +1,62 @@
+"""A modal body resting across the edges of a box narrower than it (runtime contact, one body): after settling, no
+step is split by the energy guard and the energy never rises, at dt = 1e-4 ... 0.1 s.
+
+The steel block of the runtime fixtures (0.2 x 0.1 x 0.05 m, 8 modes, all faster than 1 / dt here) lies on a box
+0.1 m wide in x and 0.06 m in y: its bottom vertices at x = -0.05, 0, 0.05 (the row y = 0) carry it, those at
+x = +-0.05 right above the box's edges. Impacts excite its modes; their swing (faster than the step, left out of
+the sustained solve) put vertices a few nanometres into the box, and lifting the 7.85 kg body out of them cost more
+than its vibration held: the push-out zeroed the velocities and kept the deformation, which the next step released
+again, so every 1 ms step was halved seven levels deep (127 sub-steps, ~39 ms per step)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import modalfem.runtime as rt
+import modalfem.runtime.contact as C
+from modalfem.runtime.rotation import quat_from_axis_angle
+from modalfem.runtime.solver import ENERGY_RTOL
+
+G = 9.81  # [m/s^2]
+SETTLE = 0.5  # [s] the landing from 0.1 mm and its rocking
+
+
+def _across_box(body, dt, monkeypatch):
+    """Step the block lying across the box for 2 s; per step: the guard's energy [J] and the number of Python
+    contact sub-steps (``step_with_contacts`` calls: 0 when the fused step did it, 1 on the Python path, more
+    when the energy guard split the step)."""
+    box = rt.Box((0.0, 0.0, -0.05), (0.05, 0.03, 0.05))
+    solver = rt.ModalSolver(body, effects=[rt.Gravity((0, 0, -G)), rt.Obstacles([box], friction=0.5)])
+    st = solver.state(orientation=quat_from_axis_angle((0.0, 0.0, 1.0), 1e-5))  # not exactly square to the edges
+    st.position[:] = (3e-7, 2e-7, 0.0)
+    st.position[2] -= body.positions(st, precise=True)[:, 2].min() - 1e-4  # 0.1 mm above the box
+    calls = [0]
+    real = C.step_with_contacts
+
+    def counted(*a, **kw):
+        calls[0] += 1
+        return real(*a, **kw)
+
+    monkeypatch.setattr(C, "step_with_contacts", counted)
+    energy, sub, lowest = [], [], []
+    for _ in range(int(round(2.0 / dt))):
+        before = calls[0]
+        solver.step(st, st, None, solver.collide(st, dt), dt)
+        sub.append(calls[0] - before)
+        energy.append(solver.energy(st) + body.mass * G * st.position[2])
+        lowest.append(box.signed_distance(body.positions(st, precise=True))[0].min())
+    return np.array(energy), np.array(sub), np.array(lowest), st
+
+
+@pytest.mark.parametrize("dt", [1e-4, 1e-3, 1e-2, 0.1])
+def test_a_body_across_box_edges_takes_no_split_steps_and_never_gains_energy(small_body, monkeypatch, dt):
+    energy, sub, lowest, st = _across_box(small_body, dt, monkeypatch)
+    settled = int(round(SETTLE / dt))
+    assert sub[settled:].max() <= 1, f"energy guard split {np.count_nonzero(sub[settled:] > 1)} steps after settling"
+    # the guard's tolerance: ENERGY_RTOL of its energy scale, m g (|shift| + radius) for a body at rest
+    tol = ENERGY_RTOL * small_body.mass * G * (2.0 * small_body.radius)
+    gains = np.diff(energy)
+    assert gains.max() <= tol, f"energy rose by {gains.max():.3g} J in one step"
+    assert lowest.min() >= -1e-12, f"a vertex ended {-lowest.min():.3g} m inside the box"
+    assert abs(st.position[0]) < 0.01 and st.position[2] > 0.0  # still lying across the box
