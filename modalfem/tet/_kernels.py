@@ -130,7 +130,7 @@ def _element(e, Ut, Vt, D2, lam, gt, vol, d1, H, f, forces, project, b, c, K, Gv
 @numba.njit(cache=True, parallel=True)
 def element_forces(Ut, Vt, d1, gt, vol, f) -> None:
     """Element forces alone, ``f[a, :, e] = V0 U diag(d1) V^T grad_a`` (4, 3, m) [N] (as ``hessians_upper``
-    with ``forces``, summed in another order), element index last; arguments as there."""
+    with ``forces``, summed in another order), element index last; arguments as there (``d1`` (3, m))."""
     m = Ut.shape[2]
     chunks = chunk_count(m, ELEMENT_CHUNK)
     for ch in numba.prange(chunks):
@@ -139,8 +139,8 @@ def element_forces(Ut, Vt, d1, gt, vol, f) -> None:
         for e in range(start, stop):
             for i in range(3):
                 for j in range(3):
-                    P[i, j] = (Ut[i, 0, e] * d1[e, 0] * Vt[j, 0, e] + Ut[i, 1, e] * d1[e, 1] * Vt[j, 1, e]
-                               + Ut[i, 2, e] * d1[e, 2] * Vt[j, 2, e])
+                    P[i, j] = (Ut[i, 0, e] * d1[0, e] * Vt[j, 0, e] + Ut[i, 1, e] * d1[1, e] * Vt[j, 1, e]
+                               + Ut[i, 2, e] * d1[2, e] * Vt[j, 2, e])
             V0 = vol[e]
             for i in range(3):
                 s0 = 0.0
@@ -665,8 +665,8 @@ def galerkin(indptr, indices, data, Pp, Pi, Pd, group_ptr, group_rows, Ac) -> No
 @numba.njit(cache=True, parallel=True)
 def stable_corotated(s, mu: float, lam: float, order: int, psi, d1, d2, twist, flip) -> None:
     """:class:`modalfem.tet.energies.StableCorotated` with scalar moduli at signed singular values ``s``
-    (m, 3): ``psi`` (m,) [Pa], and with ``order`` 2 also ``d1`` (3, m), ``d2`` (3, 3, m), ``twist``,
-    ``flip`` (3, m) [Pa], element index last; the operations of its NumPy form in the same order (the same
+    (m, 3): ``psi`` (m,) [Pa], with ``order`` >= 1 ``d1`` (3, m), with ``order`` 2 also ``d2`` (3, 3, m),
+    ``twist``, ``flip`` (3, m) [Pa], element index last; the operations of its NumPy form in the same order (the same
     numbers), elements in parallel chunks."""
     m = s.shape[0]
     chunks = chunk_count(m, ELEMENT_CHUNK)
@@ -679,7 +679,7 @@ def stable_corotated(s, mu: float, lam: float, order: int, psi, d1, d2, twist, f
             p += e1_ * e1_
             p += e2 * e2
             p *= mu
-            if order < 2:
+            if order == 0:
                 jm = s0 * s1 * s2 - 1.0
                 psi[e] = p + 0.5 * lam * jm * jm
                 continue
@@ -690,6 +690,8 @@ def stable_corotated(s, mu: float, lam: float, order: int, psi, d1, d2, twist, f
             d1[0, e] = e0 * (2.0 * mu) + g * dj0
             d1[1, e] = e1_ * (2.0 * mu) + g * dj1
             d1[2, e] = e2 * (2.0 * mu) + g * dj2
+            if order == 1:
+                continue
             d2[0, 0, e] = dj0 * dj0 * lam + 2.0 * mu
             d2[1, 1, e] = dj1 * dj1 * lam + 2.0 * mu
             d2[2, 2, e] = dj2 * dj2 * lam + 2.0 * mu

@@ -161,7 +161,7 @@ class StableCorotated:
 
     def derivs(self, s: np.ndarray, order: int = 2) -> SigmaDerivs:
         """psi and derivatives at signed singular values ``s`` (m, 3); ``order`` 0, 1 or 2."""
-        if np.ndim(self.mu) == 0 and np.ndim(self.lam) == 0 and order != 1:
+        if np.ndim(self.mu) == 0 and np.ndim(self.lam) == 0:
             # scalar moduli: one compiled pass, elements in parallel (the sums of _arap and _volumetric)
             from modalfem.tet import _kernels
 
@@ -172,7 +172,12 @@ class StableCorotated:
                 e = np.empty((0, 0))
                 _kernels.stable_corotated(s, float(self.mu), float(self.lam), 0, psi, e, np.empty((0, 0, 0)), e, e)
                 return SigmaDerivs(psi)
-            d1, d2, twist, flip = np.empty((3, m)), np.empty((3, 3, m)), np.empty((3, m)), np.empty((3, m))
+            d1 = np.empty((3, m))
+            if order == 1:  # forces only (an iteration reusing the previous matrix)
+                e = np.empty((0, 0))
+                _kernels.stable_corotated(s, float(self.mu), float(self.lam), 1, psi, d1, np.empty((0, 0, 0)), e, e)
+                return SigmaDerivs(psi, d1.T)
+            d2, twist, flip = np.empty((3, 3, m)), np.empty((3, m)), np.empty((3, m))
             _kernels.stable_corotated(s, float(self.mu), float(self.lam), 2, psi, d1, d2, twist, flip)
             # stored with the element index last (what the Hessians read), returned as (m, ...) views
             return SigmaDerivs(psi, d1.T, np.moveaxis(d2, -1, 0), twist.T, flip.T)

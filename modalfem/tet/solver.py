@@ -297,7 +297,7 @@ class TetSolver:
                                                    project=project)
             else:
                 f, H = np.empty((4, 3, m.cell_count)), None
-                _kernels.element_forces(U, V, np.ascontiguousarray(d.d1), self._grad_t, m.rest_volumes, f)
+                _kernels.element_forces(U, V, np.ascontiguousarray(d.d1.T), self._grad_t, m.rest_volumes, f)
             g = np.empty((m.point_count, 3))
             _kernels.gather_sum(self._force_ptr, self._force_order, f.ravel(), g.ravel())
             return E, g, H

@@ -241,7 +241,7 @@ def test_forces_alone_match_the_forces_of_the_one_pass_kernel():
     gt = np.ascontiguousarray(np.moveaxis(grad, 0, -1))
     f_ref, _ = en.element_forces_and_hessians(Ut, Vt, d, gt, vol, element_last=True)
     f = np.empty_like(f_ref)
-    _kernels.element_forces(np.ascontiguousarray(Ut), np.ascontiguousarray(Vt), np.ascontiguousarray(d.d1), gt,
+    _kernels.element_forces(np.ascontiguousarray(Ut), np.ascontiguousarray(Vt), np.ascontiguousarray(d.d1.T), gt,
                             vol, f)
     # the same sums in another order: equal to a few roundoffs of the largest force
     np.testing.assert_allclose(f, f_ref, rtol=0, atol=16 * np.finfo(float).eps * np.abs(f_ref).max())
