@@ -348,3 +348,82 @@ def rows(body_a, verts_a, w_a, body_b, verts_b, w_b, point, point_b, R, Iw_inv, 
             e += 1
         ptr[c + 1] = e
     return ptr, off, nd, jptr, J, WJt
+
+
+@numba.njit(cache=True)
+def all_pairs(pa, pb, rr, mm, X, Xl, voff, R, pos, bound, blo, bhi, tris, toff, edges, eoff, adj,
+              tP, tlo, thi, tne, tslot, tslo, tshi, eP, elo, ehi, ene, eslot, eslo, eshi):
+    """``vertex_face`` both ways and ``edge_edge`` for every candidate pair of bodies in one call.
+
+    Args:
+        pa, pb: (p,) body pairs (a < b); rr, mm: (p,) their search radius and margin [m]. X, Xl: (n, 3) every
+            body's world and body-axes deformed vertices, body i's at ``voff[i]:voff[i + 1]``; R, pos, bound,
+            blo, bhi: per body as in ``vertex_face``. tris/toff, edges/eoff, adj: every body's triangles, edges and
+            edge faces (local indices) with offsets. tP ... tshi, eP ... eshi: typed lists of the bodies' rest
+            triangle and edge trees.
+
+    Returns:
+        ``(vf, ee)``: vertex-face contacts ``(a, b, vertex, triangle, bary (k, 3), gap, normal (k, 3))`` and edge
+        pairs ``(a, b, mine, other, s, t, gap, normal)`` (a the body whose vertex or edge it is).
+    """
+    vl_a = numba.typed.List()
+    vl_b = numba.typed.List()
+    vl = numba.typed.List()
+    el_a = numba.typed.List()
+    el_b = numba.typed.List()
+    el = numba.typed.List()
+    nvf = 0
+    nee = 0
+    for i in range(pa.shape[0]):
+        a, b = pa[i], pb[i]
+        for side in range(2):
+            p, q = (a, b) if side == 0 else (b, a)
+            out = vertex_face(X[voff[p]:voff[p + 1]], R[q], pos[q], Xl[voff[q]:voff[q + 1]],
+                              tris[toff[q]:toff[q + 1]], bound[q], rr[i], blo[q], bhi[q], tP[q], tlo[q], thi[q],
+                              tne[q], tslot[q], tslo[q], tshi[q])
+            if out[0].shape[0]:
+                vl_a.append(p)
+                vl_b.append(q)
+                vl.append(out)
+                nvf += out[0].shape[0]
+        out2 = edge_edge(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
+                         edges[eoff[b]:eoff[b + 1]], adj[eoff[b]:eoff[b + 1]], tris[toff[b]:toff[b + 1]], bound[b],
+                         mm[i], blo[b], bhi[b], eP[b], elo[b], ehi[b], ene[b], eslot[b], eslo[b], eshi[b])
+        if out2[0].shape[0]:
+            el_a.append(a)
+            el_b.append(b)
+            el.append(out2)
+            nee += out2[0].shape[0]
+    va = np.empty(nvf, dtype=np.int64)
+    vb = np.empty(nvf, dtype=np.int64)
+    vv = np.empty(nvf, dtype=np.int64)
+    vt = np.empty(nvf, dtype=np.int64)
+    vw = np.empty((nvf, 3))
+    vg = np.empty(nvf)
+    vn = np.empty((nvf, 3))
+    k = 0
+    for j in range(len(vl)):
+        o = vl[j]
+        for r in range(o[0].shape[0]):
+            va[k], vb[k], vv[k], vt[k], vg[k] = vl_a[j], vl_b[j], o[0][r], o[1][r], o[3][r]
+            for c in range(3):
+                vw[k, c] = o[2][r, c]
+                vn[k, c] = o[4][r, c]
+            k += 1
+    ea = np.empty(nee, dtype=np.int64)
+    eb = np.empty(nee, dtype=np.int64)
+    em = np.empty(nee, dtype=np.int64)
+    eo = np.empty(nee, dtype=np.int64)
+    es = np.empty(nee)
+    et = np.empty(nee)
+    eg = np.empty(nee)
+    en = np.empty((nee, 3))
+    k = 0
+    for j in range(len(el)):
+        o = el[j]
+        for r in range(o[0].shape[0]):
+            ea[k], eb[k], em[k], eo[k], es[k], et[k], eg[k] = el_a[j], el_b[j], o[0][r], o[1][r], o[2][r], o[3][r], o[4][r]
+            for c in range(3):
+                en[k, c] = o[5][r, c]
+            k += 1
+    return (va, vb, vv, vt, vw, vg, vn), (ea, eb, em, eo, es, et, eg, en)

@@ -73,6 +73,8 @@ class ModalContacts:
         self._toff = np.concatenate([[0], np.cumsum([len(b.triangles) for b in self.bodies])]).astype(np.int64)
         self._edges = np.concatenate(self.edges) if self.bodies else np.zeros((0, 2), int)
         self._eoff = np.concatenate([[0], np.cumsum([len(e) for e in self.edges])]).astype(np.int64)
+        self._adj = np.concatenate(self.adj) if self.bodies else np.zeros((0, 2), int)
+        self._treelists = _tree_lists(self.trees) + _tree_lists(self.etrees)
         self.mask = np.zeros(int(nm.sum()), dtype=np.int64)
 
     def _masks(self, dt: float) -> np.ndarray:
@@ -135,58 +137,33 @@ class ModalContacts:
         rr = mm + reach[:, None] + reach[None, :]
         meet = np.all((lo[:, None, :] - rr[:, :, None] <= hi[None, :, :])
                       & (lo[None, :, :] - rr[:, :, None] <= hi[:, None, :]), axis=2)
-        vf, ee = [], []  # raw kernel outputs per pair, turned into contacts together below
-        for a, b in zip(*np.nonzero(np.triu(meet, 1))):
-            a, b = int(a), int(b)
-            m, r = float(mm[a, b]), float(rr[a, b])
-            for p, q in ((a, b), (b, a)):
-                t = self.trees[q]
-                out = SK.vertex_face(Xw[p], R[q], pos[q], Xl[q], self.bodies[q].triangles, bound[q], r, lo[q], hi[q],
-                                     t.P, t.lo, t.hi, t.nonempty, t.slot_tri, t._slo, t._shi)
-                if len(out[0]):
-                    vf.append((p, q) + out)
-            t = self.etrees[b]
-            out = SK.edge_edge(Xw[a], self.edges[a], R[b], pos[b], Xl[b], self.edges[b], self.adj[b],
-                               self.bodies[b].triangles, bound[b], m, lo[b], hi[b], t.P, t.lo, t.hi, t.nonempty,
-                               t.slot_tri, t._slo, t._shi)
-            if len(out[0]):
-                ee.append((a, b) + out)
-        if vf:
-            cnt = np.array([len(x[2]) for x in vf])
-            p = np.repeat([x[0] for x in vf], cnt)
-            q = np.repeat([x[1] for x in vf], cnt)
-            v = np.concatenate([x[2] for x in vf])
-            tri = np.concatenate([x[3] for x in vf])
-            k = len(v)
-            va = np.zeros((k, 3), dtype=np.int64)
-            va[:, 0] = v
-            wa = np.zeros((k, 3))
-            wa[:, 0] = 1.0
-            parts.append((p, va, wa, q, self._tris[self._toff[q] + tri], np.concatenate([x[4] for x in vf]),
-                          X[voff[p] + v], np.concatenate([x[6] for x in vf]), np.concatenate([x[5] for x in vf]),
-                          np.full(k, _VF), v, q))
-        if ee:
-            cnt = np.array([len(x[2]) for x in ee])
-            a = np.repeat([x[0] for x in ee], cnt)
-            b = np.repeat([x[1] for x in ee], cnt)
-            mine = np.concatenate([x[2] for x in ee])
-            other = np.concatenate([x[3] for x in ee])
-            s = np.concatenate([x[4] for x in ee])
-            tt = np.concatenate([x[5] for x in ee])
-            k = len(mine)
-            ea, eb = self._edges[self._eoff[a] + mine], self._edges[self._eoff[b] + other]
-            va = np.zeros((k, 3), dtype=np.int64)
-            va[:, :2] = ea
-            wa = np.zeros((k, 3))
-            wa[:, 0], wa[:, 1] = 1.0 - s, s
-            vb = np.zeros((k, 3), dtype=np.int64)
-            vb[:, :2] = eb
-            wb = np.zeros((k, 3))
-            wb[:, 0], wb[:, 1] = 1.0 - tt, tt
-            pa = X[voff[a] + ea[:, 0]] * wa[:, :1] + X[voff[a] + ea[:, 1]] * wa[:, 1:2]
-            pb = X[voff[b] + eb[:, 0]] * wb[:, :1] + X[voff[b] + eb[:, 1]] * wb[:, 1:2]
-            parts.append((a, va, wa, b, vb, wb, 0.5 * (pa + pb), np.concatenate([x[7] for x in ee]),
-                          np.concatenate([x[6] for x in ee]), np.full(k, _EE), mine, b))
+        ia, ib = np.nonzero(np.triu(meet, 1))
+        if len(ia):
+            (pa, qa, v, tri, wb, g, nrm), (a, b, mine, other, s, tt, ge, ne) = SK.all_pairs(
+                ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], X, np.concatenate(Xl), voff, R, pos,
+                bound, lo, hi, self._tris, self._toff, self._edges, self._eoff, self._adj, *self._treelists)
+            if len(v):
+                k = len(v)
+                va = np.zeros((k, 3), dtype=np.int64)
+                va[:, 0] = v
+                wa = np.zeros((k, 3))
+                wa[:, 0] = 1.0
+                parts.append((pa, va, wa, qa, self._tris[self._toff[qa] + tri], wb, X[voff[pa] + v], nrm, g,
+                              np.full(k, _VF), v, qa))
+            if len(mine):
+                k = len(mine)
+                ea, eb = self._edges[self._eoff[a] + mine], self._edges[self._eoff[b] + other]
+                va = np.zeros((k, 3), dtype=np.int64)
+                va[:, :2] = ea
+                wa = np.zeros((k, 3))
+                wa[:, 0], wa[:, 1] = 1.0 - s, s
+                vb = np.zeros((k, 3), dtype=np.int64)
+                vb[:, :2] = eb
+                wb = np.zeros((k, 3))
+                wb[:, 0], wb[:, 1] = 1.0 - tt, tt
+                pa_ = X[voff[a] + ea[:, 0]] * wa[:, :1] + X[voff[a] + ea[:, 1]] * wa[:, 1:2]
+                pb_ = X[voff[b] + eb[:, 0]] * wb[:, :1] + X[voff[b] + eb[:, 1]] * wb[:, 1:2]
+                parts.append((a, va, wa, b, vb, wb, 0.5 * (pa_ + pb_), ne, ge, np.full(k, _EE), mine, b))
         if not parts:
             return None
         cols = [np.concatenate([p[j] for p in parts]) for j in range(12)]
@@ -250,3 +227,17 @@ class ModalContacts:
                 phi = np.einsum("kj,kjcr->kcr", w[s], b.vertex_shapes(verts[s].reshape(-1)).reshape(len(s), 3, 3, -1))
                 dq += sign * np.einsum("ab,kbr,ka->r", R[i], phi, lam[s])
         return dq
+
+
+def _tree_lists(trees: list) -> tuple:
+    """The arrays of rest-surface trees as numba typed lists (P, lo, hi, nonempty, slot_tri, slot lo, slot hi)."""
+    from numba.typed import List
+
+    out = []
+    for get in (lambda t: t.lo, lambda t: t.hi, lambda t: t.nonempty, lambda t: t.slot_tri, lambda t: t._slo,
+                lambda t: t._shi):
+        lst = List()
+        for t in trees:
+            lst.append(np.ascontiguousarray(get(t)))
+        out.append(lst)
+    return (np.array([t.P for t in trees], dtype=np.int64),) + tuple(out)
