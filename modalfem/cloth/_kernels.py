@@ -6,11 +6,12 @@ vertex: ``kind[i]`` 0 free, 1 the normal component along the unit ``normal[i]`` 
 2 all three components prescribed (a handle); ``S_i`` is the projection on the free components
 (``I``, ``I - n n^T`` or 0).
 
-``pcg`` is the Baraff-Witkin modified (filtered) preconditioned conjugate gradient method, one fused
-pass over the matrix per iteration (product, projection and dot product together), one over the vectors
-(update, residual norm) and the additive multilevel preconditioner (restriction up the aggregation
-levels, their block-Jacobi and coarsest solves, prolongation down with block Jacobi and the projection,
-dot product); ``aggregate`` and ``level_matrices`` build its levels. The passes over vertices run in
+``pcg`` is the Baraff-Witkin modified (filtered) preconditioned conjugate gradient method, three parallel
+passes per iteration: over the matrix (product, projection and dot product together), over the vectors
+(update, residual norm, and the additive multilevel preconditioner's block Jacobi with the prolongation of
+the levels' correction, projection, dot product) and the new search direction; between the first two the
+levels' correction (restriction of the updated residual up the aggregation levels, their block-Jacobi and
+coarsest solves) runs serially; ``aggregate`` and ``level_matrices`` build its levels. The passes over vertices run in
 parallel (:mod:`modalfem._threads`) on chunks of ``CHUNK`` vertices or more whose bounds depend on the
 vertex count only; dot products add the chunks' partial sums in chunk order, so a solve gives the same
 bits on any number of threads.
@@ -295,24 +296,6 @@ def _product(indptr, indices, data, kind, normal, c, q):
 
 
 @numba.njit(cache=True, parallel=True)
-def _update(y, r, c, q, alpha):
-    """``y += alpha c``, ``r -= alpha q``; returns ``|r|^2`` (chunks in parallel, sums in chunk order)."""
-    n = len(y)
-    chunks = chunk_count(n, CHUNK)
-    part = np.zeros(chunks)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(n, chunks, ch)
-        rr = 0.0
-        for i in range(start, stop):
-            for a in range(3):
-                y[i, a] += alpha * c[i, a]
-                r[i, a] -= alpha * q[i, a]
-                rr += r[i, a] * r[i, a]
-        part[ch] = rr
-    return _sum(part)
-
-
-@numba.njit(cache=True, parallel=True)
 def _direction(c, z, beta):
     """``c = z + beta c`` (chunks of rows in parallel)."""
     n = len(c)
@@ -434,31 +417,81 @@ def _projector(kind, normal, i, S):
 @numba.njit(cache=True)
 def _precondition(P, r, z, kind, normal, agg, up, off, Dinv, Cinv, w, e):
     """``z = B r`` (block Jacobi plus the aggregation levels' corrections, additive); returns ``r . z``."""
-    n = len(r)
     L = len(off) - 1
     if L > 0:
-        nd = off[L - 1]
-        w.fill(0.0)
-        for i in range(n):  # restriction to level 0 (r is in range(S)), then up the levels
-            g = agg[i]
-            w[g, 0] += r[i, 0]
-            w[g, 1] += r[i, 1]
-            w[g, 2] += r[i, 2]
-        for g in range(nd):
-            w[up[g], 0] += w[g, 0]
-            w[up[g], 1] += w[g, 1]
-            w[up[g], 2] += w[g, 2]
-        nc3 = 3 * (off[L] - nd)
-        for u in range(nc3):
-            s = 0.0
-            for v in range(nc3):
-                s += Cinv[u, v] * w[nd + v // 3, v % 3]
-            e[nd + u // 3, u % 3] = COARSE_WEIGHT * s
-        for g in range(nd - 1, -1, -1):  # block Jacobi on each level, summed down the levels
-            for a in range(3):
-                e[g, a] = (COARSE_WEIGHT * (Dinv[g, a, 0] * w[g, 0] + Dinv[g, a, 1] * w[g, 1] + Dinv[g, a, 2] * w[g, 2])
-                           + e[up[g], a])
+        _levels(r, r, 0.0, agg, up, off, Dinv, Cinv, w, e)
     return _fine(P, r, z, kind, normal, agg, e, L > 0)
+
+
+@numba.njit(cache=True)
+def _levels(r, q, alpha, agg, up, off, Dinv, Cinv, w, e):
+    """The levels' correction ``e`` of the residual ``r - alpha q`` (formed here, the same bits as the update
+    ``r -= alpha q`` gives): restriction to level 0 (the residual is in range(S)), up the levels, the coarsest
+    solve and each level's block Jacobi, summed down the levels. Serial (a few thousand additions)."""
+    n = len(r)
+    L = len(off) - 1
+    nd = off[L - 1]
+    w.fill(0.0)
+    for i in range(n):
+        g = agg[i]
+        w[g, 0] += r[i, 0] - alpha * q[i, 0]
+        w[g, 1] += r[i, 1] - alpha * q[i, 1]
+        w[g, 2] += r[i, 2] - alpha * q[i, 2]
+    for g in range(nd):
+        w[up[g], 0] += w[g, 0]
+        w[up[g], 1] += w[g, 1]
+        w[up[g], 2] += w[g, 2]
+    nc3 = 3 * (off[L] - nd)
+    for u in range(nc3):
+        s = 0.0
+        for v in range(nc3):
+            s += Cinv[u, v] * w[nd + v // 3, v % 3]
+        e[nd + u // 3, u % 3] = COARSE_WEIGHT * s
+    for g in range(nd - 1, -1, -1):  # block Jacobi on each level, summed down the levels
+        for a in range(3):
+            e[g, a] = (COARSE_WEIGHT * (Dinv[g, a, 0] * w[g, 0] + Dinv[g, a, 1] * w[g, 1] + Dinv[g, a, 2] * w[g, 2])
+                       + e[up[g], a])
+
+
+@numba.njit(cache=True, parallel=True)
+def _update_fine(y, r, c, q, alpha, P, z, kind, normal, agg, e, levels):
+    """One pass of a CG iteration: ``y += alpha c``, ``r -= alpha q`` and the preconditioned residual ``z``
+    (``_fine``, with the levels' correction ``e`` of the updated ``r``); returns ``(|r|^2, r . z)`` (chunks in
+    parallel, partial sums in chunk order; the same bits as ``_update`` then ``_fine``)."""
+    n = len(r)
+    chunks = chunk_count(n, CHUNK)
+    part_rr = np.zeros(chunks)
+    part_rz = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        rr = 0.0
+        rz = 0.0
+        for i in range(start, stop):
+            for a in range(3):
+                y[i, a] += alpha * c[i, a]
+                r[i, a] -= alpha * q[i, a]
+                rr += r[i, a] * r[i, a]
+            rz = _fine_row(P, r, z, kind, normal, agg, e, levels, i, rz)
+        part_rr[ch] = rr
+        part_rz[ch] = rz
+    return _sum(part_rr), _sum(part_rz)
+
+
+@numba.njit(cache=True, inline="always")
+def _fine_row(P, r, z, kind, normal, agg, e, levels, i, rz):
+    """Row ``i`` of ``_fine``; returns ``rz`` plus its terms of ``r . z``."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    if levels:
+        g = agg[i]
+        s0, s1, s2 = _project(kind, normal, i, e[g, 0], e[g, 1], e[g, 2])
+    for a in range(3):
+        t = P[i, a, 0] * r[i, 0] + P[i, a, 1] * r[i, 1] + P[i, a, 2] * r[i, 2]
+        t += s0 if a == 0 else (s1 if a == 1 else s2)
+        z[i, a] = t
+        rz += r[i, a] * t
+    return rz
 
 
 @numba.njit(cache=True, parallel=True)
@@ -472,17 +505,7 @@ def _fine(P, r, z, kind, normal, agg, e, levels):
         start, stop = chunk_bounds(n, chunks, ch)
         rz = 0.0
         for i in range(start, stop):  # block Jacobi plus the projected prolongation
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
-            if levels:
-                g = agg[i]
-                s0, s1, s2 = _project(kind, normal, i, e[g, 0], e[g, 1], e[g, 2])
-            for a in range(3):
-                t = P[i, a, 0] * r[i, 0] + P[i, a, 1] * r[i, 1] + P[i, a, 2] * r[i, 2]
-                t += s0 if a == 0 else (s1 if a == 1 else s2)
-                z[i, a] = t
-                rz += r[i, a] * t
+            rz = _fine_row(P, r, z, kind, normal, agg, e, levels, i, rz)
         part[ch] = rz
     return _sum(part)
 
@@ -542,15 +565,21 @@ def pcg(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, agg, up,
         return 0, rn / nb
     P = _preconditioner(data, diag, kind, normal)
     rz = _precondition(P, r, c, kind, normal, agg, up, off, Dinv, Cinv, w, e)
+    levels = len(off) > 1
+    # three parallel passes per iteration: q = S A c (c is in range(S)) and c . q; then (after the levels'
+    # correction of r - alpha q, serial) y += alpha c, r -= alpha q, |r|^2 with z = B r and r . z in one pass;
+    # c = z + beta c. The arithmetic of the four-pass order (product, update, preconditioner, direction)
     for k in range(1, maxiter + 1):
-        cq = _product(indptr, indices, data, kind, normal, c, q)  # q = S A c (c is in range(S)), c . q
+        cq = _product(indptr, indices, data, kind, normal, c, q)
         if not cq > 0.0:
             return -1, rn / nb
         alpha = rz / cq
-        rn = np.sqrt(_update(y, r, c, q, alpha))  # y += alpha c, r -= alpha q, |r|^2
+        if levels:
+            _levels(r, q, alpha, agg, up, off, Dinv, Cinv, w, e)
+        rr, rz_new = _update_fine(y, r, c, q, alpha, P, z, kind, normal, agg, e, levels)
+        rn = np.sqrt(rr)
         if rn <= rtol * nb:
             return k, rn / nb
-        rz_new = _precondition(P, r, z, kind, normal, agg, up, off, Dinv, Cinv, w, e)
         beta = rz_new / rz
         rz = rz_new
         _direction(c, z, beta)
