@@ -259,6 +259,9 @@ def kernel_times(n: int, repeats: int) -> dict:
 
     cases = {
         "cloth: implicit-step CG solve (rtol 1e-4)": pcg,
+        "cloth: stiffness assembly (element blocks + per-block gather)": lambda: sol._stiffness_data(x),
+        "cloth: multilevel preconditioner setup (level matrices)": lambda: lv.inverses(
+            pat.indptr, pat.indices, data, kind, normal),
         "cloth: candidate pairs (BVH traversal + pair expansion)": lambda: system.candidates(
             x, x1, margin=1e-3, self_collision=True, culling=False),
         "cloth: CCD of the candidates": lambda: (
