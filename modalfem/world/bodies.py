@@ -108,13 +108,15 @@ class Cloth:
         name: the body's name in the world.
         x0: start positions (n, 3) [m] (default: the rest shape).
         v0: start velocities (n, 3) [m/s] (default 0).
-        smoothing: post-collision smoothing time [s] (``ClothScene``), >= 0.
+        smoothing: post-collision smoothing time s [s] >= 0 (``ClothScene`` stage (d)): the collision pipeline's
+            velocity change is smoothed over the sheet by ``(M + dt s K) dv_s = M dv`` and checked again, so
+            impulses on single vertices do not strain the sheet (0: off).
         linear_solver: ``"cg"`` or ``"splu"``.
     """
 
     kind = "cloth"
 
-    def __init__(self, model, *, name: str, x0=None, v0=None, smoothing: float = 0.0,
+    def __init__(self, model, *, name: str, x0=None, v0=None, smoothing: float = 0.02,
                  linear_solver: str = "cg") -> None:
         from modalfem.cloth.model import ClothModel
 
@@ -126,6 +128,8 @@ class Cloth:
         self.x0 = None if x0 is None else _rows(f"{name}: x0", x0, n)
         self.v0 = None if v0 is None else _rows(f"{name}: v0", v0, n)
         self.smoothing = float(smoothing)
+        if not (np.isfinite(self.smoothing) and self.smoothing >= 0.0):
+            raise InputError(f"{name}: smoothing must be finite and >= 0 [s], got {smoothing!r}")
         self.linear_solver = linear_solver
 
 

@@ -1034,6 +1034,7 @@ class World:
         if stats.unresolved:
             raise SimulationError(f"the collision pipeline left {stats.unresolved} colliding pairs at t = {t0:.4g} s "
                                   f"(cloth {', '.join(d['members'])})")
+        v_new, stats = self._smoothed(x0, v, v_new, stats, dt, t0)
         dv = v_new - v
         ctx.report.contacts["cloth"] = int(stats.touched.sum()) if stats.touched is not None else 0
         for name in d["members"]:
@@ -1045,6 +1046,32 @@ class World:
                 raise SimulationError(f"cloth {name!r}: positions became NaN/inf at t = {t0 + dt:.4g} s")
         if d["motions"]:
             self._reaction(ctx, x0 + dt * v_new, dv)
+
+    def _smoothed(self, x0: np.ndarray, v: np.ndarray, v_col: np.ndarray, stats, dt: float, t0: float):
+        """The pipeline's velocity change ``v_col - v`` of each cloth smoothed over its sheet, ``(M + dt s K) dv_s =
+        M dv`` (its ``smoothing`` s [s], as ``ClothScene`` stage (d)), and the smoothed velocities put through the
+        pipeline again; ``(velocities, stats)`` of that re-check when it resolved everything, else ``(v_col,
+        stats)`` unchanged. The pipeline's impulses act on single vertices: a vertex stopped by a sheet landing
+        on it moves dt |dv| (~1 cm at 1 m/s and dt = 10 ms) against its neighbours, and that strain was stored
+        as elastic energy (the second sheet of cloth-pile landing: +20 % of the scene's energy in one step, of
+        which +0.042 J elastic in the sheet it hit)."""
+        d = self._deform
+        if stats.touched is None or not stats.touched.any():
+            return v_col, stats
+        dv = v_col - v
+        smooth = dv.copy()
+        done = False
+        for name in d["members"]:
+            s = self.by_name[name].smoothing
+            o, k = d["offsets"][name]
+            if s > 0.0 and np.any(dv[o:o + k]):
+                sc = self._cloth[name]["scene"]  # its solver holds the stiffness of this step's implicit solve
+                smooth[o:o + k] = sc.solver.smooth(dv[o:o + k], dt, strength=s, fixed=sc.model.handle_indices)
+                done = True
+        if not done:
+            return v_col, stats
+        v_s, again = d["pipeline"].resolve(x0, v + smooth, d["masses"], dt, t=t0)
+        return (v_s, again) if not again.unresolved else (v_col, stats)
 
     def _reaction(self, ctx, x1: np.ndarray, dv: np.ndarray) -> None:
         """Give the solid bodies back the momentum the pipeline gave the cloth vertices next to them: equal and
