@@ -162,10 +162,12 @@ def test_example_runs_and_its_summary_holds(name, tmp_path, monkeypatch):
         for e in strikes:
             budget += 0.5 * float(np.dot(e["impulse"], e["impulse"])) * _mobility_bound(models[e["body"]])
         if cloth:
-            # the cloth collision pipeline is not energy-conserving at impacts: its position corrections
-            # store elastic energy for a step or two (seen up to +11 % of the start in one step of
-            # cloth-pile, +3 % at its frames). Over the run energy must go (damping, inelastic contact),
-            # and no frame may hold a quarter more than the start: a blow-up check, not a conservation test
+            # cloth steps are not yet energy-conserving at impacts: the collision pipeline's impulses on single
+            # vertices store their shear as elastic energy (cloth-pile's second landing: +20 % in one step before
+            # the World smoothed them over the sheet, +3.5 % since) and the implicit step adds some as the upright
+            # sheet's edge lands on the ground (+5 % in one step; not traced inside it yet). Over the run energy
+            # must go (damping, inelastic contact), and no frame may hold a quarter more than the start: a
+            # blow-up check, not a conservation test
             assert total.max() <= 1.25 * e0 + budget
             assert total[-1] < e0 + budget
         else:
