@@ -47,7 +47,9 @@ the last state seen.
 
 After the step, vertices left inside an obstacle (impact times are predicted without the rotation and
 the modes) are pushed out by translating the body along the obstacle normal, so no vertex ends
-inside (e.g. below the ground); the potential energy this lift adds is taken from the kinetic energy.
+inside (e.g. below the ground); the potential energy this lift adds is taken from the kinetic energy, or, when
+that is too small (a body at rest whose fast modes swung vertices into the support), the vibration is shrunk
+instead (``_contact_step_kernels.push_and_pay``).
 
 Fused step: the commonest contact step, a body resting or sliding on static obstacles in one sustained sub-step
 (rigid response, gravity-like loads, no impact predicted within the step, no friction stop inside it, no energy
