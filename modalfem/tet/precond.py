@@ -14,6 +14,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from modalfem.errors import InputError
+
 __all__ = ["Preconditioner", "TwoLevel"]
 
 
@@ -29,6 +31,9 @@ class Preconditioner:
             once, a vertex's three together), and P is in :class:`TwoLevel`'s layout (row ``3v + k``: the
             translation ``k`` and the two rotations other than ``k`` of the vertex's group, in that order;
             what the compiled CG's restriction reads).
+
+    Raises:
+        InputError: ``P`` without ``Ac_inv`` or ``groups``.
     """
 
     def __init__(self, inv: np.ndarray, P: sp.csr_matrix | None = None, Ac_inv: np.ndarray | None = None,
@@ -40,6 +45,8 @@ class Preconditioner:
             empty_i = np.zeros(1, dtype=np.int64)
             self._arrays = (self.inv, empty_i, empty_i, np.zeros(0), np.zeros((0, 0)), empty_i, empty_i)
         else:
+            if groups is None or Ac_inv is None:
+                raise InputError("a coarse part needs its inverse coarse matrix and the groups of TwoLevel's P")
             self._arrays = (self.inv, P.indptr, _kernels.unsigned(P.indices), P.data, np.ascontiguousarray(Ac_inv),
                             np.asarray(groups[0], dtype=np.int64), _kernels.unsigned(np.asarray(groups[1], dtype=np.int64)))
         self.P, self.Ac_inv = P, Ac_inv

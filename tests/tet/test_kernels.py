@@ -196,3 +196,12 @@ def test_compiled_preconditioner_is_the_two_level_operator(bar):
         outs.append(z)
     for z in outs[1:]:
         np.testing.assert_array_equal(z, outs[0])
+
+
+def test_a_coarse_part_without_its_groups_is_refused(bar):
+    from modalfem.errors import InputError
+    from modalfem.tet.precond import Preconditioner
+
+    _, _, _, _, prec = bar
+    with pytest.raises(InputError, match="groups of TwoLevel's P"):
+        Preconditioner(prec.inv, prec.P, prec.Ac_inv)
