@@ -11,7 +11,8 @@ import numpy as np
 
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["dihedral", "membrane_energy", "membrane_gradient", "membrane_hessian", "scatter_outer", "scatter_rows"]
+__all__ = ["dihedral", "gather_rows", "membrane_energy", "membrane_gradient", "membrane_hessian",
+           "membrane_hessian_and_gradient", "scatter_outer", "scatter_rows"]
 
 _SQRT_EPS = 1e-12
 
@@ -97,9 +98,10 @@ def membrane_hessian(x, tri, G, area, mu, lam, project, out, maps):
     scatter = maps.shape[0] > 0
     blocks = np.empty((m, 9, 9)) if scatter else out
     chunks = chunk_count(m, 256)
+    none = np.empty((0, 3, 3))
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(m, chunks, ch)
-        _membrane_blocks(x, tri, G, area, mu, lam, project, blocks, start, stop)
+        _membrane_blocks(x, tri, G, area, mu, lam, project, blocks, start, stop, none)
     if scatter:
         for e in range(m):
             for a in range(3):
@@ -110,9 +112,46 @@ def membrane_hessian(x, tri, G, area, mu, lam, project, out, maps):
                             out[p, i, k] += blocks[e, 3 * a + i, 3 * b + k]
 
 
+@numba.njit(cache=True, parallel=True)
+def membrane_hessian_and_gradient(x, tri, G, area, mu, lam, project, blocks, grads):
+    """Per-triangle 9x9 Hessians [N/m] into ``blocks`` (m, 9, 9) and each triangle's gradient terms [N] into
+    ``grads`` (m, 3, 3) (``grads[e, a]``: the term of its corner ``a``, as ``membrane_gradient`` adds it), in
+    one pass over the triangles (parallel chunks)."""
+    m = tri.shape[0]
+    chunks = chunk_count(m, 256)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        _membrane_blocks(x, tri, G, area, mu, lam, project, blocks, start, stop, grads)
+
+
+@numba.njit(cache=True, parallel=True)
+def gather_rows(ptr, src, values, w, k, out):
+    """``out[v] = sum_q w[src[q] // k] * values[src[q]]`` over ``q`` in ``ptr[v]:ptr[v+1]`` for element vertex
+    vectors ``values`` (m k, 3) and element weights ``w`` (m,): a serial ``out[verts[e, a]] += w[e] *
+    values[e, a]`` from zeros in element order, the same bits, with the vertices in parallel chunks."""
+    n = len(ptr) - 1
+    chunks = chunk_count(n, 256)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for v in range(start, stop):
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            for q in range(ptr[v], ptr[v + 1]):
+                s = src[q]
+                we = w[s // k]
+                a0 += we * values[s, 0]
+                a1 += we * values[s, 1]
+                a2 += we * values[s, 2]
+            out[v, 0] = a0
+            out[v, 1] = a1
+            out[v, 2] = a2
+
+
 @numba.njit(cache=True)
-def _membrane_blocks(x, tri, G, area, mu, lam, project, out, start, stop):
-    """The 9x9 Hessians of triangles ``start..stop-1`` into ``out`` (m, 9, 9)."""
+def _membrane_blocks(x, tri, G, area, mu, lam, project, out, start, stop, grads):
+    """The 9x9 Hessians of triangles ``start..stop-1`` into ``out`` (m, 9, 9), and, if ``grads`` is not
+    empty, their gradient terms into ``grads`` (m, 3, 3)."""
     F = np.empty((3, 2))
     R = np.empty((3, 2))
     Sinv = np.empty((2, 2))
@@ -126,6 +165,13 @@ def _membrane_blocks(x, tri, G, area, mu, lam, project, out, start, stop):
     for e in range(start, stop):
         _deformation(x, tri, G, e, F)
         tr_s = _polar(F, R, Sinv)
+        if grads.shape[0] > 0:  # membrane_gradient's terms
+            t = lam * (tr_s - 2.0)
+            for i in range(3):
+                p0 = area[e] * (2.0 * mu * (F[i, 0] - R[i, 0]) + t * R[i, 0])
+                p1 = area[e] * (2.0 * mu * (F[i, 1] - R[i, 1]) + t * R[i, 1])
+                for a in range(3):
+                    grads[e, a, i] = p0 * G[e, a, 0] + p1 * G[e, a, 1]
         c = lam * (tr_s - 2.0) - 2.0 * mu
         for i in range(3):
             r[2 * i] = R[i, 0]

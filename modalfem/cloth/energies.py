@@ -197,18 +197,28 @@ class Bending:
         ek.scatter_rows(out, h, g, self._coef * self._wrapped(theta))
         return out
 
+    def angle_factors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the gradient and the Gauss-Newton Hessian are made of, from one evaluation of the angles at
+        ``x`` (n, 3) [m]: the gradient's hinge weights ``coef (theta - theta0)`` (h,) [J] (dW/dx = sum of
+        weight x angle gradient), the Gauss-Newton weights ``coef`` (h,) [J] and the angle gradients (h, 4, 3)
+        [rad/m]."""
+        h = self.mesh.hinges.vertices
+        if not len(h):
+            return np.zeros(0), self._coef, np.zeros((0, 4, 3))
+        theta, g = dihedral_angles(x, h)
+        return self._coef * self._wrapped(theta), self._coef, g
+
     def gradient_and_factors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``gradient(x)`` and ``gauss_newton_factors(x)`` from one evaluation of the angles: (dW/dx (n, 3)
         [N], weights (h,) [J], angle gradients (h, 12) [rad/m])."""
         h = self.mesh.hinges.vertices
         out = np.zeros((len(x), 3))
-        if not len(h):
-            return out, self._coef, np.zeros((0, 12))
-        from modalfem.cloth import _energy_kernels as ek
+        wg, coef, g = self.angle_factors(x)
+        if len(h):
+            from modalfem.cloth import _energy_kernels as ek
 
-        theta, g = dihedral_angles(x, h)
-        ek.scatter_rows(out, h, g, self._coef * self._wrapped(theta))
-        return out, self._coef, g.reshape(len(h), 12)
+            ek.scatter_rows(out, h, g, wg)
+        return out, coef, g.reshape(len(h), 12)
 
     def gauss_newton_factors(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The projected Hessian of each hinge as ``w g g^T``: weights ``w`` (h,) [J] and the angle

@@ -95,6 +95,13 @@ class _Pattern:
         #: the element sub-blocks each block gathers (``_kernels.gather_stiffness``), in element order: for the
         #: triangles (stencil 0, 9x9 blocks) ``(ptr (nnzb + 1,), flat offsets)``, for the hinges (stencil 1,
         #: Gauss-Newton factors ``g`` (h, 12)) ``(ptr, hinge, offsets (., 2) of g_a and g_b)``
+        #: per stencil, the element corners each vertex gathers (``_energy_kernels.gather_rows``): ``(ptr (n + 1,),
+        #: ids k e + a)`` in element order
+        self.rows = []
+        for v in stencils:
+            flat = np.asarray(v, dtype=np.int64).reshape(-1)
+            order = np.argsort(flat, kind="stable").astype(np.int64)
+            self.rows.append((np.searchsorted(flat[order], np.arange(n + 1)).astype(np.int64), order))
         self.gathers = []
         for s, mp in enumerate(self.maps):
             k = mp.shape[1] if mp.ndim == 3 else 0
@@ -281,6 +288,8 @@ class ImplicitEuler:
         self._m3 = np.repeat(model.masses, 3)
         self._Kdata = None
         self._mblocks = None
+        self._mgrads = None
+        self._m_ones = np.ones(len(mesh.triangles))
         self._last_dv = None
         self._last_smooth = None  # the last smoothed change: the next smoothing solve's start
         #: CG iterations of the last ``smooth`` call
@@ -300,7 +309,9 @@ class ImplicitEuler:
         m, pat = self.model, self._pattern
         if self._mblocks is None:
             self._mblocks = np.empty((len(pat.maps[0]), 9, 9))
-        _energy_kernels.membrane_hessian(*m.membrane._args(x), True, self._mblocks, np.zeros((0, 3, 3), np.int64))
+            self._mgrads = np.empty((len(pat.maps[0]), 3, 3))
+        # the membrane gradient's terms in the same pass (``_membrane_gradient``)
+        _energy_kernels.membrane_hessian_and_gradient(*m.membrane._args(x), True, self._mblocks, self._mgrads)
         if not len(pat.maps[1]):
             w, g = np.zeros(0), np.zeros((0, 12))
         else:
@@ -310,6 +321,18 @@ class ImplicitEuler:
                                   np.ascontiguousarray(w, dtype=float), np.ascontiguousarray(g, dtype=float), data)
         self._Kdata = data
         return data
+
+    def _gather_rows(self, stencil: int, values: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """(n, 3): each vertex's sum of ``w[e] * values[e, a]`` over the corners ``a`` it is of the stencil's
+        elements ``e`` (values (m, k, 3)), in element order (a serial scatter's bits), vertices in parallel."""
+        from modalfem.cloth import _energy_kernels
+
+        ptr, src = self._pattern.rows[stencil]
+        out = np.empty((self._pattern.n, 3))
+        k = values.shape[1]
+        _energy_kernels.gather_rows(ptr, src, np.ascontiguousarray(values.reshape(-1, 3), dtype=float),
+                                    np.ascontiguousarray(w, dtype=float), k, out)
+        return out
 
     def _scale_plus_diagonal(self, K: np.ndarray, scale: float, d: np.ndarray) -> np.ndarray:
         """``scale K + diag(d)`` (block data; ``d`` (3n,) node-major)."""
@@ -383,9 +406,11 @@ class ImplicitEuler:
         mdl, pat = self.model, self._pattern
         t0 = time.perf_counter()
         v = np.asarray(v, dtype=float)
-        grad_b, w_b, g_b = mdl.bending.gradient_and_factors(x)  # one evaluation of the dihedral angles
-        Kd = self._stiffness_data(x, (w_b, g_b))
-        f = forces - mdl.membrane.gradient(x) - grad_b
+        wg_b, w_b, g_b = mdl.bending.angle_factors(x)  # one evaluation of the dihedral angles
+        Kd = self._stiffness_data(x, (w_b, g_b.reshape(-1, 12)))  # also the membrane gradient's terms
+        grad_m = self._gather_rows(0, self._mgrads, self._m_ones)
+        grad_b = self._gather_rows(1, g_b, wg_b) if len(wg_b) else np.zeros_like(grad_m)
+        f = forces - grad_m - grad_b
         Kv = self._matvec(Kd, v)
         a, beta = mdl.mass_damping, mdl.stiffness_damping
         m = mdl.masses[:, None]

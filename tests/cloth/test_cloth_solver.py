@@ -166,7 +166,7 @@ def test_stiffness_pattern_holds_the_energies_hessians_and_the_diagonal_blocks()
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_gathered_stiffness_is_the_serial_scatter_bit_for_bit(threads):
+def test_gathered_stiffness_and_gradients_are_the_serial_scatter_bit_for_bit(threads):
     # the parallel per-block gather adds the same element sub-blocks in the same order (triangles, then
     # hinges, each in element order) as a serial scatter over the elements: the same bits on any thread count
     from modalfem._threads import thread_count
@@ -182,6 +182,11 @@ def test_gathered_stiffness_is_the_serial_scatter_bit_for_bit(threads):
         K = s._stiffness_data(x)
         A = s._scale_plus_diagonal(K, 0.37, s._m3 * 1.5)
     assert np.abs(ref).max() > 0 and np.array_equal(K, ref)
+    with thread_count(threads):  # the gradients from the same pass, gathered per vertex: the serial scatter's bits
+        grad_m = s._gather_rows(0, s._mgrads, s._m_ones)
+        wg, _, gb = model.bending.angle_factors(x)
+        grad_b = s._gather_rows(1, gb, wg)
+    assert np.array_equal(grad_m, model.membrane.gradient(x)) and np.array_equal(grad_b, model.bending.gradient(x))
     ref_a = ref * 0.37
     pat.add_diagonal(ref_a, s._m3 * 1.5)
     assert np.array_equal(A, ref_a)
