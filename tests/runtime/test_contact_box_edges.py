@@ -60,3 +60,28 @@ def test_a_body_across_box_edges_takes_no_split_steps_and_never_gains_energy(sma
     assert gains.max() <= tol, f"energy rose by {gains.max():.3g} J in one step"
     assert lowest.min() >= -1e-12, f"a vertex ended {-lowest.min():.3g} m inside the box"
     assert abs(st.position[0]) < 0.01 and st.position[2] > 0.0  # still lying across the box
+
+
+def test_the_push_out_of_a_vibrating_body_at_rest_shrinks_the_vibration_instead_of_adding_energy(small_body):
+    """A body at rest on the ground whose mode-0 deformation puts a vertex 1 um below it: lifting the body by
+    ~1 um costs m g 1e-6 (~8e-5 J) that no motion pays (it is at rest); the push-out takes it from the vibration
+    (which holds more), ends with no vertex inside and no energy gained (before: the lift was unpaid)."""
+    solver = rt.ModalSolver(small_body, effects=[rt.Gravity((0, 0, -G)), rt.Obstacles([rt.Ground(0.0)])])
+    st = solver.state()
+    st.position[2] -= small_body.positions(st, precise=True)[:, 2].min()  # the rest shape touching the ground
+    drop = small_body.positions(st, precise=True)[:, 2]
+    st.q[0] = 1.0
+    dz = small_body.positions(st, precise=True)[:, 2] - drop  # mode 0's vertical displacement per unit q
+    st.q[0] = -1e-6 / dz.max() if dz.max() > -dz.min() else 1e-6 / -dz.min()  # ~1 um under
+    depth = -small_body.positions(st, precise=True)[:, 2].min()
+    assert 0.5e-6 < depth < 2e-6
+    lift_cost = small_body.mass * G * depth
+    vibration = small_body.modal_energy(st)
+    assert vibration > lift_cost  # the vibration can pay; the (zero) motion cannot
+    e0 = solver.energy(st) + small_body.mass * G * st.position[2]
+    q0 = abs(st.q[0])
+    C.push_out(solver, st, solver.collide(st, 1e-3), accel=np.array([0.0, 0.0, -G]))
+    e1 = solver.energy(st) + small_body.mass * G * st.position[2]
+    assert small_body.positions(st, precise=True)[:, 2].min() >= 0.0
+    assert e1 <= e0 + 1e-12 * e0, (e1 - e0, lift_cost)
+    assert abs(st.q[0]) < q0  # the vibration shrank (it paid for the lift)
