@@ -7,7 +7,8 @@ complete binary tree (leaves ``P..2P-1``), per-node boxes ``lo``/``hi`` (2P, 3) 
 slots ``slot_tri`` (P, L) (-1: empty) and their boxes ``slo``/``shi`` (3, P, L) [m].
 
 numba's disk cache does not notice edits of the other modules a kernel calls: after changing
-:mod:`modalfem.collision._contour_kernels`, delete ``modalfem/collision/__pycache__``.
+:mod:`modalfem.collision._contour_kernels` or :mod:`modalfem.collision._pair_kernels`, delete
+``modalfem/collision/__pycache__``.
 """
 
 from __future__ import annotations
@@ -19,9 +20,10 @@ import numpy as np
 
 from modalfem._threads import apply as _apply_threads
 from modalfem.collision._contour_kernels import contour_ok
+from modalfem.collision._pair_kernels import _concat4, _primitive_range
 from modalfem._threads import MAX_CHUNKS, chunk_bounds, chunk_count
 
-__all__ = ["query", "refit", "refit_boxes", "refit_triangles", "traverse"]
+__all__ = ["query", "refit", "refit_boxes", "refit_triangles", "traverse", "traverse_primitives"]
 
 _HALF_PI = 0.5 * math.pi - 1e-9
 
@@ -252,6 +254,38 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
                                           cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static,
                                           check_contour, dirty_nodes, dirty_tris)
     return _concat(bufs), tests.sum()
+
+
+@numba.njit(cache=True, parallel=True)
+def traverse_primitives(culling: bool, P: int, lo, hi, ne, slot, slo, shi, connected, cone_axis, cone_angle, adj,
+                        bnd_start, bnd_edge, bnd_id, limit: int, x0, x1, static: bool, check_contour: bool,
+                        tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi):
+    """:func:`traverse` of a tree against itself (no dirty filter) fused with the expansion of each chunk's
+    triangle pairs into point-triangle and edge-edge pairs (:func:`modalfem.collision._pair_kernels
+    ._primitive_range`, with the triangle and edge boxes ``flo``..``ehi`` of
+    :func:`modalfem.collision._pair_kernels.primitive_boxes`) while they are in cache: the triangle pairs are
+    never gathered into one list. The same pairs in the same order as :func:`traverse` followed by
+    :func:`modalfem.collision._pair_kernels.primitive_pairs`, on any number of threads.
+
+    Returns:
+        ``(vf, ee, tests)``: (p, 4) and (q, 4) vertex quadruples and the leaf tests.
+    """
+    none = np.zeros(0, dtype=np.bool_)
+    tasks = _walk(1, 1, SPLIT_DEPTH, True, culling, P, lo, hi, ne, P, lo, hi, ne, connected, cone_axis, cone_angle,
+                  adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static, check_contour, none)
+    T = len(tasks)
+    chunks = max(1, min(MAX_CHUNKS, -(-T // TASK_CHUNK)))
+    vbufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
+    ebufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
+    tests = np.zeros(chunks, dtype=np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(T, chunks, ch)
+        tp, tests[ch] = _walk_tasks(tasks, start, stop, True, culling, P, lo, hi, ne, slot, slo, shi, P, lo, hi, ne,
+                                    slot, slo, shi, connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id,
+                                    limit, x0, x1, static, check_contour, none, none)
+        vbufs[ch], ebufs[ch] = _primitive_range(tp, 0, len(tp), tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
+                                                ehi, none)
+    return _concat4(vbufs), _concat4(ebufs), tests.sum()
 
 
 @numba.njit(cache=True)

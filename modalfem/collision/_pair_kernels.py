@@ -10,7 +10,7 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["drop_indexed", "drop_pairs", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
+__all__ = ["drop_indexed", "drop_pairs", "primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
 
 _apply_threads()
 
@@ -76,6 +76,30 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
         vbufs[ch], ebufs[ch] = _primitive_range(tp, start, stop, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
                                                 ehi, dirty)
     return _concat4(vbufs), _concat4(ebufs)
+
+
+@numba.njit(cache=True, parallel=True)
+def primitive_boxes(tris: np.ndarray, edges: np.ndarray, vlo: np.ndarray, vhi: np.ndarray):
+    """Boxes of every triangle (F, 3) and edge (E, 3) [m]: the union of their vertices' boxes ``vlo``/``vhi``
+    (N, 3) [m] (for :func:`_primitive_range` called by a fused traversal); chunks in parallel."""
+    F, E = len(tris), len(edges)
+    flo, fhi = np.empty((F, 3)), np.empty((F, 3))
+    elo, ehi = np.empty((E, 3)), np.empty((E, 3))
+    chunks = chunk_count(F, PAIR_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(F, chunks, ch)
+        for f in range(start, stop):
+            for c in range(3):
+                flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
+                fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
+    echunks = chunk_count(E, PAIR_CHUNK)
+    for ch in numba.prange(echunks):
+        start, stop = chunk_bounds(E, echunks, ch)
+        for e in range(start, stop):
+            for c in range(3):
+                elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
+                ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
+    return flo, fhi, elo, ehi
 
 
 @numba.njit(cache=True, parallel=True)

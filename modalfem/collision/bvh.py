@@ -252,6 +252,25 @@ class BroadPhaseBVH:
         """
         return self._traverse(self, culling, dirty)
 
+    def self_primitive_pairs(self, expand: tuple, *, culling: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
+        """:meth:`self_pairs` (no dirty filter) with each parallel chunk's triangle pairs expanded at once into
+        primitive pairs (:func:`modalfem.collision._bvh_kernels.traverse_primitives`).
+
+        Args:
+            expand: ``(tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi)``, the arguments of
+                :func:`modalfem.collision._pair_kernels.primitive_pairs` after the triangle pairs, plus the
+                triangle and edge boxes (:func:`modalfem.collision._pair_kernels.primitive_boxes`).
+            culling: as in :meth:`self_pairs`.
+
+        Returns:
+            ``(vf, ee, tests)``: (p, 4) point-triangle and (q, 4) edge-edge vertex quadruples, leaf tests.
+        """
+        vf, ee, tests = _bvh_kernels.traverse_primitives(
+            bool(culling), self.P, self.lo, self.hi, self.nonempty, self.slot_tri, self._slo, self._shi, self.connected,
+            self.cone_axis, self.cone_angle, self._adj, self._bnd_start, self._bnd_edge, self._bnd_id,
+            int(self.contour_limit), self._x0, self._x1, self._x1 is self._x0, bool(self.boundary_check), *expand)
+        return vf, ee, int(tests)
+
     def cross_pairs(self, other: BroadPhaseBVH, *, dirty: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """Pairs (triangle of this tree, triangle of ``other``) whose boxes overlap (both refitted).
 

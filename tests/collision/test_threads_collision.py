@@ -99,3 +99,24 @@ def test_close_frames_are_the_masked_contact_frames_on_one_and_two_threads():
                 got = _distance_kernels.close_frames(kind == "vf", x0, q, x0, h)
             for a, b in zip(got, (q[close], W[close], N[close], D[close])):
                 np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("culling", [False, True])
+def test_fused_traversal_expansion_equals_the_gathered_triangle_pairs_expanded(culling):
+    """``System.candidates`` expands each traversal chunk's triangle pairs inside the traversal: the pairs and
+    their order are those of the whole triangle-pair list expanded after the traversal, on 1 and 2 threads."""
+    pts, tri, x0, x1 = _sheets(9)
+    system = System(tri, ())
+    system.build_cloth_bvh(pts)
+    margin = 4e-3
+    system.cloth_bvh.refit(x0, x1, margin=margin)
+    tp, tests = system.cloth_bvh.self_pairs(culling=culling)
+    vlo, vhi = system.vertex_boxes(x0, x1, margin)
+    vf, ee = system._primitive_pairs(tp, vlo, vhi)
+    assert len(vf) > 2000 and len(ee) > 2000
+    for t in (1, 2):
+        with thread_count(t):
+            c = system.candidates(x0, x1, margin=margin, self_collision=True, culling=culling)
+        np.testing.assert_array_equal(c.vf, vf)
+        np.testing.assert_array_equal(c.ee, ee)
+        assert c.tests == tests
