@@ -10,7 +10,8 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["drop_indexed", "drop_pairs", "primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
+__all__ = ["drop_indexed", "drop_pairs", "primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs",
+           "vertex_index"]
 
 _apply_threads()
 

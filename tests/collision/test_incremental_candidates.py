@@ -110,8 +110,8 @@ def test_ccd_of_store_segments_equals_the_ccd_of_the_selected_pairs(indexed, mon
         want = []
         for kind in ("vf", "ee"):
             q = store.pairs(kind, only)
-            idx, toi = _ccd_kernels.ccd_candidates(kind == "vf", x0, X1, q, invm > 0, roots, eta, _stages.PIPELINE_DEPTH,
-                                                   MAX_INTERVALS)
+            idx, toi = _ccd_kernels.ccd_candidates(kind == "vf", x0, X1, q, invm > 0, roots, eta,
+                                                   _stages.PIPELINE_DEPTH, MAX_INTERVALS)
             if len(idx):
                 want.append((kind, q[idx], toi))
         total += sum(len(w[1]) for w in want)
