@@ -2,14 +2,18 @@
 
 Each contact says "the point ``sum_j w_j x_j`` of the tet body stays at least ``dhat`` [m] on the free side of
 the plane through ``p`` with normal ``n``": energy ``0.5 k (dhat - g)^2`` for ``g = (sum_j w_j x_j - p) . n <
-dhat``, zero beyond (the World uses one vertex per contact, ``w = (1, 0, 0)``). The planes are the obstacles'
+dhat``, zero beyond (the World uses one vertex per contact against obstacles and modal faces, a tet face's point
+(three vertices) against a modal vertex, a tet edge's point (two) against a modal edge). The planes are the obstacles'
 surfaces at the step end, linearised at the closest points found at the step start. The stiffness of a
 contact is ``STIFFNESS m_eff / dt^2`` (m_eff its effective mass ``1 / sum_j w_j^2 / m_j``): the implicit step
 then stops an approach within the step, at any dt, and a body resting on it compresses the skin ``dhat`` by
 ``m g dt^2 / STIFFNESS`` per vertex's share of the weight. A contact already inside the skin at the step start
 is held there (its plane shifted to the start depth): a body placed on the ground is not thrown off. A resting
 body creeps into the skin by ``g dt^2 / STIFFNESS`` per step down to the surface, and rests ~``g dt^2 /
-STIFFNESS`` (0.3 um at dt = 1 ms) below it. Bodies meet each other in the World's solid contact solve, not here.
+STIFFNESS`` (0.3 um at dt = 1 ms) below it. A modal body's surface is such an obstacle too, moving, at its
+predicted step end; a contact with it is not held (the weight of the modal body on a few vertices would sink it
+by force / stiffness every step), and the stiffness of one modal body's contacts summed is capped by its mass /
+dt^2, since it takes their reaction explicitly. Tet bodies meet each other in the World's solid contact solve.
 """
 
 from __future__ import annotations
