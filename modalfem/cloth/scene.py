@@ -9,9 +9,11 @@ Per step ``dt`` from state ``(x, v, t)``:
    velocity prescribed to the obstacle's in the solve (Baraff-Witkin constraint filtering), so the
    cloth above feels the support inside the implicit step instead of compressing against vertices
    the pipeline stops afterwards; a constraint whose impulse held the vertex on (adhesion) is
-   released for the next step. The normal impulse ``J`` a constraint applied brings its Coulomb
-   friction (coefficient ``CollisionConfig.friction``): the tangential velocity relative to the
-   obstacle's surface shrinks by at most ``mu J / m``. This is not collision handling: the pipeline
+   released for the next step. Constraints on triangle-mesh obstacles (a World's boxes) use the closest
+   triangle. Their Coulomb friction (coefficient ``CollisionConfig.friction``) acts inside the same solve, as
+   a tangential damping of each contact vertex towards its obstacle's surface velocity bounded by ``mu J``
+   (``ImplicitEuler.step_velocity``'s ``friction``), so the sheet's stiffness shares it and it only removes
+   energy. This is not collision handling: the pipeline
    still guarantees a collision-free step;
 3. if ``collisions`` is given: ``CollisionPipeline.resolve`` (repulsion, CCD, impact zones; handle
    vertices have infinite mass there), then stage (d), the smoothing of the collision velocity
@@ -145,6 +147,7 @@ class ClothScene:
         self.obstacles = tuple(obstacles)
         self.contact_constraints = bool(contact_constraints)
         self._released = np.zeros(n, bool)
+        self._proximity = {}  # id(triangle mesh obstacle) -> its SurfaceProximity (contact constraints)
         self._pinned_masses = model.masses.copy()
         self._pinned_masses[model.handle_indices] = np.inf
 
@@ -172,51 +175,59 @@ class ClothScene:
         return f, blocks
 
     def contacts(self, x: np.ndarray, v: np.ndarray, t: float, dt: float):
-        """Contact constraints ``(indices, normals, normal velocities)`` for the implicit step, or None."""
+        """Contact constraints for the implicit step, or None: ``(indices (k,), unit normals (k, 3), normal
+        velocities (k,) [m/s], obstacle surface velocities (k, 3) [m/s])``, the velocities at ``t + dt``.
+
+        A free vertex (not a handle, not released) is constrained when it lies within twice the collision
+        thickness of an obstacle and rests on it or approaches it: planes and spheres by their signed distance,
+        triangle meshes (``TriangleMeshObstacle``, e.g. a World's boxes) by the closest triangle, in front of
+        it only (the triangle's normal side: a vertex behind an open mesh is the pipeline's to handle), the
+        normal that triangle's and the surface velocity its material's at the closest point over the step."""
         if self.pipeline is None or not self.contact_constraints:
             return None
         h = self.pipeline.config.thickness
         free = ~self._released
         free[self.model.handle_indices] = False
-        out = [], [], []
+        out = [], [], [], []
         for ob in self.obstacles:
-            if not all(hasattr(ob, a) for a in ("signed_distance", "normal_at", "velocity_at")):
+            if all(hasattr(ob, a) for a in ("signed_distance", "normal_at", "velocity_at")):
+                near = np.flatnonzero(free & (ob.signed_distance(x, t) < 2.0 * h))
+                if not near.size:
+                    continue
+                nrm = ob.normal_at(x[near], t)
+                vo = ob.velocity_at(x[near], t + dt)
+            elif hasattr(ob, "triangles") and hasattr(ob, "positions"):
+                near, nrm, vo = self._mesh_contacts(ob, x, free, t, dt, 2.0 * h)
+                if not near.size:
+                    continue
+            else:
                 continue
-            near = np.flatnonzero(free & (ob.signed_distance(x, t) < 2.0 * h))
-            if not near.size:
-                continue
-            nrm = ob.normal_at(x[near], t)
-            vo = ob.velocity_at(x[near], t + dt)
             un = np.sum(vo * nrm, axis=1)
             keep = np.sum(v[near] * nrm, axis=1) - un <= 0.1 * h / dt  # resting or approaching
-            out[0].append(near[keep])
-            out[1].append(nrm[keep])
-            out[2].append(un[keep])
+            for a, b in zip(out, (near, nrm, un, vo)):
+                a.append(b[keep])
             free[near[keep]] = False
         if not out[0]:
             return None
         return tuple(np.concatenate(a) for a in out)
 
-    def _friction(self, v: np.ndarray, con, imp: np.ndarray, x: np.ndarray, t: float) -> np.ndarray:
-        """Coulomb friction of the contact constraints' normal impulses ``imp`` [N s] (pushing ones only)."""
-        mu = self.pipeline.config.friction
-        if mu <= 0:
-            return v
-        idx, nrm, _ = con
-        push = imp > 0
-        idx, nrm, j = idx[push], nrm[push], imp[push]
-        vo = np.zeros((len(idx), 3))
-        for ob in self.obstacles:  # the surface velocity of the obstacle each vertex rests on
-            if hasattr(ob, "signed_distance") and hasattr(ob, "velocity_at"):
-                on = ob.signed_distance(x[idx], t) < 2.0 * self.pipeline.config.thickness
-                vo[on] = ob.velocity_at(x[idx][on], t)
-        rel = v[idx] - vo
-        vt = rel - nrm * np.sum(rel * nrm, axis=1)[:, None]
-        speed = np.linalg.norm(vt, axis=1)
-        cut = np.minimum(speed, mu * j / self.model.masses[idx])
-        out = v.copy()
-        out[idx] -= (cut / np.maximum(speed, 1e-300))[:, None] * vt
-        return out
+    def _mesh_contacts(self, ob, x: np.ndarray, free: np.ndarray, t: float, dt: float, reach: float):
+        """Free vertices within ``reach`` [m] in front of triangle mesh ``ob`` at ``t``: (indices, unit normals
+        of their closest triangles, the velocity [m/s] of the closest points over ``[t, t + dt]``)."""
+        from modalfem.world.proximity import SurfaceProximity
+
+        V0 = ob.positions(t)
+        prox = self._proximity.get(id(ob))
+        if prox is None:
+            prox = self._proximity[id(ob)] = SurfaceProximity(ob.triangles, V0)
+        cand = np.flatnonzero(free)
+        hits = prox.query(x[cand], V0, reach)
+        front = hits.gap >= 0.0
+        tri = ob.triangles[hits.triangle[front]]
+        w = hits.bary[front]
+        Vd = (ob.positions(t + dt) - V0) / dt
+        vo = np.einsum("kj,kjd->kd", w, Vd[tri])
+        return cand[hits.point[front]], hits.normal[front], vo
 
     def energy(self) -> dict:
         """Kinetic, elastic and gravitational (``-m g . x``) energies [J] now, and their total."""
@@ -241,13 +252,14 @@ class ClothScene:
         idx, pos = self.model.handle_targets(t + dt)
         vh = (pos - x[idx]) / dt
         con = self.contacts(x, v, t, dt)
+        fric = None
+        if con is not None and self.pipeline.config.friction > 0:  # v_eps: the contacts' resting speed
+            fric = (self.pipeline.config.friction, con[3], 0.1 * self.pipeline.config.thickness / dt)
         v_new, st.linear = self.solver.step_velocity(x, v, f, dt, fixed=idx, fixed_velocity=vh, damping_blocks=blocks,
-                                                     contacts=con)
+                                                     contacts=con, friction=fric)
         released = np.zeros_like(self._released)
         if con is not None:
-            imp = st.linear.contact_impulses
-            released[con[0][imp < 0]] = True
-            v_new = self._friction(v_new, con, imp, x, t + dt)
+            released[con[0][st.linear.contact_impulses < 0]] = True
         return v_new, released, t1
 
     def step(self, dt: float) -> StepStats:

@@ -375,7 +375,7 @@ class ImplicitEuler:
 
     @serial_blas
     def step_velocity(self, x, v, forces, dt: float, *, fixed=None, fixed_velocity=None, damping_blocks=None,
-                      contacts=None):
+                      contacts=None, friction=None):
         """Velocities at the end of a backward Euler step, before collisions.
 
         Args:
@@ -389,6 +389,15 @@ class ImplicitEuler:
             contacts: ``(indices (k,), unit normals (k, 3), normal velocities (k,) [m/s])``: vertices resting
                 on an obstacle, whose end-of-step velocity along ``n`` is prescribed (Baraff-Witkin
                 constraint filtering; tangential motion stays free). Not for handle vertices.
+            friction: ``(mu [-], obstacle surface velocities (k, 3) [m/s], v_eps [m/s])`` for the contacts:
+                Coulomb friction inside the solve as a tangential damping of each contact vertex towards its
+                obstacle's velocity, ``k_i P_t`` added to its diagonal block with ``k_i = mu J_i / max(|v_t|,
+                v_eps)`` [kg] (``J_i = max(0, m_i dv_n - b_i . n)`` [N s], the impulse that holds the vertex
+                alone on the obstacle this step; ``v_t`` its tangential velocity relative to the obstacle at the
+                start): alone, a vertex's tangential speed shrinks by ``k/(m + k)``, an impulse of at most ``mu
+                J``, never reversed; with its neighbours, the sheet's stiffness shares it. Backward Euler damping
+                only removes energy (a friction pass after the solve stopped vertices one by one against their
+                neighbours and the shear came back as elastic energy).
 
         Returns:
             ``(v_new (n, 3) [m/s], LinearSolveInfo)``.
@@ -428,6 +437,8 @@ class ImplicitEuler:
             ci = np.asarray(contacts[0], dtype=np.int64)
             cn = np.asarray(contacts[1], dtype=float)
             con = (ci, cn, np.asarray(contacts[2], dtype=float) - np.sum(v[ci] * cn, axis=1))  # normal part of dv
+        if con is not None and friction is not None and friction[0] > 0 and len(con[0]):
+            data, b = self._friction(data, b, v, con, friction)
         fixed = np.zeros(0, np.int64) if fixed is None else np.asarray(fixed, dtype=np.int64)
         dv_fixed = np.zeros((0, 3)) if fixed.size == 0 else np.asarray(fixed_velocity, dtype=float) - v[fixed]
         kind, normal, z = _constraints(pat.n, fixed, dv_fixed, con)
@@ -442,6 +453,22 @@ class ImplicitEuler:
         if not np.all(np.isfinite(v_new)):
             raise SimulationError("cloth velocities became NaN/inf in the implicit step (time step too large?)")
         return v_new, LinearSolveInfo(self.linear_solver, it, t_asm, t_sol, imp)
+
+    def _friction(self, data: np.ndarray, b: np.ndarray, v: np.ndarray, con, friction):
+        """The system ``(data, b)`` with the contacts' Coulomb friction as tangential damping (``step_velocity``)."""
+        mu, vo, v_eps = float(friction[0]), np.asarray(friction[1], dtype=float), float(friction[2])
+        ci, cn, dvn = con
+        cn = cn / np.linalg.norm(cn, axis=1)[:, None]
+        m = self.model.masses[ci]
+        J = np.maximum(0.0, m * dvn - np.sum(b[ci] * cn, axis=1))
+        rel = v[ci] - vo
+        vt = rel - cn * np.sum(rel * cn, axis=1)[:, None]
+        k = mu * J / np.maximum(np.linalg.norm(vt, axis=1), v_eps)
+        Pt = np.eye(3)[None] - cn[:, :, None] * cn[:, None, :]
+        data[self._pattern.diag[ci]] += k[:, None, None] * Pt  # data and b are this step's own arrays
+        b = b.copy()
+        b[ci] -= k[:, None] * vt
+        return data, b
 
     @serial_blas
     def smooth(self, dv: np.ndarray, dt: float, *, strength: float, fixed=None) -> np.ndarray:
