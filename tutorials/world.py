@@ -159,14 +159,11 @@ print(f"bell: momentum change {dp_bell} kg m/s, gravity + contacts + strike {exp
 
 # ## 5. Energy and sound
 #
-# The foam and the cloth are damped and the contacts are inelastic, so over the run the world's energy
-# goes down. Not at every instant: while the heavy bell lands, the contact solve sees the foam's surface
-# vertices with their own (light) masses, so the bell dents the foam's top layer of elements deeper than
-# a fully coupled solve would, and that layer stores more energy than the bell loses until it springs
-# back (printed below as the highest total). The bell's sound is every impact it took (its landing on the
-# foam and the strike) rendered through its modes. The bell then rests on the foam; the staggered contact
-# between them still trades a little energy back and forth (the numbers show it), well below what the
-# damping takes out over the run.
+# The foam and the cloth are damped and the contacts are inelastic, so the world's energy never rises but
+# by what the hammer gave. The foam meets the bell inside its own implicit step: the bell's surface is a
+# moving obstacle there, so the foam's elasticity and the contact are solved together, and the bell takes
+# the reaction. The bell's sound is every impact it took (its landing on the foam and the strike) rendered
+# through its modes.
 
 # +
 e = {n: np.array(v) for n, v in energy.items()}
@@ -195,6 +192,15 @@ assert ("bell", "block") in pairs and ("block", "cloth") in pairs
 assert ground_hits == 0
 assert np.allclose(dp_bell, expected, rtol=0, atol=1e-9 * m_bell * 9.81 * t_end + 1e-12)
 assert total[-1] < 0.9 * e_start  # damped foam and cloth, inelastic contacts: a tenth of it is gone at least
+# never above the start but for the strike; allowance: the foam's Newton iteration stops at vertex updates below
+# tol * size, so the contact planes the bell is pushed from are uncertain by that much, against the weight of all
+# three bodies, at every step
+solver = world._tet["block"]["solver"]
+weight = (m_bell + foam.masses.sum() + cloth.masses.sum()) * 9.81
+allow = len(total) * weight * solver.tol * foam.size
+i_strike = round(t_strike / dt)
+assert total[:i_strike].max() <= e_start + allow
+assert total[i_strike:].max() <= total[i_strike - 1] + e_strike + allow
 assert 0 < e_strike < 1e-3
 bin_hz = snd.sample_rate / len(tail)
 assert all(abs(q - n) <= 2 * bin_hz for q, n in zip(peaks, nearest))
