@@ -157,22 +157,16 @@ def test_example_runs_and_its_summary_holds(name, tmp_path, monkeypatch):
         lift = max(max(b["grid"]["size"]) for b in d["bodies"] if b["kind"] == "cloth")
         assert total.max() <= e0 + 0.5 * m * (2 * w_max) ** 2 + m * G * lift
     else:
-        cloth = any(b["kind"] == "cloth" for b in d["bodies"])
         budget = 0.0
         for e in strikes:
             budget += 0.5 * float(np.dot(e["impulse"], e["impulse"])) * _mobility_bound(models[e["body"]])
-        if cloth:
-            # cloth steps are not yet energy-conserving at impacts: the collision pipeline's impulses on single
-            # vertices store their shear as elastic energy (cloth-pile's second landing: +20 % in one step before
-            # the World smoothed them over the sheet, +3.5 % since); the Coulomb friction pass after the implicit
-            # solve (ClothScene._friction) does the same to the upright sheet's edge on the ground (+5 % in one
-            # step: the solve removes 0.007 J, the friction pass adds 0.017 J of shear). Over the run energy
-            # must go (damping, inelastic contact), and no frame may hold a quarter more than the start: a
-            # blow-up check, not a conservation test
-            assert total.max() <= 1.25 * e0 + budget
-            assert total[-1] < e0 + budget
-        else:
-            assert total.max() <= e0 + budget + rounding, (total.max() - e0, budget)
+        # cloth too: its implicit step only removes energy (backward Euler; contact constraints on the ground,
+        # spheres and boxes; Coulomb friction as damping inside the solve: the friction pass after the solve
+        # put cloth-pile's frames up to 0.4 % above the start, one 10 ms step +5 %). Not yet within a step: the
+        # collision pipeline's impulses on single vertices, smoothed over each sheet, still store some shear
+        # where one sheet lands on another (cloth-pile's second landing: +0.014 J in one step, by then well
+        # below the start; frames are 40 ms apart)
+        assert total.max() <= e0 + budget + rounding, (total.max() - e0, budget)
 
     # momentum: a body resting on the ground at the end has lost its momentum
     if name in ("bell-drop", "cloth-pile"):
