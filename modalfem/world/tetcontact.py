@@ -12,8 +12,9 @@ is held there (its plane shifted to the start depth): a body placed on the groun
 body creeps into the skin by ``g dt^2 / STIFFNESS`` per step down to the surface, and rests ~``g dt^2 /
 STIFFNESS`` (0.3 um at dt = 1 ms) below it. A modal body's surface is such an obstacle too, moving, at its
 predicted step end; a contact with it is not held (the weight of the modal body on a few vertices would sink it
-by force / stiffness every step), and the stiffness of one modal body's contacts summed is capped by its mass /
-dt^2, since it takes their reaction explicitly. Tet bodies meet each other in the World's solid contact solve.
+by force / stiffness every step); a contact's stiffness shares the modal body's mass too (at least ``STIFFNESS M /
+(c dt^2)`` for its c contacts: its weight, not the light tet vertices', loads them), and the stiffness of one
+modal body's contacts summed is capped by ``M / dt^2``, since it takes their reaction explicitly. Tet bodies meet each other in the World's solid contact solve.
 """
 
 from __future__ import annotations
