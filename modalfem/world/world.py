@@ -14,7 +14,7 @@ for is never called. In order:
    ``COUPLING_ITERATIONS`` > 1 the step is repeated from the corrected prediction while that moves them by more
    than a hundredth of the skin);
 2. ``cloth step``: each cloth's implicit step (gravity, wind, damping, handles, constraint filtering on
-   planes and spheres) to predicted velocities;
+   static planes, spheres, boxes and triangle meshes) to predicted velocities;
 3. ``modal contacts``: one compiled sequential-impulse solve (``modalfem.world._kernels``) over the contacts
    of modal bodies' surface vertices with moving obstacles, triangle-mesh obstacles and the other modal
    bodies' surfaces, found at the step start within the margin plus what the bodies travel in the step
@@ -422,7 +422,7 @@ class World:
             names.append(e.name)
         contact = self._one(b.name, fx.Contact)
         config, analytic = None, []
-        if contact is not None:  # the constraint filtering of the implicit step on static planes and spheres
+        if contact is not None:  # the constraint filtering of the implicit step on static obstacles
             config = CollisionConfig(thickness=self._thickness(b.name), friction=contact.friction,
                                      self_collision=False)
             for o in self.obstacles:
@@ -430,6 +430,8 @@ class World:
                     analytic.append(co.Plane(o.point, o.normal))
                 elif isinstance(o, Sphere) and not o.moving:
                     analytic.append(co.Sphere(o.center, o.radius))
+                elif not o.moving:  # boxes and triangle meshes: by their closest triangle
+                    analytic.append(co.TriangleMeshObstacle(*o.surface(0.0)))
         x0 = b.x0 if b.x0 is not None else model.mesh.points
         scene = ClothScene(model, gravity=g, wind=wind, collisions=config, obstacles=analytic,
                            smoothing=0.0, linear_solver=b.linear_solver, x0=x0, v0=b.v0)
