@@ -208,8 +208,9 @@ def render(results: list[dict], solvers: list[dict], *, command: str, date: str,
          ("- CPU ms/step is this process's CPU time per step (`time.process_time`): on a shared machine it "
           "counts less of the waiting for a core than the wall time."),
          *([] if load is None else [
-             f"- Load average (1 min): {load[0]:.1f} at the start, {load[1]:.1f} at the end (above the 2 cores: "
-             "other work shared the machine, and the wall times are upper bounds)."]),
+             f"- Load average (1 min): {load[0]:.1f} at the start, {load[1]:.1f} at the end"
+             + (f" (above the {os.cpu_count()} cores: other work shared the machine, and the wall times are upper "
+                "bounds)." if max(load) > (os.cpu_count() or 1) else ": no other work competed for the cores.")]),
          ("- Each case runs its scene's whole length (drape 100 steps, pile 80; the 128x128 cases half of it); "
           "ms/step 2nd half is the wall time per step over the second half of the steps (for the pile its "
           "settled, many-layer phase)."),
