@@ -10,9 +10,9 @@ for is never called. In order:
    scripted vertices) to a predicted end state, with its contacts as penalty terms of the step: the obstacles,
    and the modal bodies' surfaces as moving obstacles at their predicted step end, so the tet's elasticity and
    these contacts are solved together; the modal bodies take the reaction (equal and opposite impulses at the
-   contact points, given at their step start; their predicted motion includes last step's reaction, and with
-   ``COUPLING_ITERATIONS`` > 1 the step is repeated from the corrected prediction while that moves them by more
-   than a hundredth of the skin);
+   contact points, given at their step start; their predicted motion includes last step's reaction: repeating
+   the step from the corrected prediction changed nothing measurable in the bar and bell landings and cost 1.4x
+   the CPU time);
 2. ``cloth step``: each cloth's implicit step (gravity, wind, damping, handles, constraint filtering on
    static planes, spheres, boxes and triangle meshes) to predicted velocities;
 3. ``modal contacts``: one compiled sequential-impulse solve (``modalfem.world._kernels``) over the contacts
@@ -65,11 +65,6 @@ SLOW = 0.5
 #: the stiffness [N/m] of a tet body's penalty contacts with one modal body, summed, is at most this times the
 #: modal body's mass / dt^2: the modal body takes their reaction explicitly (stable for omega dt < 2)
 MODAL_PENALTY = 1.0
-#: at most this many implicit steps of a tet body per world step, each from the modal bodies it touches predicted
-#: with the reaction of the one before (``_stage_tet_step``). 1: the prediction from last step's reaction alone;
-#: 4 changed nothing measurable in the tests' landings (bar and bell: energy never above the start, no crossing
-#: with either) and cost 1.4x the CPU time of the bar's landing
-COUPLING_ITERATIONS = 1
 
 
 @dataclass
@@ -668,25 +663,12 @@ class World:
             if t["wind"] is not None:
                 t["wind"].update(s.x, s.v, ctx.state_in.time)
             ctl = TetControl(*ctx.control.scripted[name]) if name in ctx.control.scripted else None
-            # with modal bodies in contact: the step again from the modal bodies predicted with the reaction it gave
-            # them, until that reaction moves their surfaces by less than a hundredth of the skin
-            ctx.guess = {}
-            for it in range(COUPLING_ITERATIONS):
-                obstacles = self._tet_contacts(ctx, name, s) if t["penalty"] is not None else None
-                out = s.copy()
-                try:
-                    t["solver"].step(s, out, dt, control=ctl)
-                except SimulationError as exc:
-                    raise SimulationError(f"tet body {name!r}: {exc}") from None
-                if obstacles is None or not t["modal_contacts"][1] or it + 1 == COUPLING_ITERATIONS:
-                    break
-                new = self._tet_reaction(ctx, name, out, apply=False)
-                moved = max((self._modal[b]["body"].radius * float(np.abs(dV - ctx.guess.get(b, 0.0)).max()) * dt
-                             for b, dV in new.items()), default=0.0)
-                settled = bool(ctx.guess) and moved < 1e-2 * t["contact"].margin
-                ctx.guess = new
-                if settled:
-                    break
+            obstacles = self._tet_contacts(ctx, name, s) if t["penalty"] is not None else None
+            out = s.copy()
+            try:
+                t["solver"].step(s, out, dt, control=ctl)
+            except SimulationError as exc:
+                raise SimulationError(f"tet body {name!r}: {exc}") from None
             if obstacles is not None:
                 self._tet_reaction(ctx, name, out)
                 self._tet_friction(ctx, name, out, obstacles)
@@ -712,7 +694,7 @@ class World:
         m = self._modal[name]
         body, s, dt = m["body"], ctx.state_in.bodies[name], ctx.dt
         x0 = np.array(body.positions(s, precise=True), dtype=np.float64)
-        dV = ctx.guess.get(name, ctx.state_in.contacts.get((_REACTION_KEY, name)))
+        dV = ctx.state_in.contacts.get((_REACTION_KEY, name))
         if dV is None:
             dV = np.zeros(6 + body.mode_count)
         p = s.copy()
@@ -840,16 +822,15 @@ class World:
         pen.set(V, W, P, N, k, dhat)
         return touched
 
-    def _tet_reaction(self, ctx, name: str, out, *, apply: bool = True) -> dict:
+    def _tet_reaction(self, ctx, name: str, out) -> None:
         """The modal bodies take the opposite of the impulses the tet body's penalty contacts with them gave it in
         its implicit step (``f dt`` along the normal at each contact's modal point): generalised velocity changes
-        at the step start (``ctx.dV``, merged with the solid solve's), reported in ``StepReport.exchanged``; with
-        ``apply=False`` only returned, ``{modal body: dV (6 + r,)}``."""
+        at the step start (``ctx.dV``, merged with the solid solve's), reported in ``StepReport.exchanged`` and
+        kept for the next step's prediction of the body (``_modal_prediction``)."""
         t = self._tet[name]
         n_obstacle, modal = t.get("modal_contacts", (0, []))
-        res = {}
         if not modal:
-            return res
+            return
         pen = t["penalty"]
         f = pen.forces(out.x)[n_obstacle:]
         J = -(f * ctx.dt)[:, None] * pen.nrm[n_obstacle:]  # on the modal body
@@ -859,14 +840,11 @@ class World:
                 continue
             ids = np.array([modal[i][1] for i in sel])
             w = np.array([modal[i][2] for i in sel])
-            dV = res[b] = self._modal_impulses(ctx, b, ids, w, J[sel], name, apply=apply)
-            if apply:
-                key = (_REACTION_KEY, b)  # the next step's prediction of the body starts from it
-                ctx.contacts[key] = ctx.contacts[key] + dV if key in ctx.contacts else dV
-        return res
+            dV = self._modal_impulses(ctx, b, ids, w, J[sel], name)
+            key = (_REACTION_KEY, b)  # the next step's prediction of the body starts from it
+            ctx.contacts[key] = ctx.contacts[key] + dV if key in ctx.contacts else dV
 
-    def _modal_impulses(self, ctx, b: str, ids: np.ndarray, w: np.ndarray, J: np.ndarray, src: str, *,
-                        apply: bool = True) -> np.ndarray:
+    def _modal_impulses(self, ctx, b: str, ids: np.ndarray, w: np.ndarray, J: np.ndarray, src: str) -> np.ndarray:
         """Impulses ``J`` (k, 3) [N s] on modal body ``b`` at its surface points ``sum_j w_j vertex_j`` (ids, w
         (k, 3)) at the step start, from body ``src``: added to ``ctx.dV[b]`` (rigid: v, omega; the modes the
         step resolves, as ``_ContactBuilder``), and reported as exchanged."""
@@ -880,8 +858,6 @@ class World:
         L = np.cross(r, J).sum(0)
         dq = np.einsum("kcr,kc->r", np.einsum("ab,kbr->kar", R, phi), J) * (body.omega * ctx.dt <= SLOW)
         dV = np.concatenate([Jsum / body.mass, R @ body.inertia_inv @ R.T @ L, dq])
-        if not apply:
-            return dV
         ctx.dV[b] = ctx.dV[b] + dV if b in ctx.dV else dV
         ctx.report.exchanged.append((b, src, Jsum, np.cross(r + s.position, J).sum(0)))
         return dV
@@ -1378,7 +1354,6 @@ class _StepContext:
         self.cloth_dv = {}
         self.impacts = {}
         self.contacts = dict(state_in.contacts)  # kept unless the solid solve runs
-        self.guess = {}  # modal body -> its predicted reaction from tet bodies (``World._stage_tet_step``)
         self.report = None
 
 
