@@ -225,34 +225,30 @@ def plane_contacts(X, voff, center, radius, reach, normals, offsets):
     """
     nb = voff.shape[0] - 1
     npl = normals.shape[0]
-    cnt = 0
+    near = np.zeros((nb, npl), dtype=np.bool_)  # the body's bounding sphere within reach of the plane
+    cap = 0
     for b in range(nb):
         for p in range(npl):
             sd = (normals[p, 0] * center[b, 0] + normals[p, 1] * center[b, 1] + normals[p, 2] * center[b, 2]
                   - offsets[p])
-            if sd - radius[b] >= reach[b]:
-                continue
-            for v in range(voff[b], voff[b + 1]):
-                g = normals[p, 0] * X[v, 0] + normals[p, 1] * X[v, 1] + normals[p, 2] * X[v, 2] - offsets[p]
-                if g < reach[b]:
-                    cnt += 1
-    body = np.empty(cnt, dtype=np.int64)
-    vertex = np.empty(cnt, dtype=np.int64)
-    plane = np.empty(cnt, dtype=np.int64)
-    gap = np.empty(cnt)
+            if sd - radius[b] < reach[b]:
+                near[b, p] = True
+                cap += voff[b + 1] - voff[b]
+    body = np.empty(cap, dtype=np.int64)
+    vertex = np.empty(cap, dtype=np.int64)
+    plane = np.empty(cap, dtype=np.int64)
+    gap = np.empty(cap)
     k = 0
     for b in range(nb):
         for p in range(npl):
-            sd = (normals[p, 0] * center[b, 0] + normals[p, 1] * center[b, 1] + normals[p, 2] * center[b, 2]
-                  - offsets[p])
-            if sd - radius[b] >= reach[b]:
+            if not near[b, p]:
                 continue
             for v in range(voff[b], voff[b + 1]):
                 g = normals[p, 0] * X[v, 0] + normals[p, 1] * X[v, 1] + normals[p, 2] * X[v, 2] - offsets[p]
                 if g < reach[b]:
                     body[k], vertex[k], plane[k], gap[k] = b, v - voff[b], p, g
                     k += 1
-    return body, vertex, plane, gap
+    return body[:k], vertex[:k], plane[:k], gap[:k]
 
 
 @numba.njit(cache=True)

@@ -126,10 +126,7 @@ class ModalContacts:
             ba, v, p, g = SK.plane_contacts(X, voff, pos, radius, marg + reach, self.plane_n, self.plane_d)
             if len(ba):
                 k = len(ba)
-                va = np.zeros((k, 3), dtype=np.int64)
-                va[:, 0] = v
-                wa = np.zeros((k, 3))
-                wa[:, 0] = 1.0
+                va, wa = _one_vertex(v)
                 parts.append((ba, va, wa, np.full(k, -1), np.zeros((k, 3), dtype=np.int64), np.zeros((k, 3)),
                               X[voff[ba] + v], self.plane_n[p], g, np.full(k, _PLANE), v, nb + p))
         # body pairs whose boxes meet within the search radius
@@ -144,10 +141,7 @@ class ModalContacts:
                 bound, lo, hi, self._tris, self._toff, self._edges, self._eoff, self._adj, *self._treelists)
             if len(v):
                 k = len(v)
-                va = np.zeros((k, 3), dtype=np.int64)
-                va[:, 0] = v
-                wa = np.zeros((k, 3))
-                wa[:, 0] = 1.0
+                va, wa = _one_vertex(v)
                 parts.append((pa, va, wa, qa, self._tris[self._toff[qa] + tri], wb, X[voff[pa] + v], nrm, g,
                               np.full(k, _VF), v, qa))
             if len(mine):
@@ -241,3 +235,13 @@ def _tree_lists(trees: list) -> tuple:
             lst.append(np.ascontiguousarray(get(t)))
         out.append(lst)
     return (np.array([t.P for t in trees], dtype=np.int64),) + tuple(out)
+
+
+def _one_vertex(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contacts at single vertices ``v`` (k,) in the three-slot layout of the solve's rows: vertex ids (k, 3)
+    (``v`` then 0) and weights (k, 3) (1 then 0)."""
+    va = np.zeros((len(v), 3), dtype=np.int64)
+    va[:, 0] = v
+    wa = np.zeros((len(v), 3))
+    wa[:, 0] = 1.0
+    return va, wa
