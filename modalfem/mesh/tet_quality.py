@@ -6,7 +6,9 @@
   boundary: (1) flat tetrahedra lying on the boundary (two or three boundary faces, quality below
   the bound) are removed when the boundary stays a closed 2-manifold, (2) interior vertices of bad
   tetrahedra are moved towards the centroid of their neighbours (full, half or quarter step),
-  a move kept only when it raises the worst quality of the tetrahedra around the vertex.
+  then, if that is not enough, uphill on the worst quality of the tetrahedra around the vertex
+  (finite-difference gradient, backtracking); a move is kept only when it raises the worst
+  quality of the tetrahedra around the vertex and inverts none.
 * ``surface_distances(a, b)``: sampled one-sided distances between two triangle surfaces (every
   vertex plus area-uniform random points), exact point-triangle distances, for a Hausdorff
   distance (its maximum both ways).
@@ -79,6 +81,53 @@ def _remove_boundary_slivers(points, cells, bound):
     return cells, removed
 
 
+def _positive(points: np.ndarray, local: np.ndarray) -> bool:
+    p = points[local]
+    d = p[:, 1:] - p[:, :1]
+    return bool(np.all(np.einsum("ij,ij->i", d[:, 0], np.cross(d[:, 1], d[:, 2])) > 0))
+
+
+def _ascend(points: np.ndarray, v: int, local: np.ndarray, q_ring: float, iterations: int = 12) -> float:
+    """Move vertex ``v`` uphill on the worst quality of its ring ``local`` (in place); the ring's new worst.
+
+    Each iteration: central-difference gradient of the worst tetrahedron's quality with respect to the
+    vertex, then a backtracking step along it (a quarter of the ring's mean edge down to 1/1000 of it),
+    kept only if no tetrahedron of the ring inverts and the ring's worst quality rises. The worst
+    tetrahedron changes between iterations, so this climbs the non-smooth minimum (optimisation-based
+    smoothing) where moving to the neighbours' centroid does not help: a vertex just above the plane of
+    three boundary vertices, whose centroid lies on the wrong side of another face.
+    """
+    p = points[local]
+    scale = float(np.mean([np.linalg.norm(p[:, i] - p[:, j], axis=1).mean() for i in range(4) for j in range(i)]))
+    h = 1e-6 * scale
+    for _ in range(iterations):
+        worst = local[int(np.argmin(radius_ratio(points, local)))][None, :]
+        x = points[v].copy()
+        grad = np.zeros(3)
+        for axis in range(3):
+            points[v, axis] = x[axis] + h
+            up = radius_ratio(points, worst)[0]
+            points[v, axis] = x[axis] - h
+            grad[axis] = (up - radius_ratio(points, worst)[0]) / (2 * h)
+            points[v, axis] = x[axis]
+        norm = float(np.linalg.norm(grad))
+        if not np.isfinite(norm) or norm == 0.0:
+            break
+        step, moved = 0.25 * scale, False
+        while step > 1e-3 * scale:
+            points[v] = x + step * grad / norm
+            if _positive(points, local):
+                q = float(radius_ratio(points, local).min())
+                if q > q_ring:
+                    q_ring, moved = q, True
+                    break
+            step *= 0.5
+        if not moved:
+            points[v] = x
+            break
+    return q_ring
+
+
 def improve_quality(points: np.ndarray, cells: np.ndarray, *, bound: float, sweeps: int = 12,
                     target: float | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
     """Raise the worst radius ratio of a tetrahedral mesh without moving its boundary vertices.
@@ -131,6 +180,8 @@ def improve_quality(points: np.ndarray, cells: np.ndarray, *, bound: float, swee
                 if qn > best_q:
                     best, best_q = points[v].copy(), qn
             points[v] = best
+            if best_q < target:  # the centroid does not reach it: climb the worst tetrahedron's quality
+                best_q = _ascend(points, v, local, best_q)
             if best_q > q_old:
                 moved.add(int(v))
                 changed += 1

@@ -10,7 +10,7 @@ import pytest
 
 from modalfem.errors import MeshError
 from modalfem.mesh import box, from_surface, read, tetrahedralize
-from modalfem.mesh.solid import QUALITY_BOUND, read_surface
+from modalfem.mesh.solid import QUALITY_BOUND, read_surface, signed_volumes
 from modalfem.mesh.tet_quality import improve_quality, radius_ratio, surface_distances
 from modalfem.meshes import path as shipped
 
@@ -92,6 +92,38 @@ def test_improve_quality_moves_only_interior_vertices_and_raises_the_worst():
     assert info["worst_after"] > before
     assert info["worst_after"] == pytest.approx(radius_ratio(new, cells).min())
     assert info["moved_vertices"] > 0
+
+
+# the star of one interior vertex of an fTetWild mesh of a damaged bunny (coordinates rounded, scaled to 1):
+# the vertex (15) sits close to the plane of three boundary vertices and moving it to its neighbours'
+# centroid lowers another tetrahedron, so centroid smoothing alone stays at 0.098 < 0.1
+_STAR_POINTS = np.array([
+    [0.0, 0.8678, 0.4623], [0.0025, 0.7135, 0.1318], [0.2396, 0.8509, 0.9405], [0.2919, 0.7962, 0.5076],
+    [0.3091, 0.4562, 0.0], [0.309, 0.7138, 0.2933], [0.4664, 0.7499, 0.7492], [0.4652, 0.2373, 0.0475],
+    [0.5505, 0.5305, 0.3765], [0.6538, 0.5122, 0.787], [0.6758, 0.1603, 0.3883], [0.7031, 0.1655, 0.7404],
+    [0.1532, 0.0, 0.4203], [0.0871, 0.3316, 0.8051], [0.4045, 0.4142, 1.0], [0.2931, 0.5753, 0.3591]])
+_STAR_CELLS = np.array([
+    [15, 14, 6, 2], [15, 5, 8, 4], [15, 7, 4, 8], [12, 7, 15, 10], [10, 15, 12, 11], [7, 8, 15, 10], [15, 6, 8, 3],
+    [11, 9, 8, 15], [3, 15, 6, 2], [3, 15, 5, 8], [11, 8, 10, 15], [15, 11, 13, 12], [15, 9, 8, 6], [0, 13, 15, 2],
+    [1, 15, 0, 12], [15, 14, 11, 9], [15, 14, 13, 11], [15, 14, 2, 13], [12, 7, 1, 15], [0, 15, 13, 12],
+    [15, 0, 2, 3], [15, 14, 9, 6], [3, 0, 5, 15], [0, 1, 5, 15], [1, 5, 15, 4], [1, 7, 4, 15]])
+
+
+def test_improve_quality_climbs_where_the_centroid_does_not_help():
+    before = radius_ratio(_STAR_POINTS, _STAR_CELLS)
+    assert before.min() < 0.1 and np.all(signed_volumes(_STAR_POINTS, _STAR_CELLS) > 0)
+    centre = _STAR_POINTS.mean(axis=0)  # the centroid of the star (what smoothing moves towards) is no better
+    for step in (1.0, 0.5, 0.25):
+        trial = _STAR_POINTS.copy()
+        trial[15] += step * (centre - trial[15])
+        assert radius_ratio(trial, _STAR_CELLS).min() <= before.min()
+    new, cells, info = improve_quality(_STAR_POINTS, _STAR_CELLS, bound=0.1)
+    assert np.array_equal(new[:15], _STAR_POINTS[:15])  # only the interior vertex moves
+    assert np.array_equal(cells, _STAR_CELLS)
+    assert np.all(signed_volumes(new, cells) > 0)
+    assert info["moved_vertices"] == 1
+    assert info["worst_after"] == pytest.approx(radius_ratio(new, cells).min())
+    assert info["worst_after"] >= 0.1
 
 
 def test_surface_distances_of_concentric_spheres():
