@@ -208,8 +208,9 @@ def _tetwild_module():
 
 def _ftetwild_here(v, f, h, envelope):
     """fTetWild in this process (it holds the GIL for its whole run), on one thread: with its threads the result
-    changes from run to run (a real scan's worst element came out 0.085 in one run and above the 0.1 bound in
-    others), on one it is the same every time."""
+    changes more from run to run (a real scan's worst element came out 0.085 in one run and above the 0.1 bound in
+    others); on one thread it still varies (the damaged bunny's worst element before optimisation: 0.06-0.20 over
+    20 runs), which the quality optimiser has to absorb."""
     wrapper = _tetwild_module()
     points, cells = wrapper.tetrahedralize_mesh(
         np.ascontiguousarray(v, dtype=np.float64), np.ascontiguousarray(f, dtype=np.uint32),
