@@ -10,8 +10,7 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["drop_indexed", "drop_pairs", "primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs",
-           "vertex_index"]
+__all__ = ["primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
 
 _apply_threads()
 
@@ -173,17 +172,13 @@ def _primitive_range(tp, start: int, stop: int, tris, edges, own_v, own_e, vlo, 
     return vf, ee
 
 
-@numba.njit(cache=True, parallel=True)
-def drop_pairs(q: np.ndarray, alive: np.ndarray, dirty: np.ndarray) -> None:
-    """In place: ``alive[i] = False`` for the pairs ``q`` (k, 4) holding a vertex flagged in ``dirty`` (chunks
-    of pairs in parallel, each writing its own entries)."""
-    k = len(q)
-    chunks = chunk_count(k, SCAN_CHUNK)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(k, chunks, ch)
-        for i in range(start, stop):
-            if dirty[q[i, 0]] | dirty[q[i, 1]] | dirty[q[i, 2]] | dirty[q[i, 3]]:
-                alive[i] = False
+@numba.njit(cache=True, inline="always")
+def _alive(q: np.ndarray, i: int, stamp: np.ndarray, epoch: int) -> bool:
+    """Pair ``i`` of a store block found at ``epoch`` is still in the store: no vertex of it searched again
+    since (its ``stamp`` above ``epoch``); every pair is when ``stamp`` is empty."""
+    if len(stamp) == 0:
+        return True
+    return (stamp[q[i, 0]] <= epoch) & (stamp[q[i, 1]] <= epoch) & (stamp[q[i, 2]] <= epoch) & (stamp[q[i, 3]] <= epoch)
 
 
 #: pairs per chunk of the parallel scans of the pair store (selections)
@@ -206,7 +201,7 @@ def _compact(q: np.ndarray, keep: np.ndarray) -> np.ndarray:
         counts[ch + 1] = c
     for ch in range(chunks):
         counts[ch + 1] += counts[ch]
-    out = np.empty((counts[chunks], 4), dtype=np.int64)
+    out = np.empty((counts[chunks], 4), dtype=q.dtype)
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
         o = counts[ch]
@@ -219,16 +214,17 @@ def _compact(q: np.ndarray, keep: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def select_pairs(q: np.ndarray, alive: np.ndarray, only: np.ndarray) -> np.ndarray:
-    """The alive pairs of ``q`` (k, 4), only those holding a vertex flagged in ``only`` unless it is empty."""
+def select_pairs(q: np.ndarray, stamp: np.ndarray, epoch: int, only: np.ndarray) -> np.ndarray:
+    """The pairs of ``q`` (k, 4) still in the store (:func:`_alive`), only those holding a vertex flagged in
+    ``only`` ((N,) bool) unless it is empty."""
     use = len(only) > 0
     keep = np.empty(len(q), dtype=np.int64)
     n = 0
     for i in range(len(q)):
-        if alive[i] and (not use or only[q[i, 0]] or only[q[i, 1]] or only[q[i, 2]] or only[q[i, 3]]):
+        if _alive(q, i, stamp, epoch) and (not use or only[q[i, 0]] or only[q[i, 1]] or only[q[i, 2]] or only[q[i, 3]]):
             keep[n] = i
             n += 1
-    out = np.empty((n, 4), dtype=np.int64)
+    out = np.empty((n, 4), dtype=q.dtype)
     for j in range(n):
         for c in range(4):
             out[j, c] = q[keep[j], c]
@@ -258,22 +254,23 @@ def vertex_index(q: np.ndarray, N: int):
 
 
 @numba.njit(cache=True)
-def drop_indexed(alive: np.ndarray, ptr: np.ndarray, pid: np.ndarray, verts: np.ndarray) -> None:
-    """:func:`drop_pairs` through a :func:`vertex_index`: ``alive[p] = False`` for the pairs of ``verts``."""
+def _mark(k: int, ptr: np.ndarray, pid: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """(k,) bool: the pairs of a block listed under one of ``verts`` in its :func:`vertex_index`."""
+    mark = np.zeros(k, dtype=np.bool_)
     for v in verts:
         for s in range(ptr[v], ptr[v + 1]):
-            alive[pid[s]] = False
+            mark[pid[s]] = True
+    return mark
 
 
 @numba.njit(cache=True)
-def select_indexed(q: np.ndarray, alive: np.ndarray, ptr: np.ndarray, pid: np.ndarray, verts: np.ndarray):
-    """:func:`select_pairs` with a filter through a :func:`vertex_index`: the alive pairs of ``q`` holding
-    one of ``verts``, in the block's order (the marks set through the index, the block compacted by
-    :func:`_compact` in parallel chunks)."""
-    mark = np.zeros(len(q), dtype=np.bool_)
-    for v in verts:
-        for s in range(ptr[v], ptr[v + 1]):
-            p = pid[s]
-            if alive[p]:
-                mark[p] = True
+def select_indexed(q: np.ndarray, stamp: np.ndarray, epoch: int, ptr: np.ndarray, pid: np.ndarray,
+                   verts: np.ndarray):
+    """:func:`select_pairs` with a filter through a :func:`vertex_index`: the pairs of ``q`` still in the
+    store holding one of ``verts``, in the block's order (the marks set through the index, the block compacted
+    by :func:`_compact` in parallel chunks)."""
+    mark = _mark(len(q), ptr, pid, verts)
+    for i in range(len(q)):
+        if mark[i] and not _alive(q, i, stamp, epoch):
+            mark[i] = False
     return _compact(q, mark)

@@ -75,21 +75,19 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     X1 = X0 + dt * V
     movable = invm > 0
     zones = np.zeros(0, dtype=np.int64) if roots is None else np.ascontiguousarray(roots, dtype=np.int64)
-    flags = np.zeros(0, dtype=bool) if only is None else np.ascontiguousarray(only, dtype=bool)
-    none = np.zeros(0, dtype=bool)
+    only = None if only is None else np.ascontiguousarray(only, dtype=bool)
     out = []
     for kind in ("vf", "ee"):
         qs, ts = [], []
-        # the store's large blocks go to the CCD as they are, with their alive masks and ``only`` (filtered in
+        # the store's large blocks go to the CCD as they are, with the store's stamps and ``only`` (filtered in
         # the CCD's parallel pass), the selected pairs of the small ones as a list: hits in the store's order
-        for q, alive in store.segments(kind, only):
+        for q, stamp, epoch, flags in store.segments(kind, only):
             if len(q) == 0:
                 continue
-            idx, toi = _ccd_kernels.ccd_block(kind == "vf", X0, X1, q, none if alive is None else alive,
-                                              none if alive is None else flags, movable, zones, eta, PIPELINE_DEPTH,
-                                              MAX_INTERVALS)
+            idx, toi = _ccd_kernels.ccd_block(kind == "vf", X0, X1, q, stamp, epoch, flags, movable, zones, eta,
+                                              PIPELINE_DEPTH, MAX_INTERVALS)
             if len(idx):
-                qs.append(q[idx])
+                qs.append(q[idx].astype(np.int64))
                 ts.append(toi)
         if qs:
             out.append((kind, np.concatenate(qs), np.concatenate(ts)))

@@ -54,25 +54,34 @@ def test_dirty_updates_keep_every_pair_of_a_fresh_search(indexed, monkeypatch):
         assert len(sub) and only[sub].any(axis=1).all()
 
 
-def test_indexed_drops_and_selections_equal_the_scans():
+def test_stamped_drops_and_selections_equal_masks():
+    """A drop stamps the dirty vertices with a new epoch; the pairs of a block found at epoch e that hold a vertex
+    stamped above e are gone: the same pairs as clearing an alive mask (numpy) at every drop, through the
+    vertex index or by a scan, int32 or int64 pairs."""
     rng = np.random.default_rng(8)
     N, k = 300, 5000
-    q = np.array([rng.choice(N, 4, replace=False) for _ in range(k)], dtype=np.int64)
-    ptr, pid = _pair_kernels.vertex_index(q, N)
-    for p in (0, 17, k - 1):  # every pair is listed under each of its vertices
-        for v in q[p]:
-            assert p in pid[ptr[v]:ptr[v + 1]]
-    assert ptr[-1] == 4 * k
-    alive_scan = rng.random(k) < 0.8
-    alive_idx = alive_scan.copy()
-    for frac in (0.002, 0.05, 0.5):
-        flags = rng.random(N) < frac
-        got = _pair_kernels.select_indexed(q, alive_idx, ptr, pid, np.flatnonzero(flags))
-        assert np.array_equal(got, _pair_kernels.select_pairs(q, alive_scan, flags))  # same pairs, same order
-        dirty = rng.random(N) < frac / 2
-        _pair_kernels.drop_pairs(q, alive_scan, dirty)
-        _pair_kernels.drop_indexed(alive_idx, ptr, pid, np.flatnonzero(dirty))
-        assert np.array_equal(alive_idx, alive_scan)
+    for dtype in (np.int32, np.int64):
+        q = np.array([rng.choice(N, 4, replace=False) for _ in range(k)], dtype=dtype)
+        ptr, pid = _pair_kernels.vertex_index(q, N)
+        for p in (0, 17, k - 1):  # every pair is listed under each of its vertices
+            for v in q[p]:
+                assert p in pid[ptr[v]:ptr[v + 1]]
+        assert ptr[-1] == 4 * k
+        stamp = np.zeros(N, dtype=np.int64)
+        alive = np.ones(k, dtype=bool)
+        for epoch, frac in enumerate((0.01, 0.05, 0.5), start=1):
+            dirty = rng.random(N) < frac / 2
+            stamp[dirty] = epoch
+            alive &= ~dirty[q].any(axis=1)
+            flags = rng.random(N) < frac
+            want = q[alive & flags[q].any(axis=1)]
+            assert 0 < len(want) < k
+            got = _pair_kernels.select_indexed(q, stamp, 0, ptr, pid, np.flatnonzero(flags))
+            np.testing.assert_array_equal(got, want)  # same pairs, same order
+            np.testing.assert_array_equal(_pair_kernels.select_pairs(q, stamp, 0, flags), want)
+            np.testing.assert_array_equal(_pair_kernels.select_pairs(q, stamp, 0, np.zeros(0, bool)), q[alive])
+            # a block found after the last drop keeps every pair
+            np.testing.assert_array_equal(_pair_kernels.select_pairs(q, stamp, epoch, np.zeros(0, bool)), q)
 
 
 @pytest.mark.parametrize("indexed", [1, 10**9])  # every block to the CCD as stored / every block selected first
