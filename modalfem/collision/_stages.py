@@ -299,8 +299,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             if remaining == 0 or it == cfg.max_zone_iterations:
                 break
             for _, q, _ in hits:
-                for j in range(1, 4):
-                    uf.union(q[:, 0], q[:, j])
+                uf.union_quads(q)
             for k, ids, _ in ahits:
                 uf.union(ids, np.full(len(ids), len(X0) + k))
             roots = uf.roots()
@@ -308,7 +307,9 @@ def resolve(system, cfg, x0, v, masses, dt, t):
                                        + [np.array([len(X0) + a[0]]) for a in ahits])
             V_old = V
             V, inconsistent = rigid_zone_velocities(X0, V, invm, roots, system.analytic, t)
-            only = np.isin(roots[: len(X0)], roots[hit_nodes]) | (V != V_old).any(axis=1)
+            hit_root = np.zeros(len(roots), dtype=bool)
+            hit_root[roots[hit_nodes]] = True
+            only = hit_root[roots[: len(X0)]] | (V != V_old).any(axis=1)
         stats.zone_iterations = it
         roots = uf.roots()
         sizes = np.bincount(roots[:n], minlength=len(roots))

@@ -33,32 +33,33 @@ __all__ = ["UnionFind", "follow_finite_motion", "rigid_zone_velocities"]
 
 
 class UnionFind:
-    """Disjoint sets over ``count`` nodes, vectorised (roots are the smallest member index)."""
+    """Disjoint sets over ``count`` nodes (roots are the smallest member index; compiled merges,
+    :mod:`modalfem.collision._zone_kernels`)."""
 
     def __init__(self, count: int) -> None:
-        self.parent = np.arange(count)
+        self.parent = np.arange(count, dtype=np.int64)
 
     def roots(self) -> np.ndarray:
-        """(count,) root of every node."""
-        p = self.parent
-        while True:
-            q = p[p]
-            if np.array_equal(q, p):
-                break
-            p = q
-        self.parent = p
-        return p
+        """(count,) root of every node (a copy)."""
+        from modalfem.collision._zone_kernels import compress
+
+        compress(self.parent)
+        return self.parent.copy()
 
     def union(self, a: np.ndarray, b: np.ndarray) -> None:
         """Merge the sets of ``a[k]`` and ``b[k]`` for every k."""
-        a, b = np.asarray(a, dtype=np.int64), np.asarray(b, dtype=np.int64)
-        while True:
-            r = self.roots()
-            ra, rb = r[a], r[b]
-            diff = ra != rb
-            if not diff.any():
-                return
-            np.minimum.at(self.parent, np.maximum(ra[diff], rb[diff]), np.minimum(ra[diff], rb[diff]))
+        from modalfem.collision._zone_kernels import union_pairs
+
+        a, b = np.asarray(a, dtype=np.int64).ravel(), np.asarray(b, dtype=np.int64).ravel()
+        if a.shape != b.shape:
+            raise ValueError(f"union of {a.shape} and {b.shape} nodes")
+        union_pairs(self.parent, a, b)
+
+    def union_quads(self, quads: np.ndarray) -> None:
+        """Merge the four nodes of every row of ``quads`` (k, 4)."""
+        from modalfem.collision._zone_kernels import union_quads
+
+        union_quads(self.parent, np.ascontiguousarray(quads, dtype=np.int64))
 
 
 def _skew(r: np.ndarray) -> np.ndarray:

@@ -17,6 +17,32 @@ def test_union_find_merges_transitively():
     assert r[0] == r[3] == r[5] == r[6] == 0 and len(set(r)) == 5
 
 
+def test_union_find_roots_are_the_smallest_member_of_each_connected_set():
+    """Random merges (pairs and quadruples, in several batches) against scipy's connected components: the
+    same sets, each rooted at its smallest node."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(4)
+    n = 500
+    uf = UnionFind(n)
+    a_all, b_all = [], []
+    for _ in range(3):
+        a, b = rng.integers(0, n, 120), rng.integers(0, n, 120)
+        uf.union(a, b)
+        q = rng.integers(0, n, (40, 4))
+        uf.union_quads(q)
+        a_all += [a] + [q[:, 0]] * 3
+        b_all += [b, q[:, 1], q[:, 2], q[:, 3]]
+        a_cat, b_cat = np.concatenate(a_all), np.concatenate(b_all)
+        _, lab = connected_components(coo_matrix((np.ones(len(a_cat)), (a_cat, b_cat)), shape=(n, n)), directed=False)
+        smallest = np.full(lab.max() + 1, n)
+        np.minimum.at(smallest, lab, np.arange(n))
+        r = uf.roots()
+        assert np.array_equal(r, smallest[lab])
+        assert 1 < len(np.unique(r)) < n
+
+
 def test_free_zone_conserves_linear_and_angular_momentum_and_is_rigid():
     rng = np.random.default_rng(0)
     X, V = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
