@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-__all__ = ["build_models", "measure_pile", "measure_resting"]
+__all__ = ["build_models", "measure_pile", "measure_resting", "pile_world"]
 
 BAR = {"size": (0.4, 0.1, 0.1), "cells": (40, 10, 10), "k": 12}
 TALL = {"size": (0.1, 0.1, 0.3), "cells": (3, 3, 9), "k": 30, "h": 1.67e-3}
@@ -160,19 +160,13 @@ def measure_resting(path: str, *, dt: float = 1e-3, settle: int = 300) -> dict:
             "load": [load0, os.getloadavg()[0]]}
 
 
-def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEPS, dt: float = PILE_DT) -> dict:
-    """``count`` modal bodies dropped into a box (ground and four walls: static obstacles of a ``World``), ``steps``
-    world steps: seconds per step (wall and CPU), largest contact counts, sweeps of the solve, intersecting triangle
-    pairs at the end (the exact test), beside the free step of the same bodies (``ModalSolver.step`` without
-    effects) in the same process. Momentum of every body-body impulse and the no-energy-gain rule are tested in
-    tests/world/test_modal_contacts.py, not here."""
-    import modalfem.runtime as rt
+def pile_world(paths: dict, *, count: int = PILE_COUNT):
+    """The pile's ``World`` (``count`` bodies above a box of ground and four walls) and each body's model, in order."""
     from modalfem import world as mw
     from modalfem.effects import Contact, Gravity
     from modalfem.model import ModalModel
     from modalfem.runtime.rotation import quat_from_axis_angle
 
-    load0 = os.getloadavg()[0]
     kinds = ["small_bar", "fork", "bell"]
     models = {k: ModalModel.load(paths[k]) for k in kinds}
     rng = np.random.default_rng(1)
@@ -188,8 +182,21 @@ def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEP
     world = mw.World(bodies=bodies, obstacles=walls,
                      effects=[Gravity(), Contact(restitution=0.3, friction=0.4, margin=PILE_MARGIN,
                                                  iterations=PILE_SWEEPS)])
+    return world, [models[kinds[i % 3]] for i in range(count)]
+
+
+def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEPS, dt: float = PILE_DT) -> dict:
+    """``count`` modal bodies dropped into a box (ground and four walls: static obstacles of a ``World``), ``steps``
+    world steps: seconds per step (wall and CPU), largest contact counts, sweeps of the solve, intersecting triangle
+    pairs at the end (the exact test), beside the free step of the same bodies (``ModalSolver.step`` without
+    effects) in the same process. Momentum of every body-body impulse and the no-energy-gain rule are tested in
+    tests/world/test_modal_contacts.py, not here."""
+    import modalfem.runtime as rt
+
+    load0 = os.getloadavg()[0]
+    world, pile_models = pile_world(paths, count=count)
     state = world.state()
-    free = [rt.ModalSolver(rt.ModalBody(models[kinds[i % 3]], dtype=np.float64)) for i in range(count)]
+    free = [rt.ModalSolver(rt.ModalBody(m, dtype=np.float64)) for m in pile_models]
     fst = [f.state() for f in free]
     for f, st, b in zip(free, fst, state.bodies.values()):
         st.assign(b)
@@ -217,5 +224,5 @@ def measure_pile(paths: dict, *, count: int = PILE_COUNT, steps: int = PILE_STEP
             "free_cpu": c_free, "contacts": contacts, "pair_contacts": pair_contacts,
             "sweeps": [float(np.mean(sweeps)), int(np.max(sweeps)), PILE_SWEEPS],
             "intersections": sum(k for _, _, k in world.intersections(state)), "max_height": max(heights),
-            "vertices": int(sum(world._modal[b.name]["body"].vertex_count for b in bodies)), "profile": top,
+            "vertices": int(sum(world._modal[n]["body"].vertex_count for n in state.bodies)), "profile": top,
             "load": [load0, os.getloadavg()[0]]}

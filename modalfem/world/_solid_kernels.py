@@ -31,6 +31,37 @@ def _to_local(x, R, p, out):
 
 
 @numba.njit(cache=True)
+def _vf_test(y, Xb, Tb, t, reach, x, w, i, best, dbest, gbest, bary, nloc):
+    """Point ``y`` (b's axes) against b's triangle ``t``: when within ``reach`` [m] and closer than query ``i``'s
+    best so far (ties: the one ``y`` is most in front of), it becomes the best (its distance, plane gap [m],
+    barycentric weights and unit normal in b's axes)."""
+    a, b, c = Tb[t, 0], Tb[t, 1], Tb[t, 2]
+    for d in range(3):
+        x[0, d] = y[d]
+        x[1, d] = Xb[a, d]
+        x[2, d] = Xb[b, d]
+        x[3, d] = Xb[c, d]
+    dist = point_triangle_closest(x, w)
+    if not dist <= reach:
+        return
+    e10, e11, e12 = x[2, 0] - x[1, 0], x[2, 1] - x[1, 1], x[2, 2] - x[1, 2]
+    e20, e21, e22 = x[3, 0] - x[1, 0], x[3, 1] - x[1, 1], x[3, 2] - x[1, 2]
+    f0, f1, f2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+    ln = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    if not ln > 0.0:
+        return
+    f0, f1, f2 = f0 / ln, f1 / ln, f2 / ln
+    g = 0.0
+    for d in range(3):
+        q = w[0] * x[1, d] + w[1] * x[2, d] + w[2] * x[3, d]
+        g += (x[0, d] - q) * (f0 if d == 0 else (f1 if d == 1 else f2))
+    if dist < dbest[i] * (1.0 - 1e-12) or (dist <= dbest[i] * (1.0 + 1e-12) and g > gbest[i]):
+        best[i], dbest[i], gbest[i] = t, dist, g
+        bary[i, 0], bary[i, 1], bary[i, 2] = w[0], w[1], w[2]
+        nloc[i, 0], nloc[i, 1], nloc[i, 2] = f0, f1, f2
+
+
+@numba.njit(cache=True)
 def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
     """Vertices of body a within ``reach`` [m] of body b's deformed surface, each with its closest triangle.
 
@@ -72,31 +103,8 @@ def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty,
     x = np.empty((4, 3))
     w = np.empty(3)
     for k in range(pairs.shape[0]):
-        i, t = pairs[k, 0], pairs[k, 1]
-        a, b, c = Tb[t, 0], Tb[t, 1], Tb[t, 2]
-        for d in range(3):
-            x[0, d] = y[i, d]
-            x[1, d] = Xb[a, d]
-            x[2, d] = Xb[b, d]
-            x[3, d] = Xb[c, d]
-        dist = point_triangle_closest(x, w)
-        if not dist <= reach:
-            continue
-        e10, e11, e12 = x[2, 0] - x[1, 0], x[2, 1] - x[1, 1], x[2, 2] - x[1, 2]
-        e20, e21, e22 = x[3, 0] - x[1, 0], x[3, 1] - x[1, 1], x[3, 2] - x[1, 2]
-        f0, f1, f2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
-        ln = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
-        if not ln > 0.0:
-            continue
-        f0, f1, f2 = f0 / ln, f1 / ln, f2 / ln
-        g = 0.0
-        for d in range(3):
-            q = w[0] * x[1, d] + w[1] * x[2, d] + w[2] * x[3, d]
-            g += (x[0, d] - q) * (f0 if d == 0 else (f1 if d == 1 else f2))
-        if dist < dbest[i] * (1.0 - 1e-12) or (dist <= dbest[i] * (1.0 + 1e-12) and g > gbest[i]):
-            best[i], dbest[i], gbest[i] = t, dist, g
-            bary[i, 0], bary[i, 1], bary[i, 2] = w[0], w[1], w[2]
-            nloc[i, 0], nloc[i, 1], nloc[i, 2] = f0, f1, f2
+        i = pairs[k, 0]
+        _vf_test(y[i], Xb, Tb, pairs[k, 1], reach, x, w, i, best, dbest, gbest, bary, nloc)
     k = 0
     for i in range(m):
         if best[i] >= 0:
@@ -116,6 +124,51 @@ def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty,
             normal[k, c] = Rb[c, 0] * nloc[i, 0] + Rb[c, 1] * nloc[i, 1] + Rb[c, 2] * nloc[i, 2]
         k += 1
     return vertex, tri, wb, gap, normal
+
+
+@numba.njit(cache=True)
+def _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res):
+    """Edge ``y0 y1`` (b's axes) against b's edge ``f``: True when within ``margin`` [m] with closest points inside
+    both edges, at least ~12 degrees from parallel; then ``res`` = (s, t, gap, normal in b's axes (3))."""
+    for d in range(3):
+        x[0, d] = y0[d]
+        x[1, d] = y1[d]
+        x[2, d] = Xb[Eb[f, 0], d]
+        x[3, d] = Xb[Eb[f, 1], d]
+    dist, s, t = edge_edge_closest(x)
+    if not (dist <= margin and 1e-6 < s < 1 - 1e-6 and 1e-6 < t < 1 - 1e-6):
+        return False
+    u0, u1, u2 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
+    v0, v1, v2 = x[3, 0] - x[2, 0], x[3, 1] - x[2, 1], x[3, 2] - x[2, 2]
+    c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+    if not (math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+            > 0.2 * math.sqrt(u0 * u0 + u1 * u1 + u2 * u2) * math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)):
+        return False
+    s0 = s1 = s2 = 0.0
+    for j in range(2):
+        fc = adj[f, j]
+        if fc < 0:
+            continue
+        a, b, c = Tb[fc, 0], Tb[fc, 1], Tb[fc, 2]
+        e10, e11, e12 = Xb[b, 0] - Xb[a, 0], Xb[b, 1] - Xb[a, 1], Xb[b, 2] - Xb[a, 2]
+        e20, e21, e22 = Xb[c, 0] - Xb[a, 0], Xb[c, 1] - Xb[a, 1], Xb[c, 2] - Xb[a, 2]
+        f0, f1, f2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
+        ln = max(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2), 1e-300)
+        s0, s1, s2 = s0 + f0 / ln, s1 + f1 / ln, s2 + f2 / ln
+    dd = max(dist, 1e-300)
+    n0 = (x[0, 0] + s * u0 - x[2, 0] - t * v0) / dd
+    n1 = (x[0, 1] + s * u1 - x[2, 1] - t * v1) / dd
+    n2 = (x[0, 2] + s * u2 - x[2, 2] - t * v2) / dd
+    g = dist
+    if n0 * s0 + n1 * s1 + n2 * s2 < 0:
+        n0, n1, n2, g = -n0, -n1, -n2, -dist
+    if dist <= 1e-12 * scale:
+        ls = max(math.sqrt(s0 * s0 + s1 * s1 + s2 * s2), 1e-300)
+        n0, n1, n2 = s0 / ls, s1 / ls, s2 / ls
+    if not math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) > 0.5:
+        return False
+    res[0], res[1], res[2], res[3], res[4], res[5] = s, t, g, n0, n1, n2
+    return True
 
 
 @numba.njit(cache=True)
@@ -168,50 +221,15 @@ def edge_edge(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, bound, margin, blo, bhi, P, lo, h
     gap = np.empty(n)
     normal = np.empty((n, 3))
     x = np.empty((4, 3))
+    res = np.empty(6)
     k = 0
     for p in range(n):
         q, f = pairs[p, 0], pairs[p, 1]
-        for d in range(3):
-            x[0, d] = y[q, 0, d]
-            x[1, d] = y[q, 1, d]
-            x[2, d] = Xb[Eb[f, 0], d]
-            x[3, d] = Xb[Eb[f, 1], d]
-        dist, s, t = edge_edge_closest(x)
-        if not (dist <= margin and 1e-6 < s < 1 - 1e-6 and 1e-6 < t < 1 - 1e-6):
-            continue
-        u0, u1, u2 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
-        v0, v1, v2 = x[3, 0] - x[2, 0], x[3, 1] - x[2, 1], x[3, 2] - x[2, 2]
-        c0, c1, c2 = u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
-        if not (math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-                > 0.2 * math.sqrt(u0 * u0 + u1 * u1 + u2 * u2) * math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)):
-            continue
-        s0 = s1 = s2 = 0.0
-        for j in range(2):
-            fc = adj[f, j]
-            if fc < 0:
-                continue
-            a, b, c = Tb[fc, 0], Tb[fc, 1], Tb[fc, 2]
-            e10, e11, e12 = Xb[b, 0] - Xb[a, 0], Xb[b, 1] - Xb[a, 1], Xb[b, 2] - Xb[a, 2]
-            e20, e21, e22 = Xb[c, 0] - Xb[a, 0], Xb[c, 1] - Xb[a, 1], Xb[c, 2] - Xb[a, 2]
-            f0, f1, f2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
-            ln = max(math.sqrt(f0 * f0 + f1 * f1 + f2 * f2), 1e-300)
-            s0, s1, s2 = s0 + f0 / ln, s1 + f1 / ln, s2 + f2 / ln
-        dd = max(dist, 1e-300)
-        n0 = (x[0, 0] + s * u0 - x[2, 0] - t * v0) / dd
-        n1 = (x[0, 1] + s * u1 - x[2, 1] - t * v1) / dd
-        n2 = (x[0, 2] + s * u2 - x[2, 2] - t * v2) / dd
-        g = dist
-        if n0 * s0 + n1 * s1 + n2 * s2 < 0:
-            n0, n1, n2, g = -n0, -n1, -n2, -dist
-        if dist <= 1e-12 * scale:
-            ls = max(math.sqrt(s0 * s0 + s1 * s1 + s2 * s2), 1e-300)
-            n0, n1, n2 = s0 / ls, s1 / ls, s2 / ls
-        if not math.sqrt(n0 * n0 + n1 * n1 + n2 * n2) > 0.5:
-            continue
-        mine[k], other[k], so[k], to[k], gap[k] = sel[q], f, s, t, g
-        for c in range(3):
-            normal[k, c] = Rb[c, 0] * n0 + Rb[c, 1] * n1 + Rb[c, 2] * n2
-        k += 1
+        if _ee_test(y[q, 0], y[q, 1], Xb, Eb, adj, Tb, f, margin, scale, x, res):
+            mine[k], other[k], so[k], to[k], gap[k] = sel[q], f, res[0], res[1], res[2]
+            for c in range(3):
+                normal[k, c] = Rb[c, 0] * res[3] + Rb[c, 1] * res[4] + Rb[c, 2] * res[5]
+            k += 1
     return mine[:k], other[:k], so[:k], to[:k], gap[:k], normal[:k]
 
 
@@ -347,6 +365,45 @@ def rows(body_a, verts_a, w_a, body_b, verts_b, w_b, point, point_b, R, Iw_inv, 
 
 
 @numba.njit(cache=True)
+def _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee):
+    """The per-pair outputs of ``vertex_face`` (bodies ``vl_a`` on ``vl_b``) and ``edge_edge`` in one array each,
+    as ``all_pairs`` returns them."""
+    va = np.empty(nvf, dtype=np.int64)
+    vb = np.empty(nvf, dtype=np.int64)
+    vv = np.empty(nvf, dtype=np.int64)
+    vt = np.empty(nvf, dtype=np.int64)
+    vw = np.empty((nvf, 3))
+    vg = np.empty(nvf)
+    vn = np.empty((nvf, 3))
+    k = 0
+    for j in range(len(vl)):
+        o = vl[j]
+        for r in range(o[0].shape[0]):
+            va[k], vb[k], vv[k], vt[k], vg[k] = vl_a[j], vl_b[j], o[0][r], o[1][r], o[3][r]
+            for c in range(3):
+                vw[k, c] = o[2][r, c]
+                vn[k, c] = o[4][r, c]
+            k += 1
+    ea = np.empty(nee, dtype=np.int64)
+    eb = np.empty(nee, dtype=np.int64)
+    em = np.empty(nee, dtype=np.int64)
+    eo = np.empty(nee, dtype=np.int64)
+    es = np.empty(nee)
+    et = np.empty(nee)
+    eg = np.empty(nee)
+    en = np.empty((nee, 3))
+    k = 0
+    for j in range(len(el)):
+        o = el[j]
+        for r in range(o[0].shape[0]):
+            ea[k], eb[k], em[k], eo[k], es[k], et[k], eg[k] = el_a[j], el_b[j], o[0][r], o[1][r], o[2][r], o[3][r], o[4][r]
+            for c in range(3):
+                en[k, c] = o[5][r, c]
+            k += 1
+    return (va, vb, vv, vt, vw, vg, vn), (ea, eb, em, eo, es, et, eg, en)
+
+
+@numba.njit(cache=True)
 def all_pairs(pa, pb, rr, mm, X, Xl, voff, R, pos, bound, blo, bhi, tris, toff, edges, eoff, adj,
               tP, tlo, thi, tne, tslot, tslo, tshi, eP, elo, ehi, ene, eslot, eslo, eshi):
     """``vertex_face`` both ways and ``edge_edge`` for every candidate pair of bodies in one call.
@@ -390,36 +447,323 @@ def all_pairs(pa, pb, rr, mm, X, Xl, voff, R, pos, bound, blo, bhi, tris, toff, 
             el_b.append(b)
             el.append(out2)
             nee += out2[0].shape[0]
-    va = np.empty(nvf, dtype=np.int64)
-    vb = np.empty(nvf, dtype=np.int64)
-    vv = np.empty(nvf, dtype=np.int64)
-    vt = np.empty(nvf, dtype=np.int64)
-    vw = np.empty((nvf, 3))
-    vg = np.empty(nvf)
-    vn = np.empty((nvf, 3))
+    return _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee)
+
+
+@numba.njit(cache=True)
+def _vf_candidates(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
+    """Every (vertex of a, triangle of b) pair closer than ``radius`` [m] (arguments as ``vertex_face``), grouped
+    by vertex in increasing order, each vertex's triangles in the tree's order (the order ``vertex_face`` meets
+    them in): ``(vertices, triangles)``, (k,) each."""
+    na = xa.shape[0]
+    near = np.empty(na, dtype=np.int64)
+    m = 0
+    for j in range(na):
+        if (blo[0] - radius <= xa[j, 0] <= bhi[0] + radius and blo[1] - radius <= xa[j, 1] <= bhi[1] + radius
+                and blo[2] - radius <= xa[j, 2] <= bhi[2] + radius):
+            near[m] = j
+            m += 1
+    y = np.empty((m, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for i in range(m):
+        _to_local(xa[near[i]], Rb, pb, y[i])
+        for c in range(3):
+            qlo[i, c] = y[i, c] - grow
+            qhi[i, c] = y[i, c] + grow
+    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    n = pairs.shape[0]
+    cv = np.empty(n, dtype=np.int64)
+    ct = np.empty(n, dtype=np.int64)
+    x = np.empty((4, 3))
+    w = np.empty(3)
     k = 0
-    for j in range(len(vl)):
-        o = vl[j]
-        for r in range(o[0].shape[0]):
-            va[k], vb[k], vv[k], vt[k], vg[k] = vl_a[j], vl_b[j], o[0][r], o[1][r], o[3][r]
-            for c in range(3):
-                vw[k, c] = o[2][r, c]
-                vn[k, c] = o[4][r, c]
+    for p in range(n):
+        i, t = pairs[p, 0], pairs[p, 1]
+        for d in range(3):
+            x[0, d] = y[i, d]
+            x[1, d] = Xb[Tb[t, 0], d]
+            x[2, d] = Xb[Tb[t, 1], d]
+            x[3, d] = Xb[Tb[t, 2], d]
+        if point_triangle_closest(x, w) <= radius:
+            cv[k], ct[k] = near[i], t
             k += 1
-    ea = np.empty(nee, dtype=np.int64)
-    eb = np.empty(nee, dtype=np.int64)
-    em = np.empty(nee, dtype=np.int64)
-    eo = np.empty(nee, dtype=np.int64)
-    es = np.empty(nee)
-    et = np.empty(nee)
-    eg = np.empty(nee)
-    en = np.empty((nee, 3))
+    return cv[:k].copy(), ct[:k].copy()
+
+
+@numba.njit(cache=True)
+def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct):
+    """``vertex_face`` over the candidate pairs ``cv``, ``ct`` of ``_vf_candidates`` (a superset of the pairs
+    within ``reach``): the same contacts, in the same order."""
+    n = cv.shape[0]
+    m = 0
+    prev = -1
+    for k in range(n):
+        if cv[k] != prev:
+            m += 1
+            prev = cv[k]
+    vid = np.empty(m, dtype=np.int64)
+    best = np.full(m, -1, dtype=np.int64)
+    dbest = np.full(m, np.inf)
+    gbest = np.zeros(m)
+    bary = np.zeros((m, 3))
+    nloc = np.zeros((m, 3))
+    x = np.empty((4, 3))
+    w = np.empty(3)
+    y = np.empty(3)
+    i = -1
+    prev = -1
+    for k in range(n):
+        if cv[k] != prev:
+            i += 1
+            prev = cv[k]
+            vid[i] = prev
+            _to_local(xa[prev], Rb, pb, y)
+        _vf_test(y, Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
     k = 0
-    for j in range(len(el)):
-        o = el[j]
-        for r in range(o[0].shape[0]):
-            ea[k], eb[k], em[k], eo[k], es[k], et[k], eg[k] = el_a[j], el_b[j], o[0][r], o[1][r], o[2][r], o[3][r], o[4][r]
-            for c in range(3):
-                en[k, c] = o[5][r, c]
+    for i in range(m):
+        if best[i] >= 0:
             k += 1
-    return (va, vb, vv, vt, vw, vg, vn), (ea, eb, em, eo, es, et, eg, en)
+    vertex = np.empty(k, dtype=np.int64)
+    tri = np.empty(k, dtype=np.int64)
+    wb = np.empty((k, 3))
+    gap = np.empty(k)
+    normal = np.empty((k, 3))
+    k = 0
+    for i in range(m):
+        if best[i] < 0:
+            continue
+        vertex[k], tri[k], gap[k] = vid[i], best[i], gbest[i]
+        for c in range(3):
+            wb[k, c] = bary[i, c]
+            normal[k, c] = Rb[c, 0] * nloc[i, 0] + Rb[c, 1] * nloc[i, 1] + Rb[c, 2] * nloc[i, 2]
+        k += 1
+    return vertex, tri, wb, gap, normal
+
+
+@numba.njit(cache=True)
+def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
+    """Every (edge of a, edge of b) pair closer than ``radius`` [m] (arguments as ``edge_edge``), grouped by a's
+    edge in increasing order, in the order ``edge_edge`` meets them: ``(mine, other)``, (k,) each."""
+    ne = Ea.shape[0]
+    sel = np.empty(ne, dtype=np.int64)
+    m = 0
+    for e in range(ne):
+        i, j = Ea[e, 0], Ea[e, 1]
+        ok = True
+        for c in range(3):
+            if min(xa[i, c], xa[j, c]) > bhi[c] + radius or max(xa[i, c], xa[j, c]) < blo[c] - radius:
+                ok = False
+        if ok:
+            sel[m] = e
+            m += 1
+    y = np.empty((m, 2, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for q in range(m):
+        _to_local(xa[Ea[sel[q], 0]], Rb, pb, y[q, 0])
+        _to_local(xa[Ea[sel[q], 1]], Rb, pb, y[q, 1])
+        for c in range(3):
+            qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
+            qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
+    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    n = pairs.shape[0]
+    cm = np.empty(n, dtype=np.int64)
+    co = np.empty(n, dtype=np.int64)
+    x = np.empty((4, 3))
+    k = 0
+    for p in range(n):
+        q, f = pairs[p, 0], pairs[p, 1]
+        for d in range(3):
+            x[0, d] = y[q, 0, d]
+            x[1, d] = y[q, 1, d]
+            x[2, d] = Xb[Eb[f, 0], d]
+            x[3, d] = Xb[Eb[f, 1], d]
+        if edge_edge_closest(x)[0] <= radius:
+            cm[k], co[k] = sel[q], f
+            k += 1
+    return cm[:k].copy(), co[:k].copy()
+
+
+@numba.njit(cache=True)
+def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co):
+    """``edge_edge`` over the candidate pairs ``cm``, ``co`` of ``_ee_candidates`` (a superset of the pairs within
+    ``margin``; ``scale``: max(1, largest |coordinate| of ``Xb``) [m]): the same pairs, in the same order."""
+    n = cm.shape[0]
+    mine = np.empty(n, dtype=np.int64)
+    other = np.empty(n, dtype=np.int64)
+    so = np.empty(n)
+    to = np.empty(n)
+    gap = np.empty(n)
+    normal = np.empty((n, 3))
+    x = np.empty((4, 3))
+    res = np.empty(6)
+    y0 = np.empty(3)
+    y1 = np.empty(3)
+    k = 0
+    prev = -1
+    for p in range(n):
+        e, f = cm[p], co[p]
+        if e != prev:
+            prev = e
+            _to_local(xa[Ea[e, 0]], Rb, pb, y0)
+            _to_local(xa[Ea[e, 1]], Rb, pb, y1)
+        if _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res):
+            mine[k], other[k], so[k], to[k], gap[k] = e, f, res[0], res[1], res[2]
+            for c in range(3):
+                normal[k, c] = Rb[c, 0] * res[3] + Rb[c, 1] * res[4] + Rb[c, 2] * res[5]
+            k += 1
+    return mine[:k], other[:k], so[:k], to[:k], gap[:k], normal[:k]
+
+
+#: layout of a pair's row in the coherence cache's ``meta`` (see ``coherent_pairs``)
+_M_AB, _T_AB, _M_BA, _T_BA, _BOUND_A, _BOUND_B, _R_VF, _R_EE, _VALID = 0, 9, 12, 21, 24, 25, 26, 27, 28
+META = 29
+
+
+@numba.njit(cache=True)
+def _relative(Ra, Rb, pa, pb, M, t):
+    """a's body axes in b's: ``y = M x + t`` with ``M = Rb^T Ra``, ``t = Rb^T (pa - pb)`` [m]."""
+    for i in range(3):
+        for j in range(3):
+            M[3 * i + j] = Rb[0, i] * Ra[0, j] + Rb[1, i] * Ra[1, j] + Rb[2, i] * Ra[2, j]
+        t[i] = Rb[0, i] * (pa[0] - pb[0]) + Rb[1, i] * (pa[1] - pb[1]) + Rb[2, i] * (pa[2] - pb[2])
+
+
+@numba.njit(cache=True)
+def _drift(M, t, M0, t0, size):
+    """Largest move [m] of a point within ``size`` of a's centre (in a's axes) when a's axes in b's go from
+    (M0, t0) to (M, t): ``|(M - M0) x + (t - t0)| <= ||M - M0||_F |x| + |t - t0|``."""
+    f = 0.0
+    for i in range(9):
+        f += (M[i] - M0[i]) ** 2
+    d = 0.0
+    for i in range(3):
+        d += (t[i] - t0[i]) ** 2
+    return math.sqrt(f) * size + math.sqrt(d)
+
+
+@numba.njit(cache=True)
+def _deformed(q, o, r, amp, snap):
+    """Largest move [m] of any surface vertex of a body in its own axes since its modal coordinates were ``snap``:
+    ``sum_m amp_m |q_m - snap_m|`` (amp_m = max over vertices of |Phi_v m|), plus the rounding of the products
+    (1e-5 of ``sum_m amp_m (|q_m| + |snap_m|)``, above float32's for up to ~80 modes) and 1e-12 m (float64
+    rounding of the coordinates; the positions' flush of modes below 1e-20 m is within it)."""
+    s = 0.0
+    u = 0.0
+    for m in range(r):
+        s += amp[o + m] * abs(q[o + m] - snap[m])
+        u += amp[o + m] * (abs(q[o + m]) + abs(snap[m]))
+    return s + 1e-5 * u + 1e-12
+
+
+@numba.njit(cache=True)
+def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q, qoff, nm, amp, blo, bhi, tris, toff,
+                   edges, eoff, adj, meta, qsnap, cva, cta, cvb, ctb, cem, ceo,
+                   tP, tlo, thi, tne, tslot, tslo, tshi, eP, elo, ehi, ene, eslot, eslo, eshi):
+    """``all_pairs`` with temporal coherence: the same contacts in the same order, the trees walked only when a
+    pair's bodies have moved, relative to each other or in shape, more than a slack since its last walk.
+
+    Why nothing is missed: the walk of pair (a, b) at time t0 keeps every (vertex, triangle) pair within
+    ``R = reach + slack`` [m] and every (edge, edge) pair within ``Re = margin + slack`` (``_vf_candidates``,
+    ``_ee_candidates``), and records a's axes in b's (M0, t0), both bodies' modal coordinates and deformation
+    bounds. Later a vertex of a, at ``x`` in a's axes (``|x| <= radius_a + bound_a(t0)`` then), sits in b's axes
+    at ``M x + t``; since t0 it has moved by at most ``da = ||M - M0||_F (radius_a + bound_a(t0)) + |t - t0| +
+    deform_a`` (``_drift``; deform_a: ``_deformed``, the most any vertex moved in a's own axes), and every point
+    of b's triangles by at most ``deform_b`` in b's axes. Point-triangle and segment-segment distances move by
+    at most the sum of their ends' moves (1-Lipschitz; a triangle's points are convex combinations of its
+    corners), so a pair farther than R at t0 is farther than ``R - da - deform_b`` now. The kept pairs are
+    therefore a superset of the pairs within this step's ``reach`` (``margin``) while ``reach + da + deform_b
+    <= R`` (``margin + da + deform_b <= Re``), and the same both ways with a and b swapped; else the pair is
+    walked again with this step's radii. ``_vf_eval`` / ``_ee_eval`` then test the kept pairs in the order the
+    walk met them: the same selection, ties included, as ``vertex_face`` / ``edge_edge``.
+
+    Args:
+        pa ... bhi, tris ... adj, tP ... eshi: as ``all_pairs``; slack: (p,) [m]; radius: (n,) the bodies' rest
+            radii about their centres of mass [m]; q: every body's modal coordinates, body i's ``nm[i]`` from
+            ``qoff[i]``; amp: the same layout, max over vertices of |Phi_v m| [m / q unit].
+        meta, qsnap, cva ... ceo: the cache, one row per ordered pair ``a * n + b`` (a < b): ``meta`` (n*n,
+            ``META``) floats, ``qsnap`` (n*n, 2, max modes), typed lists of int64 arrays (a's vertices on b's
+            triangles, b's vertices on a's, a's edges on b's). Updated in place.
+
+    Returns:
+        ``(vf, ee, walks)``: as ``all_pairs``, and the number of pairs whose trees were walked.
+    """
+    nb = voff.shape[0] - 1
+    scale = np.ones(nb)
+    for i in range(nb):
+        for v in range(voff[i], voff[i + 1]):
+            for c in range(3):
+                scale[i] = max(scale[i], abs(Xl[v, c]))
+    M = np.empty(9)
+    t = np.empty(3)
+    M2 = np.empty(9)
+    t2 = np.empty(3)
+    vl_a = numba.typed.List()
+    vl_b = numba.typed.List()
+    vl = numba.typed.List()
+    el_a = numba.typed.List()
+    el_b = numba.typed.List()
+    el = numba.typed.List()
+    nvf = 0
+    nee = 0
+    walks = 0
+    for i in range(pa.shape[0]):
+        a, b = pa[i], pb[i]
+        s = a * nb + b
+        row = meta[s]
+        _relative(R[a], R[b], pos[a], pos[b], M, t)
+        _relative(R[b], R[a], pos[b], pos[a], M2, t2)
+        ok = row[_VALID] > 0.0
+        if ok:
+            fa = _deformed(q, qoff[a], nm[a], amp, qsnap[s, 0])
+            fb = _deformed(q, qoff[b], nm[b], amp, qsnap[s, 1])
+            da = _drift(M, t, row[_M_AB:_M_AB + 9], row[_T_AB:_T_AB + 3], radius[a] + row[_BOUND_A]) + fa
+            db = _drift(M2, t2, row[_M_BA:_M_BA + 9], row[_T_BA:_T_BA + 3], radius[b] + row[_BOUND_B]) + fb
+            ok = (rr[i] + da + fb <= row[_R_VF] and rr[i] + db + fa <= row[_R_VF] and mm[i] + da + fb <= row[_R_EE])
+        if not ok:
+            walks += 1
+            row[_R_VF] = rr[i] + slack[i]
+            row[_R_EE] = mm[i] + slack[i]
+            row[_M_AB:_M_AB + 9] = M
+            row[_T_AB:_T_AB + 3] = t
+            row[_M_BA:_M_BA + 9] = M2
+            row[_T_BA:_T_BA + 3] = t2
+            row[_BOUND_A], row[_BOUND_B] = bound[a], bound[b]
+            row[_VALID] = 1.0
+            qsnap[s, 0, :nm[a]] = q[qoff[a]:qoff[a] + nm[a]]
+            qsnap[s, 1, :nm[b]] = q[qoff[b]:qoff[b] + nm[b]]
+            for side in range(2):
+                p, o = (a, b) if side == 0 else (b, a)
+                cv, ct = _vf_candidates(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]],
+                                        tris[toff[o]:toff[o + 1]], bound[o], row[_R_VF], blo[o], bhi[o], tP[o],
+                                        tlo[o], thi[o], tne[o], tslot[o], tslo[o], tshi[o])
+                if side == 0:
+                    cva[s], cta[s] = cv, ct
+                else:
+                    cvb[s], ctb[s] = cv, ct
+            cm, co = _ee_candidates(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b],
+                                    Xl[voff[b]:voff[b + 1]], edges[eoff[b]:eoff[b + 1]], bound[b], row[_R_EE], blo[b],
+                                    bhi[b], eP[b], elo[b], ehi[b], ene[b], eslot[b], eslo[b], eshi[b])
+            cem[s], ceo[s] = cm, co
+        for side in range(2):
+            p, o = (a, b) if side == 0 else (b, a)
+            out = _vf_eval(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]], tris[toff[o]:toff[o + 1]],
+                           rr[i], cva[s] if side == 0 else cvb[s], cta[s] if side == 0 else ctb[s])
+            if out[0].shape[0]:
+                vl_a.append(p)
+                vl_b.append(o)
+                vl.append(out)
+                nvf += out[0].shape[0]
+        out2 = _ee_eval(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
+                        edges[eoff[b]:eoff[b + 1]], adj[eoff[b]:eoff[b + 1]], tris[toff[b]:toff[b + 1]], mm[i],
+                        scale[b], cem[s], ceo[s])
+        if out2[0].shape[0]:
+            el_a.append(a)
+            el_b.append(b)
+            el.append(out2)
+            nee += out2[0].shape[0]
+    vf, ee = _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee)
+    return vf, ee, walks

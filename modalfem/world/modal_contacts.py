@@ -26,6 +26,9 @@ __all__ = ["ModalContacts"]
 #: contact kinds in the warm-start keys
 _VF, _EE, _PLANE = 0, 1, 2
 _FEATURES = 1 << 24  # feature indices (vertex, edge) below this in a key
+#: a pair's tree walk keeps the features within its search radius plus this fraction of its margin, and is reused
+#: while the bodies move (relative to each other, or in shape) less than what is left of that slack
+SLACK = 0.5
 
 
 class ModalContacts:
@@ -76,6 +79,25 @@ class ModalContacts:
         self._adj = np.concatenate(self.adj) if self.bodies else np.zeros((0, 2), int)
         self._treelists = _tree_lists(self.trees) + _tree_lists(self.etrees)
         self.mask = np.zeros(int(nm.sum()), dtype=np.int64)
+        # temporal coherence of the pair search (``_solid_kernels.coherent_pairs``): each mode's largest vertex
+        # displacement per unit coordinate, the bodies' rest radii, and the cache of every pair's last walk
+        self._amp = np.concatenate([np.zeros(0)] + [
+            np.sqrt(np.einsum("mvc,mvc->mv", b._modes3, b._modes3, dtype=np.float64)).max(1) for b in self.bodies
+            if b.mode_count])
+        self._qoff = self.mask_off
+        self._radius = np.array([b.radius for b in self.bodies], dtype=np.float64)
+        self.walks = 0  # pairs whose trees the last ``collect`` walked (the others reused their last walk)
+        self.reset_coherence()
+
+    def reset_coherence(self) -> None:
+        """Forget every pair's last tree walk (the next ``collect`` walks every pair whose bodies' boxes meet)."""
+        from numba.typed import List
+
+        nb = len(self.bodies)
+        self._meta = np.zeros((nb * nb, SK.META))
+        self._qsnap = np.zeros((nb * nb, 2, max([int(v) for v in self.nm] + [1])))
+        empty = np.zeros(0, dtype=np.int64)
+        self._cache = tuple(List([empty] * (nb * nb)) for _ in range(6))
 
     def _masks(self, dt: float) -> np.ndarray:
         if self._mask_dt != dt:
@@ -135,10 +157,14 @@ class ModalContacts:
         meet = np.all((lo[:, None, :] - rr[:, :, None] <= hi[None, :, :])
                       & (lo[None, :, :] - rr[:, :, None] <= hi[:, None, :]), axis=2)
         ia, ib = np.nonzero(np.triu(meet, 1))
+        self.walks = 0
         if len(ia):
-            (pa, qa, v, tri, wb, g, nrm), (a, b, mine, other, s, tt, ge, ne) = SK.all_pairs(
-                ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], X, np.concatenate(Xl), voff, R, pos,
-                bound, lo, hi, self._tris, self._toff, self._edges, self._eoff, self._adj, *self._treelists)
+            q = np.concatenate([states[n].q for n in self.names]).astype(np.float64)
+            (pa, qa, v, tri, wb, g, nrm), (a, b, mine, other, s, tt, ge, ne), self.walks = SK.coherent_pairs(
+                ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], SLACK * mm[ia, ib], X,
+                np.concatenate(Xl), voff, R, pos, bound, self._radius, q, self._qoff, self.nm, self._amp, lo, hi,
+                self._tris, self._toff, self._edges, self._eoff, self._adj, self._meta, self._qsnap, *self._cache,
+                *self._treelists)
             if len(v):
                 k = len(v)
                 va, wa = _one_vertex(v)

@@ -282,3 +282,89 @@ def test_blocks_dropped_on_each_other_do_not_interpenetrate(bar_model, dt):
         assert w.intersections(s) == []
     assert s["b"].position[2] > s["a"].position[2] + 0.04  # stacked
     assert abs(s["b"].velocity[2]) < 0.05
+
+
+def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(bar_model, monkeypatch):
+    """Temporal coherence (``_solid_kernels.coherent_pairs``: a pair's tree walk reused while its bodies move less
+    than a slack) changes nothing: at every step of five bars thrown at each other and ringing (their modal
+    coordinates set each step to move vertices by up to ~2 mm, more than the slack, so shape changes alone must
+    trigger new walks), the vertex-face and edge-edge contacts are exactly those of ``all_pairs`` (every pair's
+    trees walked afresh), in the same order; walks are reused and redone."""
+    from modalfem.world import _solid_kernels as SK
+
+    rng = np.random.default_rng(5)
+    bodies = []
+    for i in range(5):
+        axis = rng.normal(size=3)
+        pos = 0.09 * np.array([np.cos(1.3 * i), np.sin(1.3 * i), 0.6 * (i - 2)])
+        bodies.append(mw.Modal(bar_model, name=f"b{i}", position=pos,
+                               orientation=quat_from_axis_angle(axis / np.linalg.norm(axis), rng.uniform(0, 3)),
+                               velocity=-0.5 * pos + 0.02 * rng.normal(size=3),
+                               angular_velocity=0.2 * rng.normal(size=3)))
+    w = mw.World(bodies=bodies, effects=[Contact(restitution=0.5, friction=0.4, margin=2e-3)])
+    s = w.state()
+    body = w._modal["b0"]["body"]
+    r = body.mode_count
+    amp = 1.5e-3 / np.abs(body.shapes).max() / np.sqrt(r)
+    phase = rng.uniform(0, 2 * np.pi, size=(5, r))
+    coherent = SK.coherent_pairs
+    seen = {"walks": 0, "pairs": 0, "contacts": 0}
+
+    def checked(*a):
+        out = coherent(*a)
+        # all_pairs takes the same arguments less the slack (4), radius, q, qoff, nm, amp (11-15) and the cache
+        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[31:])
+        for x, y in zip(out[0] + out[1], ref[0] + ref[1]):
+            assert x.shape == y.shape and np.array_equal(x, y)
+        seen["walks"] += out[2]
+        seen["pairs"] += len(a[0])
+        seen["contacts"] += len(out[0][0]) + len(out[1][0])
+        return out
+
+    monkeypatch.setattr(SK, "coherent_pairs", checked)
+    for k in range(200):
+        for i, b in enumerate(bodies):  # ringing: each mode at its own phase, a period of ~600 steps
+            s[b.name].q[:] = amp * np.sin(0.01 * k + phase[i])
+        w.step(s, s, None, 1e-3)
+    assert seen["contacts"] > 1000
+    assert 0 < seen["walks"] < 0.5 * seen["pairs"]
+
+
+def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the_bodies(bar_model, monkeypatch):
+    """Two crossed bars, 2 mm into each other's margin: first only ringing (their centres and axes fixed, modal
+    coordinates moving vertices by up to ~6 mm), then only turning (b about its own centre, ~0.2 mm per step at its
+    ends). Each alone is enough to bring features within reach that were beyond the last walk's radius: the
+    contacts found stay exactly those of a fresh walk at every step, and new walks happen in both phases."""
+    from modalfem.runtime.rotation import quat_multiply
+    from modalfem.world import _solid_kernels as SK
+
+    rng = np.random.default_rng(7)
+    w, s = _pair_world(bar_model, rng, overlap=2e-3)
+    r = w._modal["a"]["body"].mode_count
+    amp = 6e-3 / np.abs(w._modal["a"]["body"].shapes).max() / np.sqrt(r)
+    phase = rng.uniform(0, 2 * np.pi, size=(2, r))
+    coherent = SK.coherent_pairs
+    walks = []
+
+    def checked(*a):
+        out = coherent(*a)
+        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[31:])  # as the test above
+        for x, y in zip(out[0] + out[1], ref[0] + ref[1]):
+            assert x.shape == y.shape and np.array_equal(x, y)
+        walks.append(out[2])
+        return out
+
+    monkeypatch.setattr(SK, "coherent_pairs", checked)
+    q0 = s["b"].orientation.copy()
+    found = 0
+    for k in range(300):
+        if k < 150:
+            for i, n in enumerate(("a", "b")):
+                s[n].q[:] = amp * np.sin(0.02 * k + phase[i])
+        else:
+            s["b"].orientation[:] = quat_multiply(quat_from_axis_angle([0.3, 0.2, 1.0], 2e-3 * (k - 150)), q0)
+        data, _ = _collect(w, s)
+        found += 0 if data is None else len(data["gap"])
+    assert len(walks) == 300 and found > 300
+    assert sum(walks[1:150]) >= 3 and sum(walks[150:]) >= 3
+    assert sum(walks) < 150
