@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["compress", "union_pairs", "union_quads"]
+__all__ = ["compress", "free_zone_velocities", "union_pairs", "union_quads"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -53,3 +53,60 @@ def compress(parent: np.ndarray) -> None:
     """In place: every node points at its root (in index order: a node's parent, smaller, is done first)."""
     for i in range(len(parent)):
         parent[i] = parent[parent[i]]
+
+
+@numba.njit(cache=True)
+def free_zone_velocities(X0: np.ndarray, V: np.ndarray, invm: np.ndarray, idx: np.ndarray, zone: np.ndarray,
+                         Z: int) -> None:
+    """In place: the members ``idx`` ((k,) vertex indices) of ``Z`` free zones (``zone`` (k,): each member's zone
+    0..Z-1) get their zone's rigid velocity ``Vc + omega x (x - xc)``, which keeps the zone's linear momentum
+    ``P = sum m v`` (``Vc = P / M``) and its angular momentum ``L`` about the centre of mass ``xc``
+    (``omega = I^+ L``, the pseudo-inverse of the inertia ``I`` about ``xc`` dropping eigenvalues below 1e-12
+    of the largest, as ``numpy.linalg.pinv(I, rcond=1e-12, hermitian=True)``), all at ``X0`` (N, 3) [m],
+    from ``V`` (N, 3) [m/s] and the inverse masses ``invm`` (N,) [1/kg]."""
+    M = np.zeros(Z)
+    xc = np.zeros((Z, 3))
+    vc = np.zeros((Z, 3))
+    for j in range(len(idx)):
+        i, z = idx[j], zone[j]
+        m = 1.0 / invm[i]
+        M[z] += m
+        for c in range(3):
+            xc[z, c] += m * X0[i, c]
+            vc[z, c] += m * V[i, c]
+    for z in range(Z):
+        for c in range(3):
+            xc[z, c] /= M[z]
+            vc[z, c] /= M[z]
+    L = np.zeros((Z, 3))
+    inertia = np.zeros((Z, 3, 3))
+    for j in range(len(idx)):
+        i, z = idx[j], zone[j]
+        m = 1.0 / invm[i]
+        r0, r1, r2 = X0[i, 0] - xc[z, 0], X0[i, 1] - xc[z, 1], X0[i, 2] - xc[z, 2]
+        v0, v1, v2 = V[i, 0], V[i, 1], V[i, 2]
+        L[z, 0] += m * (r1 * v2 - r2 * v1)
+        L[z, 1] += m * (r2 * v0 - r0 * v2)
+        L[z, 2] += m * (r0 * v1 - r1 * v0)
+        rr = r0 * r0 + r1 * r1 + r2 * r2
+        r = (r0, r1, r2)
+        for a in range(3):
+            for b in range(3):
+                inertia[z, a, b] -= m * r[a] * r[b]
+            inertia[z, a, a] += m * rr
+    omega = np.zeros((Z, 3))
+    for z in range(Z):
+        w, U = np.linalg.eigh(inertia[z])
+        cut = 1e-12 * max(abs(w[0]), abs(w[1]), abs(w[2]))
+        for k in range(3):
+            if abs(w[k]) > cut:
+                s = (U[0, k] * L[z, 0] + U[1, k] * L[z, 1] + U[2, k] * L[z, 2]) / w[k]
+                for c in range(3):
+                    omega[z, c] += s * U[c, k]
+    for j in range(len(idx)):
+        i, z = idx[j], zone[j]
+        r0, r1, r2 = X0[i, 0] - xc[z, 0], X0[i, 1] - xc[z, 1], X0[i, 2] - xc[z, 2]
+        o0, o1, o2 = omega[z, 0], omega[z, 1], omega[z, 2]
+        V[i, 0] = vc[z, 0] + (o1 * r2 - o2 * r1)
+        V[i, 1] = vc[z, 1] + (o2 * r0 - o0 * r2)
+        V[i, 2] = vc[z, 2] + (o0 * r1 - o1 * r0)

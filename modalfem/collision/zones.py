@@ -93,7 +93,7 @@ def rigid_zone_velocities(
         nor by one finite rigid motion over the step).
     """
     N = len(X0)
-    V = V.copy()
+    V = np.array(V, dtype=float, order="C")
     size = np.bincount(roots, minlength=len(roots))
     vz = roots[:N]
     in_zone = size[vz] > 1
@@ -101,26 +101,14 @@ def rigid_zone_velocities(
     kin_root[vz[in_zone & (invm == 0)]] = True
     kin_root[roots[N:]] = True
     dyn = in_zone & (invm > 0) & ~kin_root[vz]
-    # free zones: momentum-preserving rigid motion, vectorised over zones
+    # free zones: momentum-preserving rigid motion (compiled, one pass over the members per quantity)
     if dyn.any():
+        from modalfem.collision._zone_kernels import free_zone_velocities
+
         idx = np.nonzero(dyn)[0]
         zr, zi = np.unique(vz[idx], return_inverse=True)
-        m = 1.0 / invm[idx]
-        x, v = X0[idx], V[idx]
-        Z = len(zr)
-        M = np.bincount(zi, m, minlength=Z)
-        xc = np.stack([np.bincount(zi, m * x[:, c], minlength=Z) for c in range(3)], 1) / M[:, None]
-        Vc = np.stack([np.bincount(zi, m * v[:, c], minlength=Z) for c in range(3)], 1) / M[:, None]
-        r = x - xc[zi]
-        mrv = m[:, None] * cross(r, v)
-        Lz = np.stack([np.bincount(zi, mrv[:, c], minlength=Z) for c in range(3)], 1)
-        rr = np.einsum("k,ki,kj->kij", m, r, r)
-        Iz = np.zeros((Z, 3, 3))
-        np.add.at(Iz, zi, -rr)
-        tr = np.bincount(zi, m * np.einsum("ki,ki->k", r, r), minlength=Z)
-        Iz += tr[:, None, None] * np.eye(3)
-        omega = np.einsum("zij,zj->zi", np.linalg.pinv(Iz, rcond=1e-12, hermitian=True), Lz)
-        V[idx] = Vc[zi] + cross(omega[zi], r)
+        free_zone_velocities(np.ascontiguousarray(X0, dtype=float), V, np.ascontiguousarray(invm, dtype=float), idx,
+                             zi.astype(np.int64), len(zr))
     inconsistent = []
     for root in np.nonzero(kin_root & (size > 1))[0]:
         members = np.nonzero(vz == root)[0]
