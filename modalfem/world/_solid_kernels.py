@@ -270,36 +270,41 @@ def plane_contacts(X, voff, center, radius, reach, normals, offsets):
 
 
 @numba.njit(cache=True)
-def _side(c, body, verts, wts, sign, point, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off, mask, vel_off,
+def _side(c, body, verts, wts, sign, point, R, Iw_inv, pos, mass, nm, nuse, phi_off, phi, mask_off, mask, vel_off,
           off, nd, jptr, J, WJt, e, jbase):
-    """Entry ``e`` of contact ``c``: body ``body``'s block (6 + r) at the world point ``point[c]``, the modal
+    """Entry ``e`` of contact ``c``: body ``body``'s block (6 + nuse) at the world point ``point[c]``, the modal
     part at ``sum_j wts[c, j] verts[c, j]``; J and W J^T written from ``jbase``. Returns the next jbase."""
     r = nm[body]
-    n = 6 + r
+    n = 6 + nuse[body]
     off[e] = vel_off[body]
     nd[e] = n
     jptr[e] = jbase
     r0 = point[c, 0] - pos[body, 0]
     r1 = point[c, 1] - pos[body, 1]
     r2 = point[c, 2] - pos[body, 2]
-    # S = [r]x; J rows: (I, -S, R Phi); W J^T rows: (I / m, Iw^-1 S, (R Phi)^T)
-    S = np.empty((3, 3))
-    S[0, 0], S[0, 1], S[0, 2] = 0.0, -r2, r1
-    S[1, 0], S[1, 1], S[1, 2] = r2, 0.0, -r0
-    S[2, 0], S[2, 1], S[2, 2] = -r1, r0, 0.0
+    # S = [r]x; J rows: (I, -S, R Phi); W J^T rows: (I / m, Iw^-1 S, (R Phi)^T) (S's entries as scalars: no
+    # allocation per contact)
     im = 1.0 / mass[body]
     for a in range(3):
+        # column a of S
+        if a == 0:
+            c0, c1, c2 = 0.0, r2, -r1
+        elif a == 1:
+            c0, c1, c2 = -r2, 0.0, r0
+        else:
+            c0, c1, c2 = r1, -r0, 0.0
         for j in range(3):
             J[jbase + a * n + j] = sign if a == j else 0.0
-            J[jbase + a * n + 3 + j] = -sign * S[a, j]
             WJt[jbase + j * 3 + a] = sign * im if a == j else 0.0
-            s = 0.0
-            for l in range(3):
-                s += Iw_inv[body, j, l] * S[l, a]
-            WJt[jbase + (3 + j) * 3 + a] = sign * s
+            WJt[jbase + (3 + j) * 3 + a] = sign * (Iw_inv[body, j, 0] * c0 + Iw_inv[body, j, 1] * c1
+                                                   + Iw_inv[body, j, 2] * c2)
+        # row a of S is minus column a (S is skew): J's rotational entries -sign S[a, j] = sign c_j
+        J[jbase + a * n + 3] = sign * c0
+        J[jbase + a * n + 4] = sign * c1
+        J[jbase + a * n + 5] = sign * c2
     Rb = R[body]
     base = phi_off[body]
-    for mo in range(r):
+    for mo in range(nuse[body]):
         p0 = p1 = p2 = 0.0
         if mask[mask_off[body] + mo]:
             for q in range(verts.shape[1]):
@@ -332,17 +337,25 @@ def rows(body_a, verts_a, w_a, body_b, verts_b, w_b, point, point_b, R, Iw_inv, 
             vel_off: (nb,) offsets of the bodies' blocks in the velocity vector.
 
     Returns:
-        ``(ptr, off, nd, jptr, J, WJt)`` in the layout of ``modalfem.world._kernels``.
+        ``(ptr, off, nd, jptr, J, WJt)`` in the layout of ``modalfem.world._kernels``; a body's entries span its
+        ``6 + m`` first velocities, m the last mode taking part (``mask``) plus one.
     """
     k = body_a.shape[0]
+    # a body's entries cover its modes up to the last one taking part: the modes after it (the fast ones, when the
+    # modes rise in frequency) would only add zero columns to J, and every sweep of the solve reads them
+    nuse = np.zeros(nm.shape[0], dtype=np.int64)
+    for b in range(nm.shape[0]):
+        for mo in range(nm[b]):
+            if mask[mask_off[b] + mo]:
+                nuse[b] = mo + 1
     ne = 0
     jl = 0
     for c in range(k):
         ne += 1
-        jl += 3 * (6 + nm[body_a[c]])
+        jl += 3 * (6 + nuse[body_a[c]])
         if body_b[c] >= 0:
             ne += 1
-            jl += 3 * (6 + nm[body_b[c]])
+            jl += 3 * (6 + nuse[body_b[c]])
     ptr = np.empty(k + 1, dtype=np.int64)
     off = np.empty(ne, dtype=np.int64)
     nd = np.empty(ne, dtype=np.int64)
@@ -353,11 +366,11 @@ def rows(body_a, verts_a, w_a, body_b, verts_b, w_b, point, point_b, R, Iw_inv, 
     jb = 0
     ptr[0] = 0
     for c in range(k):
-        jb = _side(c, body_a[c], verts_a, w_a, 1.0, point, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off, mask,
-                   vel_off, off, nd, jptr, J, WJt, e, jb)
+        jb = _side(c, body_a[c], verts_a, w_a, 1.0, point, R, Iw_inv, pos, mass, nm, nuse, phi_off, phi, mask_off,
+                   mask, vel_off, off, nd, jptr, J, WJt, e, jb)
         e += 1
         if body_b[c] >= 0:
-            jb = _side(c, body_b[c], verts_b, w_b, -1.0, point_b, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off,
+            jb = _side(c, body_b[c], verts_b, w_b, -1.0, point_b, R, Iw_inv, pos, mass, nm, nuse, phi_off, phi, mask_off,
                        mask, vel_off, off, nd, jptr, J, WJt, e, jb)
             e += 1
         ptr[c + 1] = e
@@ -767,3 +780,74 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
             nee += out2[0].shape[0]
     vf, ee = _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee)
     return vf, ee, walks
+
+
+@numba.njit(cache=True)
+def frames(quat, position, q, qoff, nm, phi, phi_off, rest, voff, inertia_inv):
+    """Every body's frame and deformed surface at once.
+
+    Args:
+        quat: (nb, 4) unit orientations (w, x, y, z); position: (nb, 3) centres of mass [m]. q: the bodies' modal
+            coordinates, body i's ``nm[i]`` from ``qoff[i]``; phi: their mode shapes as in ``rows``; rest: (n, 3)
+            every body's rest surface about its centre of mass [m], body i's ``voff[i]:voff[i + 1]``;
+            inertia_inv: (nb, 3, 3) inverse inertias in body axes [1/(kg m^2)].
+
+    Returns:
+        ``(R, Iw_inv, Xl, X, bound, lo, hi)``: rotations (nb, 3, 3) (``runtime.rotation.quat_to_matrix``), world
+        inverse inertias ``R I^-1 R^T``, deformed vertices ``rest + Phi q`` in body axes and in the world (n, 3)
+        [m], the largest |Phi_v q| (nb,) [m] (0 without modes), world boxes (nb, 3) [m].
+    """
+    nb = quat.shape[0]
+    n = rest.shape[0]
+    R = np.empty((nb, 3, 3))
+    Iw = np.empty((nb, 3, 3))
+    Xl = np.empty((n, 3))
+    X = np.empty((n, 3))
+    bound = np.zeros(nb)
+    lo = np.empty((nb, 3))
+    hi = np.empty((nb, 3))
+    for b in range(nb):
+        w, x, y, z = quat[b, 0], quat[b, 1], quat[b, 2], quat[b, 3]
+        R[b, 0, 0], R[b, 0, 1], R[b, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+        R[b, 1, 0], R[b, 1, 1], R[b, 1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+        R[b, 2, 0], R[b, 2, 1], R[b, 2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+        for i in range(3):
+            for j in range(3):
+                s = 0.0
+                for k in range(3):
+                    t = 0.0
+                    for m in range(3):
+                        t += inertia_inv[b, k, m] * R[b, j, m]
+                    s += R[b, i, k] * t
+                Iw[b, i, j] = s
+        r = nm[b]
+        base = phi_off[b]
+        o = qoff[b]
+        act = np.empty(r, dtype=np.int64)  # the modes with q != 0 (a body at rest, or whose modes the contact
+        na = 0                             # never excites, has none)
+        for m in range(r):
+            if q[o + m] != 0.0:
+                act[na] = m
+                na += 1
+        d2 = 0.0
+        for c in range(3):
+            lo[b, c] = np.inf
+            hi[b, c] = -np.inf
+        for v in range(voff[b], voff[b + 1]):
+            u = v - voff[b]
+            dd = 0.0
+            for c in range(3):
+                s = 0.0
+                p = base + (u * 3 + c) * r
+                for j in range(na):
+                    m = act[j]
+                    s += phi[p + m] * q[o + m]
+                Xl[v, c] = rest[v, c] + s
+                dd += s * s
+            d2 = max(d2, dd)
+            for c in range(3):
+                X[v, c] = R[b, c, 0] * Xl[v, 0] + R[b, c, 1] * Xl[v, 1] + R[b, c, 2] * Xl[v, 2] + position[b, c]
+                lo[b, c] = min(lo[b, c], X[v, c])
+                hi[b, c] = max(hi[b, c], X[v, c])
+        bound[b] = math.sqrt(d2) if r > 0 else 0.0
+    return R, Iw, Xl, X, bound, lo, hi

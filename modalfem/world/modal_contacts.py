@@ -13,8 +13,6 @@ angular momentum exactly; a speculative contact farther apart acts at each body'
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from modalfem.collision.bvh import BroadPhaseBVH
@@ -86,6 +84,9 @@ class ModalContacts:
             if b.mode_count])
         self._qoff = self.mask_off
         self._radius = np.array([b.radius for b in self.bodies], dtype=np.float64)
+        self._rest = np.concatenate([np.zeros((0, 3))] + [np.asarray(b.rest, dtype=np.float64) for b in self.bodies])
+        self._marg = np.array([c.margin for c in self.contacts], dtype=np.float64)
+        self._inertia_inv = np.array([b.inertia_inv for b in self.bodies], dtype=np.float64).reshape(-1, 3, 3)
         self.walks = 0  # pairs whose trees the last ``collect`` walked (the others reused their last walk)
         self.reset_coherence()
 
@@ -120,32 +121,19 @@ class ModalContacts:
             ``point``, ``iterations``) plus ``keys`` (k,) int64 and ``warm`` (k, 3) [N s] start impulses.
         """
         nb = len(self.bodies)
-        R = np.empty((nb, 3, 3))
-        Iw_inv = np.empty((nb, 3, 3))
-        pos = np.empty((nb, 3))
-        Xl, Xw, bound, reach = [], [], np.empty(nb), np.empty(nb)
-        lo, hi = np.empty((nb, 3)), np.empty((nb, 3))
-        for i, (n, b) in enumerate(zip(self.names, self.bodies)):
-            s = states[n]
-            R[i] = s.rotation()
-            Iw_inv[i] = R[i] @ b.inertia_inv @ R[i].T
-            pos[i] = s.position
-            x = b.positions(s, precise=True, frame="body")
-            d = x - b.rest
-            bound[i] = math.sqrt(float(np.max(np.einsum("ij,ij->i", d, d)))) if b.mode_count else 0.0
-            Xl.append(np.ascontiguousarray(x))
-            w = x @ R[i].T + s.position
-            Xw.append(w)
-            lo[i], hi[i] = w.min(axis=0), w.max(axis=0)
-            reach[i] = speed[n] * dt
-        marg = np.array([c.margin for c in self.contacts])
+        sts = [states[n] for n in self.names]
+        q = np.concatenate([np.zeros(0)] + [s.q for s in sts])
+        pos = np.array([s.position for s in sts])
+        R, Iw_inv, Xl, X, bound, lo, hi = SK.frames(np.array([s.orientation for s in sts]), pos, q, self.mask_off,
+                                                   self.nm, self.phi, self.phi_off, self._rest, self._voff,
+                                                   self._inertia_inv)
+        reach = np.array([speed[n] for n in self.names]) * dt
+        marg = self._marg
         parts = []  # (body_a, verts_a, w_a, body_b, verts_b, w_b, point, normal, gap, kind, feature, other)
         # static planes
         voff = self._voff
-        X = np.concatenate(Xw)
         if len(self.plane_d):
-            radius = np.array([b.radius for b in self.bodies]) + bound
-            ba, v, p, g = SK.plane_contacts(X, voff, pos, radius, marg + reach, self.plane_n, self.plane_d)
+            ba, v, p, g = SK.plane_contacts(X, voff, pos, self._radius + bound, marg + reach, self.plane_n, self.plane_d)
             if len(ba):
                 k = len(ba)
                 va, wa = _one_vertex(v)
@@ -159,10 +147,9 @@ class ModalContacts:
         ia, ib = np.nonzero(np.triu(meet, 1))
         self.walks = 0
         if len(ia):
-            q = np.concatenate([states[n].q for n in self.names]).astype(np.float64)
             (pa, qa, v, tri, wb, g, nrm), (a, b, mine, other, s, tt, ge, ne), self.walks = SK.coherent_pairs(
-                ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], SLACK * mm[ia, ib], X,
-                np.concatenate(Xl), voff, R, pos, bound, self._radius, q, self._qoff, self.nm, self._amp, lo, hi,
+                ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], SLACK * mm[ia, ib], X, Xl, voff, R,
+                pos, bound, self._radius, q, self._qoff, self.nm, self._amp, lo, hi,
                 self._tris, self._toff, self._edges, self._eoff, self._adj, self._meta, self._qsnap, *self._cache,
                 *self._treelists)
             if len(v):
