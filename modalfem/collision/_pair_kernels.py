@@ -10,7 +10,8 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs", "vertex_index"]
+__all__ = ["dirty_self_pairs", "outgrown", "primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs",
+           "vertex_index"]
 
 _apply_threads()
 
@@ -274,3 +275,38 @@ def select_indexed(q: np.ndarray, stamp: np.ndarray, epoch: int, ptr: np.ndarray
         if mark[i] and not _alive(q, i, stamp, epoch):
             mark[i] = False
     return _compact(q, mark)
+
+
+@numba.njit(cache=True)
+def outgrown(X0: np.ndarray, V: np.ndarray, dt: float, grow: float, lo: np.ndarray, hi: np.ndarray):
+    """End positions ``X1 = X0 + dt V`` ((N, 3) [m]) and the (N,) bool vertices whose trajectory ``X0 -> X1``
+    grown by ``grow`` [m] leaves its box ``lo``/``hi`` ((N, 3) [m]): one pass instead of numpy's temporaries
+    (the same floating-point operations, so the same answer)."""
+    N = len(X0)
+    X1 = np.empty((N, 3))
+    out = np.zeros(N, dtype=np.bool_)
+    for i in range(N):
+        d = False
+        for c in range(3):
+            a = X0[i, c]
+            b = a + dt * V[i, c]
+            X1[i, c] = b
+            d |= (min(a, b) - grow < lo[i, c]) | (max(a, b) + grow > hi[i, c])
+        out[i] = d
+    return X1, out
+
+
+@numba.njit(cache=True)
+def dirty_self_pairs(ids: np.ndarray, qi: np.ndarray, tri: np.ndarray, dirty_tri: np.ndarray) -> np.ndarray:
+    """Triangle pairs ``(ids[qi[r]], tri[r])`` of the box queries of the dirty triangles ``ids`` (query ``qi[r]``
+    found triangle ``tri[r]``), without a triangle paired with itself and each pair of two dirty triangles once
+    (from the smaller one's query), in query order."""
+    p = len(qi)
+    out = np.empty((p, 2), dtype=np.int64)
+    n = 0
+    for r in range(p):
+        a, t = ids[qi[r]], tri[r]
+        if a != t and (not dirty_tri[t] or a < t):
+            out[n, 0], out[n, 1] = a, t
+            n += 1
+    return out[:n].copy()

@@ -7,6 +7,7 @@ import warnings
 
 import numpy as np
 
+from modalfem.collision import _pair_kernels
 from modalfem.collision._system import PairStore
 from modalfem.collision.ccd import MAX_INTERVALS
 from modalfem.collision.obstacles import Plane
@@ -211,9 +212,8 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             # dirty: the trajectory grown by eta / 2 leaves the box its pairs were found with, or (with
             # swept culling: the normal cones that culled pairs were for the old trajectories) the end
             # position moved by more than eta
-            X1 = X0 + dt * V
             lo, hi = cache["lo"], cache["hi"]
-            dirty = ((np.minimum(X0, X1) - 0.5 * eta < lo) | (np.maximum(X0, X1) + 0.5 * eta > hi)).any(axis=1)
+            X1, dirty = _pair_kernels.outgrown(X0, V, dt, 0.5 * eta, lo, hi)
             if culls:
                 dirty |= dt * np.abs(V - cache["V"]).max(axis=1) > eta
             if dirty[:n].mean() > FRESH_SEARCH:

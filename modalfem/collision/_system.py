@@ -268,9 +268,7 @@ class System:
             parts.append(bvh.self_pairs(culling=False, dirty=dtri)[0])
         elif self_collision:
             qi, other = bvh.query(qlo, qhi)
-            a = ids[qi]
-            ok = (a != other) & (~dtri[other] | (a < other))
-            parts.append(np.stack([a[ok], other[ok]], axis=1))
+            parts.append(_pair_kernels.dirty_self_pairs(ids, qi, other, dtri))
         if self.obstacle_bvh is not None:
             qi, other = self.obstacle_bvh.query(qlo, qhi)
             parts.append(np.stack([ids[qi], other + m], axis=1))
