@@ -132,3 +132,26 @@ def test_ccd_of_store_segments_equals_the_ccd_of_the_selected_pairs(indexed, mon
                 np.testing.assert_array_equal(qg, qw)
                 np.testing.assert_array_equal(tg, tw)
     assert total > 20  # hits to compare
+
+
+def test_outgrown_vertices_and_dirty_query_pairs_equal_their_numpy_definitions():
+    rng = np.random.default_rng(11)
+    N, dt, grow = 400, 0.01, 1e-4
+    X0 = rng.normal(size=(N, 3))
+    V = rng.normal(size=(N, 3))
+    X1 = X0 + dt * V
+    lo, hi = np.minimum(X0, X1) - 2e-4, np.maximum(X0, X1) + 2e-4
+    V[rng.random(N) < 0.1] *= 1.5  # some trajectories leave their boxes
+    got_x1, got = _pair_kernels.outgrown(X0, V, dt, grow, lo, hi)
+    want_x1 = X0 + dt * V
+    want = ((np.minimum(X0, want_x1) - grow < lo) | (np.maximum(X0, want_x1) + grow > hi)).any(axis=1)
+    assert np.array_equal(got_x1, want_x1) and np.array_equal(got, want) and 0 < want.sum() < N
+    m = 50
+    dirty_tri = rng.random(m) < 0.3
+    ids = np.flatnonzero(dirty_tri)
+    found = np.stack([rng.integers(0, len(ids), 300), rng.integers(0, m, 300)], axis=1)
+    found = found[np.argsort(found[:, 0], kind="stable")]
+    a, t = ids[found[:, 0]], found[:, 1]
+    ok = (a != t) & (~dirty_tri[t] | (a < t))
+    got = _pair_kernels.dirty_self_pairs(ids, found[:, 0], found[:, 1], dirty_tri)
+    assert np.array_equal(got, np.stack([a[ok], t[ok]], axis=1)) and 0 < ok.sum() < len(ok)
