@@ -257,8 +257,14 @@ def kernel_times(n: int, repeats: int) -> dict:
         ck.pcg(pat.indptr, pat.indices, data, pat.diag, kind, normal, b, z.copy(), 1e-4, 2000, lv.agg, lv.up, lv.off,
                Dinv, Cinv)
 
+    def pcg_sgs():
+        from modalfem.cloth import _sgs_kernels
+
+        _sgs_kernels.pcg_sgs(pat.indptr, pat.indices, data, pat.diag, kind, normal, b, z.copy(), 1e-4, 2000)
+
     cases = {
-        "cloth: implicit-step CG solve (rtol 1e-4)": pcg,
+        "cloth: implicit-step CG solve, SGS (the default; serial sweeps) (rtol 1e-4)": pcg_sgs,
+        "cloth: implicit-step CG solve, multilevel (rtol 1e-4)": pcg,
         "cloth: stiffness assembly (element blocks + per-block gather)": lambda: sol._stiffness_data(x),
         "cloth: multilevel preconditioner setup (level matrices)": lambda: lv.inverses(
             pat.indptr, pat.indices, data, kind, normal),
