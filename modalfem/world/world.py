@@ -1138,7 +1138,16 @@ class World:
 
     def _stage_modal_step(self, ctx) -> None:
         dt = ctx.dt
+        # the bodies with gravity alone and no static obstacles or strikes: one compiled call (``_modal_step``)
+        batch = self.__dict__.get("_modal_batch")
+        if batch is None:
+            from modalfem.world._modal_step import ModalBatch
+
+            batch = self._modal_batch = ModalBatch(self._modal)
+        done = set(batch.step(ctx, {b for b, _, _ in ctx.control.impulses}) if MODAL_BATCH else ())
         for name, m in self._modal.items():
+            if name in done:
+                continue
             s = ctx.state_in.bodies[name]
             body = m["body"]
             dV = ctx.dV.get(name)
@@ -1361,6 +1370,9 @@ class _StepContext:
 _NO_CONTROL = WorldControl()
 
 
+#: step the modal bodies with gravity alone in one compiled call (``_modal_step.ModalBatch``); False: each by its
+#: solver (the same arithmetic; tests compare the two)
+MODAL_BATCH = True
 #: the key of the compiled modal contacts' impulses in ``WorldState.contacts``: (sorted int64 keys, (k, 3) [N s])
 _FAST_KEY = "modal contacts"
 #: ``WorldState.contacts[(_REACTION_KEY, modal body)]``: the generalised velocity change (6 + r,) the tet bodies'
