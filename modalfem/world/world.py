@@ -8,11 +8,11 @@ for is never called. In order:
 
 1. ``tet step``: each tet body's implicit step (backward Euler with its gravity, wind, damping, pins and
    scripted vertices) to a predicted end state, with its contacts as penalty terms of the step: the obstacles,
-   and the modal bodies' surfaces as moving obstacles at their predicted step end, so the tet's elasticity and
-   these contacts are solved together; the modal bodies take the reaction (equal and opposite impulses at the
-   contact points, given at their step start; their predicted motion includes last step's reaction: repeating
-   the step from the corrected prediction changed nothing measurable in the bar and bell landings and cost 1.4x
-   the CPU time);
+   and the modal bodies' surfaces as moving obstacles at their free step end, whose rigid displacement by the
+   reaction is solved in the same step (``tetcontact``: 6 unknowns per touched body, eliminated exactly), so the
+   tet's elasticity, these contacts and the modal bodies' rigid motion are solved together at any dt; the modal
+   bodies take the reaction (equal and opposite impulses at the contact points, given at their step start), and
+   restitution between the pair as a Poisson impulse at the end of compression (``_tet_restitution``);
 2. ``cloth step``: each cloth's implicit step (gravity, wind, damping, handles, constraint filtering on
    static planes, spheres, boxes and triangle meshes) to predicted velocities;
 3. ``modal contacts``: one compiled sequential-impulse solve (``modalfem.world._kernels``) over the contacts
@@ -51,7 +51,7 @@ from modalfem.world import _kernels
 from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
-from modalfem.world.tetcontact import STIFFNESS, PenaltyContacts
+from modalfem.world.tetcontact import STIFFNESS, CoupledTetSolver, PenaltyContacts
 
 __all__ = ["Stage", "StepReport", "World", "WorldControl", "WorldState"]
 
@@ -62,9 +62,17 @@ BOUNCE_THRESHOLD = 0.05
 PUSH_OUT = 0.2
 #: modes with omega dt above this take no part in the velocity-level contact between modal bodies
 SLOW = 0.5
-#: the stiffness [N/m] of a tet body's penalty contacts with one modal body, summed, is at most this times the
-#: modal body's mass / dt^2: the modal body takes their reaction explicitly (stable for omega dt < 2)
-MODAL_PENALTY = 1.0
+#: a tet body's penalty contacts with one modal body hold its approach within a 1 / DEPTH_SHARE part of the skin
+#: (their stiffness summed at least ``DEPTH_SHARE (travel + |g| dt^2) / dhat`` times its mass / dt^2)
+DEPTH_SHARE = 4.0
+#: a tet step whose contacts (with obstacles or modal bodies) end deeper than this part of the skin is redone with them
+#: stiffer (up to TET_RETRIES times), so no contact ends beyond the skin
+MAX_DEPTH = 0.5
+TET_RETRIES = 6
+#: a tet edge meets a modal edge in a tet step only where their closest points are this far (a fraction of the
+#: edge) inside both: nearer an end it is a vertex's contact, and the edges' direction is ill-defined there (a foam
+#: edge ending at a steel bar's side gave three contacts with opposite normals, which no stiffness could satisfy)
+EDGE_END = 0.05
 
 
 @dataclass
@@ -371,7 +379,8 @@ class World:
             penalty = PenaltyContacts(b.model.point_count)
             inner.append(penalty)
             names.append("contact")
-        solver = tet.TetSolver(b.model, effects=inner, newton_max=b.newton_max, linear_solver=b.linear_solver)
+        solver = (tet.TetSolver if penalty is None else CoupledTetSolver)(
+            b.model, effects=inner, newton_max=b.newton_max, linear_solver=b.linear_solver)
         surf = boundary_surface(b.model.mesh)
         if wind is not None:
             wind.bind(surf)
@@ -652,7 +661,7 @@ class World:
         from modalfem.tet import TetControl
 
         dt = ctx.dt
-        for key in [k for k in ctx.contacts if k[0] == _REACTION_KEY]:  # this step's are set by ``_tet_reaction``
+        for key in [k for k in ctx.contacts if k[0] == _REACTION_KEY]:  # this step's are set below
             del ctx.contacts[key]
         for name, t in self._tet.items():
             s = ctx.state_in.bodies[name].copy()
@@ -665,13 +674,19 @@ class World:
             ctl = TetControl(*ctx.control.scripted[name]) if name in ctx.control.scripted else None
             obstacles = self._tet_contacts(ctx, name, s) if t["penalty"] is not None else None
             out = s.copy()
-            try:
-                t["solver"].step(s, out, dt, control=ctl)
-            except SimulationError as exc:
-                raise SimulationError(f"tet body {name!r}: {exc}") from None
+            for attempt in range(TET_RETRIES + 1):
+                try:
+                    t["solver"].step(s, out, dt, control=ctl)
+                except SimulationError as exc:
+                    raise SimulationError(f"tet body {name!r}: {exc}") from None
+                if obstacles is None or attempt == TET_RETRIES or not self._tet_too_deep(t["penalty"], out.x):
+                    break
+                out = s.copy()
             if obstacles is not None:
                 self._tet_reaction(ctx, name, out)
                 self._tet_friction(ctx, name, out, obstacles)
+                self._tet_restitution(ctx, name, s, out)
+                ctx.contacts[(_REACTION_KEY, name)] = t["penalty"].penalty_energy(out.x)
             ctx.out.bodies[name] = out
             ctx.start[name] = s  # the start the step used (strikes applied)
             ctx.done.add(name)
@@ -684,26 +699,28 @@ class World:
         st = ctx.out.bodies[name] if name in ctx.done else ctx.state_in.bodies[name]
         return st.x[self._tet[name]["surface"]]
 
-    def _modal_prediction(self, ctx, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """World surface vertices (n, 3) [m] of modal body ``name`` at the step start and predicted at the step
-        end by its motion (velocity with the step's gravity, spin, modal velocities), plus the velocity change the
-        tet bodies' reaction gave it last step (``dV``, (6 + r,) or None: a body resting on a tet body takes about
-        the same every step; predicted without it, the tet's contacts would hold their planes where the body
-        would be without its support, and the difference, ``F^2 dt^2 / m`` per step, was energy gained: ~3 mJ
-        per 1 ms step for a 8 kg bar resting on a soft block): the moving obstacle a tet body's step meets."""
+    def _modal_prediction(self, ctx, name: str):
+        """World surface vertices (n, 3) [m] of modal body ``name`` at the step start and at its free step end (its
+        own step without contacts: gravity, spin, modes, strikes), and that end state: the moving obstacle a tet
+        body's step meets. The body's displacement by the tet's reaction is an unknown of that step
+        (``tetcontact``), so the reaction's impulse at the step start moves it exactly as solved."""
         m = self._modal[name]
-        body, s, dt = m["body"], ctx.state_in.bodies[name], ctx.dt
+        body, s = m["body"], ctx.state_in.bodies[name]
         x0 = np.array(body.positions(s, precise=True), dtype=np.float64)
-        dV = ctx.state_in.contacts.get((_REACTION_KEY, name))
-        if dV is None:
-            dV = np.zeros(6 + body.mode_count)
+        ctl = None
+        strikes = self._strikes(ctx, name)
+        if strikes:
+            from modalfem import runtime as rt
+
+            ctl = rt.Control()
+            for p, J in strikes:
+                ctl.add_impulse(p, J)
         p = s.copy()
-        p.velocity = s.velocity + m["g"] * dt + dV[0:3]
-        p.position = s.position + dt * p.velocity
-        p.q = s.q + dt * (s.qdot + dV[6:])
-        x1 = np.array(body.positions(p, precise=True), dtype=np.float64)
-        x1 += dt * np.cross(body.angular_velocity(s) + dV[3:6], x1 - p.position)
-        return x0, x1
+        try:
+            m["solver"].step(s, p, ctl, None, ctx.dt)
+        except SimulationError as exc:
+            raise SimulationError(f"modal body {name!r}: {exc}") from None
+        return x0, np.array(body.positions(p, precise=True), dtype=np.float64), p
 
     def _tet_contacts(self, ctx, name: str, s) -> list:
         """Set this step's penalty contacts of tet body ``name`` (start state ``s``) with the obstacles and with
@@ -746,9 +763,11 @@ class World:
                     add(sv[idx][:, None], np.ones((len(idx), 1)), xs[idx] - gap[idx, None] * n, n, None, o)
         n_obstacle = len(touched)
         modal = []  # per modal contact: (body, modal vertex ids (3,), weights (3,))
+        ends = {}  # modal body -> (its free end state, how far its surface travels in the step [m])
         for m in self._tet_modal.get(name, ()):
-            x0, x1 = self._modal_prediction(ctx, m)
+            x0, x1, end = self._modal_prediction(ctx, m)
             travel = float(np.sqrt(np.einsum("ij,ij->i", x1 - x0, x1 - x0)).max())
+            ends[m] = (end, travel)
             r = reach + travel + c.margin
             lo, hi = x1.min(0) - r, x1.max(0) + r
             if np.any(lo > xs.max(0)) or np.any(hi < xs.min(0)):
@@ -768,9 +787,13 @@ class World:
                 add(sv[T], h.bary, x1[h.point], -h.normal, x0[h.point], _ModalSurface(m, x0, x1, ids, one))
                 modal.extend((m, ids[i], one[i]) for i in range(len(ids)))
             # tet edges on modal edges near each other (surfaces resting on each other, where an edge can cross a
-            # face with every vertex outside; approaching surfaces are held by their vertices)
+            # face with every vertex outside: a soft tet's edge folding round the modal body's edge in a large
+            # step), within what both travel in the step
             e = t["edges"].edges
-            h = self._edges[m].query(xs[e[:, 0]], xs[e[:, 1]], x1, 2.0 * c.margin + dhat)
+            h = self._edges[m].query(xs[e[:, 0]], xs[e[:, 1]], x1, r)
+            if len(h.mine):  # closest points well inside both edges (else a vertex's contact, its normal ill-defined)
+                ok = (np.minimum(h.s, 1.0 - h.s) > EDGE_END) & (np.minimum(h.t, 1.0 - h.t) > EDGE_END)
+                h = type(h)(h.mine[ok], h.other[ok], h.s[ok], h.t[ok], h.gap[ok], h.normal[ok])
             if len(h.mine):
                 E = self._edges[m].edges[h.other]
                 ids = np.column_stack([E, E[:, 0]])
@@ -806,27 +829,107 @@ class World:
         m = t["masses"][vid]
         inv = np.where((V >= 0) & np.isfinite(m), W**2 / np.where(np.isfinite(m), m, 1.0), 0.0).sum(1)
         k = np.where(inv > 0, STIFFNESS / np.where(inv > 0, inv, 1.0) / dt**2, 0.0)
-        # the modal body takes the reaction explicitly (the next stages): its contacts' stiffness summed stays
-        # below its mass / dt^2 (the explicit limit of the exchange, with margin)
-        if modal:
-            which = np.array([self._tet_modal[name].index(b) for b, _, _ in modal])
-            for j, b in enumerate(self._tet_modal[name]):
-                sel = n_obstacle + np.flatnonzero(which == j)
-                if not len(sel):
-                    continue
-                cap = MODAL_PENALTY * self._modal[b]["body"].mass / dt**2
-                k[sel] = np.maximum(k[sel], STIFFNESS * cap / len(sel))  # the body's weight shared by its contacts
-                total = float(k[sel].sum())
-                if total > cap:
-                    k[sel] *= cap / total
-        pen.set(V, W, P, N, k, dhat)
+        # each modal body's rigid displacement by the reaction is solved with the tet (``tetcontact``): no explicit
+        # limit on the stiffness; its contacts share the body's weight and hold its approach (the tet's too) in a
+        # part of the skin: at least DEPTH_SHARE (approach + |g| dt^2) / dhat times its mass / dt^2, summed
+        bodies, arms, inertia = np.full(len(k), -1, np.int64), np.zeros((len(k), 6)), []
+        for b in self._tet_modal.get(name, ()):
+            sel = n_obstacle + np.array([i for i, (mb, _, _) in enumerate(modal) if mb == b], dtype=np.int64)
+            if not len(sel):
+                continue
+            body, (end, travel) = self._modal[b]["body"], ends[b]
+            R = ctx.state_in.bodies[b].rotation()
+            S = np.zeros((6, 6))
+            S[:3, :3] = body.mass * np.eye(3)
+            S[3:, 3:] = R @ body.inertia @ R.T
+            approach = travel + vmax * dt + float(np.linalg.norm(self._modal[b]["g"])) * dt * dt
+            last = ctx.state_in.contacts.get((_REACTION_KEY, name, "force"), {}).get(b, 0.0)  # [N]
+            force = max(approach * body.mass / dt**2, last)
+            share = DEPTH_SHARE * force / dhat / len(sel)
+            k[sel] = np.maximum(k[sel], share)
+            arms[sel] = np.column_stack([N[sel], np.cross(P[sel] - end.position, N[sel])])
+            bodies[sel] = len(inertia)
+            inertia.append(S / dt**2)
+        pen.set(V, W, P, N, k, dhat, bodies=bodies, arms=arms, inertia=inertia)
         return touched
+
+    def _tet_restitution(self, ctx, name: str, s, out) -> None:
+        """Restitution between tet body ``name`` (start ``s``, end ``out``) and the modal bodies it meets, on the
+        bodies' relative motion (Poisson): an impact starts when their contacts first push (the relative velocity
+        ``v0`` of the tet's centre of mass and the modal body noted); while the pair approaches, the normal impulse
+        adds up (``J_c``); when it stops approaching, the pair takes ``e J_c`` more, equal and opposite, through the
+        tet's centre of mass (all its vertices alike: no strain) and the modal body's. Capped so that the relative
+        motion's kinetic energy after it, plus what the tet stored in the impact (elastic, contact, vibration), is at
+        most ``e^2`` times the impact's ``mu v0^2 / 2`` (mu the reduced mass): the energy the implicit step's
+        damping took is given back, never more; the elasticity of a soft body returns what it stored itself."""
+        t = self._tet[name]
+        n_obstacle, modal = t.get("modal_contacts", (0, []))
+        m = t["masses"]
+        if not modal or not np.all(np.isfinite(m)):
+            return
+        pen = t["penalty"]
+        f = pen.forces(out.x)[n_obstacle:]
+        M = float(m.sum())
+        Vt = m @ out.v / M
+        en = t["solver"].energies(out)
+        stored = en["elastic"] + pen.penalty_energy(out.x) + en["kinetic"] - 0.5 * M * float(Vt @ Vt)
+        for b in self._tet_modal[name]:
+            sel = np.array([i for i, (mb, _, _) in enumerate(modal) if mb == b], dtype=np.int64)
+            J = ((f[sel] * ctx.dt)[:, None] * pen.nrm[n_obstacle + sel]).sum(0) if len(sel) else np.zeros(3)
+            key = (_REACTION_KEY, name, "impact", b)
+            rec = ctx.state_in.contacts.get(key)
+            if not np.any(J) and rec is None:
+                continue
+            mb = self._modal[b]
+            cb = self._one(b, fx.Contact)
+            e = t["contact"].restitution if cb is None else min(t["contact"].restitution, cb.restitution)
+            sb = ctx.state_in.bodies[b]
+            Vb = sb.velocity + mb["g"] * ctx.dt + (ctx.dV[b][:3] if b in ctx.dV else 0.0)
+            if rec is None:  # the impact starts: the relative velocity and the tet's stored energy before it
+                V0 = m @ s.v / M
+                e0 = t["solver"].energies(s)
+                rec = (V0 - sb.velocity, e0["elastic"] + e0["kinetic"] - 0.5 * M * float(V0 @ V0), np.zeros(3), False)
+            v_start, stored0, Jc, done = rec
+            Jc = Jc + J
+            if not np.any(J):  # the contact ended
+                continue
+            ctx.contacts[key] = (v_start, stored0, Jc, done)
+            nJ = float(np.linalg.norm(Jc))
+            if done or e <= 0 or nJ == 0:
+                continue
+            nh = Jc / nJ  # on the tet, out of the modal body
+            vn = float((Vt - Vb) @ nh)
+            if vn < 0:  # still approaching
+                continue
+            mu = 1.0 / (1.0 / M + 1.0 / mb["body"].mass)
+            v0 = max(-float(v_start @ nh), 0.0)
+            vmax = math.sqrt(max(e * e * v0 * v0 - 2.0 * max(stored - stored0, 0.0) / mu, 0.0))
+            lam = max(0.0, min(e * nJ, mu * (vmax - vn)))
+            ctx.contacts[key] = (v_start, stored0, Jc, True)
+            if lam == 0:
+                continue
+            out.v += lam * nh / M
+            dV = np.zeros(6 + mb["body"].mode_count)
+            dV[:3] = -lam * nh / mb["body"].mass
+            ctx.dV[b] = ctx.dV[b] + dV if b in ctx.dV else dV
+            ctx.report.exchanged.append((b, name, -lam * nh, np.cross(sb.position, -lam * nh)))
+
+    @staticmethod
+    def _tet_too_deep(pen, x: np.ndarray) -> bool:
+        """True, and the contacts that ended deeper than ``MAX_DEPTH`` of the skin stiffened to end at a quarter of
+        it (their force held), when the step is to be redone."""
+        depth = pen.depths(x)
+        over = depth > MAX_DEPTH * pen.dhat
+        if not over.any():
+            return False
+        pen.stiffen(np.where(over, depth / (0.25 * pen.dhat), 1.0))
+        return True
 
     def _tet_reaction(self, ctx, name: str, out) -> None:
         """The modal bodies take the opposite of the impulses the tet body's penalty contacts with them gave it in
         its implicit step (``f dt`` along the normal at each contact's modal point): generalised velocity changes
-        at the step start (``ctx.dV``, merged with the solid solve's), reported in ``StepReport.exchanged`` and
-        kept for the next step's prediction of the body (``_modal_prediction``)."""
+        at the step start (``ctx.dV``, merged with the solid solve's), reported in ``StepReport.exchanged``. Their
+        rigid part is the body's displacement solved in the step (``tetcontact``) over dt."""
         t = self._tet[name]
         n_obstacle, modal = t.get("modal_contacts", (0, []))
         if not modal:
@@ -834,15 +937,15 @@ class World:
         pen = t["penalty"]
         f = pen.forces(out.x)[n_obstacle:]
         J = -(f * ctx.dt)[:, None] * pen.nrm[n_obstacle:]  # on the modal body
+        ctx.contacts[(_REACTION_KEY, name, "force")] = {  # [N] by body: the next step's stiffness holds it
+            b: float(f[[i for i, (m, _, _) in enumerate(modal) if m == b]].sum()) for b in self._tet_modal[name]}
         for b in self._tet_modal[name]:
             sel = np.array([i for i, (m, _, _) in enumerate(modal) if m == b and f[i] > 0], dtype=np.int64)
             if not len(sel):
                 continue
             ids = np.array([modal[i][1] for i in sel])
             w = np.array([modal[i][2] for i in sel])
-            dV = self._modal_impulses(ctx, b, ids, w, J[sel], name)
-            key = (_REACTION_KEY, b)  # the next step's prediction of the body starts from it
-            ctx.contacts[key] = ctx.contacts[key] + dV if key in ctx.contacts else dV
+            self._modal_impulses(ctx, b, ids, w, J[sel], name)
 
     def _modal_impulses(self, ctx, b: str, ids: np.ndarray, w: np.ndarray, J: np.ndarray, src: str) -> np.ndarray:
         """Impulses ``J`` (k, 3) [N s] on modal body ``b`` at its surface points ``sum_j w_j vertex_j`` (ids, w
@@ -1308,7 +1411,9 @@ class World:
         return p, (m[:, None] * np.cross(s.x, s.v)).sum(axis=0)
 
     def energy(self, state: WorldState, name: str) -> dict:
-        """Energies [J] of body ``name``: kinetic, elastic, gravity (``-m g . x``) and their total."""
+        """Energies [J] of body ``name``: kinetic, elastic, gravity (``-m g . x``), for a tet body with contact the
+        energy stored in its penalty contacts (``contact``: with obstacles and modal bodies, ``sum k depth^2 / 2``
+        at the last step's end), and their total."""
         s = state.bodies[name]
         g = np.zeros(3)
         for e in self.effects_of(name):
@@ -1324,6 +1429,8 @@ class World:
             m = self.by_name[name].model.masses
             e = self._tet[name]["solver"].energies(s)
             out = {"kinetic": e["kinetic"], "elastic": e["elastic"], "gravity": -float(m @ (s.x @ g))}
+            if self._tet[name]["penalty"] is not None:  # stored in its contacts (obstacles', modal bodies')
+                out["contact"] = float(state.contacts.get((_REACTION_KEY, name), 0.0))
         else:
             sc = self._cloth[name]["scene"]
             m = sc.model.masses
@@ -1375,8 +1482,10 @@ _NO_CONTROL = WorldControl()
 MODAL_BATCH = True
 #: the key of the compiled modal contacts' impulses in ``WorldState.contacts``: (sorted int64 keys, (k, 3) [N s])
 _FAST_KEY = "modal contacts"
-#: ``WorldState.contacts[(_REACTION_KEY, modal body)]``: the generalised velocity change (6 + r,) the tet bodies'
-#: contacts gave the modal body in the last step
+#: ``WorldState.contacts[(_REACTION_KEY, tet body)]``: the energy [J] stored in the tet body's penalty contacts at
+#: the end of the last step (``World.energy``'s ``contact``); ``[(_REACTION_KEY, tet body, "force")]``: the normal
+#: force [N] its contacts bore from each modal body (the next step's stiffness is sized to hold it);
+#: ``[(_REACTION_KEY, tet body, "impact", modal body)]``: an impact in progress (``_tet_restitution``)
 _REACTION_KEY = "tet reaction"
 
 
