@@ -9,8 +9,8 @@ for the free DOFs; handle vertices get the velocity that brings them to their sc
 the end of the step, and contact vertices the normal velocity of their obstacle (constraint filtering:
 per vertex a projection ``S_i`` on the free components, ``0`` for a handle, ``I - n n^T`` for a contact,
 and the system ``S A S`` on range(S) is SPD). Two linear solvers: ``"cg"`` (the filtered conjugate
-gradients of ``modalfem.cloth._sgs_kernels.pcg_sgs`` or ``_kernels.pcg``, compiled, warm start from the previous step's velocity
-change, relative residual ``cg_rtol``) and ``"splu"`` (scipy's SuperLU on ``S A S + I - S``,
+gradients of ``modalfem.cloth._sgs_kernels.pcg_sgs`` or ``_kernels.pcg``, compiled, warm start from the previous
+step's velocity change, relative residual ``cg_rtol``) and ``"splu"`` (scipy's SuperLU on ``S A S + I - S``,
 minimum-degree ordering of A^T + A). The CG preconditioner (``cg_preconditioner``) is by default symmetric block
 Gauss-Seidel in vertex order (``"sgs"``, :mod:`modalfem.cloth._sgs_kernels`: Eisenstat's trick makes an iteration
 cost about one matrix product; serial sweeps). Per step on the 64x64 pile (80 steps, one thread) the implicit solve
@@ -220,7 +220,8 @@ class _Levels:
         return Dinv, np.linalg.inv(C)
 
 
-def _solve_cg(indptr, indices, data, diag, b, kind, normal, z, guess, rtol: float, maxiter: int, levels: _Levels | None):
+def _solve_cg(indptr, indices, data, diag, b, kind, normal, z, guess, rtol: float, maxiter: int,
+              levels: _Levels | None):
     """Filtered PCG: the multilevel preconditioner on ``levels``, or symmetric block Gauss-Seidel (levels None)."""
     from modalfem.cloth import _kernels, _sgs_kernels
 
