@@ -84,7 +84,8 @@ class PairStore:
         if len(self.blocks) > 24:
             merged = []
             for kind in ("vf", "ee"):
-                parts = [_pair_kernels.select_pairs(q, self.stamp, e, _NO_FLAGS) for k, q, e in self.blocks if k == kind]
+                parts = [_pair_kernels.select_pairs(q, self.stamp, e, _NO_FLAGS)
+                         for k, q, e in self.blocks if k == kind]
                 if parts:
                     merged.append((kind, np.concatenate(parts), self.epoch))
             self.blocks = merged
