@@ -851,3 +851,68 @@ def frames(quat, position, q, qoff, nm, phi, phi_off, rest, voff, inertia_inv):
                 hi[b, c] = max(hi[b, c], X[v, c])
         bound[b] = math.sqrt(d2) if r > 0 else 0.0
     return R, Iw, Xl, X, bound, lo, hi
+
+
+@numba.njit(cache=True)
+def velocity_blocks(quat, vel, L, qdot, qoff, nm, inertia_inv, g, radius, phi, phi_off, voff, dt):
+    """Every body's block of the solve's velocities and the bound of its surface points' speed.
+
+    Args:
+        quat, vel, L: (nb, 4) orientations, (nb, 3) velocities [m/s] and world angular momenta [kg m^2/s];
+            qdot: modal velocities (body i's ``nm[i]`` from ``qoff[i]``); inertia_inv: (nb, 3, 3) body axes
+            [1/(kg m^2)]; g: (nb, 3) gravity [m/s^2]; radius: (nb,) rest radii [m]; phi, phi_off, voff: as
+            ``frames``. dt: step [s].
+
+    Returns:
+        ``(V, speed)``: every body's ``(v + g dt, w, qdot)`` (6 + r) one after another (w = R I^-1 R^T L
+        [rad/s]), and (nb,) ``|v| + |w| radius + |g| dt + max |(Phi qdot)_i|`` [m/s] (the largest component).
+    """
+    nb = quat.shape[0]
+    V = np.empty(6 * nb + qdot.shape[0])
+    speed = np.empty(nb)
+    o = 0
+    for b in range(nb):
+        w, x, y, z = quat[b, 0], quat[b, 1], quat[b, 2], quat[b, 3]
+        R00, R01, R02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+        R10, R11, R12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+        R20, R21, R22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+        t0 = R00 * L[b, 0] + R10 * L[b, 1] + R20 * L[b, 2]
+        t1 = R01 * L[b, 0] + R11 * L[b, 1] + R21 * L[b, 2]
+        t2 = R02 * L[b, 0] + R12 * L[b, 1] + R22 * L[b, 2]
+        u0 = inertia_inv[b, 0, 0] * t0 + inertia_inv[b, 0, 1] * t1 + inertia_inv[b, 0, 2] * t2
+        u1 = inertia_inv[b, 1, 0] * t0 + inertia_inv[b, 1, 1] * t1 + inertia_inv[b, 1, 2] * t2
+        u2 = inertia_inv[b, 2, 0] * t0 + inertia_inv[b, 2, 1] * t1 + inertia_inv[b, 2, 2] * t2
+        w0 = R00 * u0 + R01 * u1 + R02 * u2
+        w1 = R10 * u0 + R11 * u1 + R12 * u2
+        w2 = R20 * u0 + R21 * u1 + R22 * u2
+        for c in range(3):
+            V[o + c] = vel[b, c] + g[b, c] * dt
+        V[o + 3], V[o + 4], V[o + 5] = w0, w1, w2
+        r = nm[b]
+        for m in range(r):
+            V[o + 6 + m] = qdot[qoff[b] + m]
+        sp = (math.sqrt(vel[b, 0] ** 2 + vel[b, 1] ** 2 + vel[b, 2] ** 2)
+              + math.sqrt(w0 * w0 + w1 * w1 + w2 * w2) * radius[b]
+              + math.sqrt(g[b, 0] ** 2 + g[b, 1] ** 2 + g[b, 2] ** 2) * dt)
+        act = np.empty(r, dtype=np.int64)
+        na = 0
+        for m in range(r):
+            if qdot[qoff[b] + m] != 0.0:
+                act[na] = m
+                na += 1
+        if r:
+            top = 0.0
+            if na:
+                base = phi_off[b]
+                for u in range(voff[b + 1] - voff[b]):
+                    for c in range(3):
+                        p = base + (u * 3 + c) * r
+                        s = 0.0
+                        for j in range(na):
+                            m = act[j]
+                            s += phi[p + m] * qdot[qoff[b] + m]
+                        top = max(top, abs(s))
+            sp += top
+        speed[b] = sp
+        o += 6 + r
+    return V, speed

@@ -100,6 +100,17 @@ class ModalContacts:
         empty = np.zeros(0, dtype=np.int64)
         self._cache = tuple(List([empty] * (nb * nb)) for _ in range(6))
 
+    def velocity_blocks(self, states: dict, g: dict, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every body's block ``(v + g dt, w, qdot)`` (6 + r) of the solve's velocities, one after another in
+        ``names`` order, and (nb,) bounds of its surface points' speed ``|v| + |w| radius + |g| dt + max_i |(Phi
+        qdot)_i|`` [m/s] (``states``: ``{name: runtime.State}``; ``g``: ``{name: gravity (3,) [m/s^2]}``; dt [s])."""
+        sts = [states[n] for n in self.names]
+        return SK.velocity_blocks(np.array([s.orientation for s in sts]), np.array([s.velocity for s in sts]),
+                                  np.array([s.angular_momentum for s in sts]),
+                                  np.concatenate([np.zeros(0)] + [s.qdot for s in sts]), self.mask_off, self.nm,
+                                  self._inertia_inv, np.array([g[n] for n in self.names], dtype=np.float64),
+                                  self._radius, self.phi, self.phi_off, self._voff, float(dt))
+
     def _masks(self, dt: float) -> np.ndarray:
         if self._mask_dt != dt:
             self.mask = np.concatenate([(b.omega * dt <= self.slow).astype(np.int64) for b in self.bodies])

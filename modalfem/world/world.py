@@ -1071,8 +1071,21 @@ class World:
         seg, V_parts, pos, speed = {}, [], {}, {}
         n_off = 0
         fast = self._fast
+        blocks = {}  # the compiled modal contacts' bodies: their velocity blocks and speed bounds in one call
+        if fast is not None:
+            Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, {n: self._modal[n]["g"] for n in fast.names}, dt)
+            o = 0
+            for i, n in enumerate(fast.names):
+                blocks[n] = (Vf[o:o + 6 + fast.nm[i]], float(sf[i]))
+                o += 6 + fast.nm[i]
         for name in names:
-            if name in self._modal:
+            if name in blocks:
+                V_parts.append(blocks[name][0])
+                if name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
+                    V_parts[-1] = V_parts[-1] + ctx.dV[name]
+                speed[name] = blocks[name][1]
+                seg[name] = (n_off, len(blocks[name][0]))
+            elif name in self._modal:
                 m = self._modal[name]
                 s = ctx.state_in.bodies[name]
                 body = m["body"]
