@@ -117,13 +117,14 @@ class PairStore:
         for k, q, e in self.blocks:
             if k != kind:
                 continue
+            stamp = self.stamp if e < self.epoch else _NO_STAMP  # no drop since the block was found: all in
             if len(q) >= self.INDEXED:
                 if small:
                     yield (small[0] if len(small) == 1 else np.concatenate(small)), _NO_STAMP, 0, _NO_FLAGS
                     small = []
-                yield q, self.stamp, e, flags
+                yield q, stamp, e, flags
             else:
-                small.append(_pair_kernels.select_pairs(q, self.stamp, e, flags))
+                small.append(_pair_kernels.select_pairs(q, stamp, e, flags))
         if small:
             yield (small[0] if len(small) == 1 else np.concatenate(small)), _NO_STAMP, 0, _NO_FLAGS
 
