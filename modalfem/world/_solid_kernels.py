@@ -30,7 +30,7 @@ def _to_local(x, R, p, out):
         out[c] = R[0, c] * d0 + R[1, c] * d1 + R[2, c] * d2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _vf_test(y, Xb, Tb, t, reach, x, w, i, best, dbest, gbest, bary, nloc):
     """Point ``y`` (b's axes) against b's triangle ``t``: when within ``reach`` [m] and closer than query ``i``'s
     best so far (ties: the one ``y`` is most in front of), it becomes the best (its distance, plane gap [m],
@@ -126,7 +126,7 @@ def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty,
     return vertex, tri, wb, gap, normal
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res):
     """Edge ``y0 y1`` (b's axes) against b's edge ``f``: True when within ``margin`` [m] with closest points inside
     both edges, at least ~12 degrees from parallel; then ``res`` = (s, t, gap, normal in b's axes (3))."""

@@ -23,7 +23,7 @@ __all__ = ["ModalContacts"]
 
 #: contact kinds in the warm-start keys
 _VF, _EE, _PLANE = 0, 1, 2
-_FEATURES = 1 << 24  # feature indices (vertex, edge) below this in a key
+_FEATURES = 1 << 40  # feature indices (a vertex; an edge pair, mine * (other body's edge count) + other) below this
 #: a pair's tree walk keeps the features within its search radius plus this fraction of its margin, and is reused
 #: while the bodies move (relative to each other, or in shape) less than what is left of that slack
 SLACK = 0.5
@@ -181,7 +181,9 @@ class ModalContacts:
                 wb[:, 0], wb[:, 1] = 1.0 - tt, tt
                 pa_ = X[voff[a] + ea[:, 0]] * wa[:, :1] + X[voff[a] + ea[:, 1]] * wa[:, 1:2]
                 pb_ = X[voff[b] + eb[:, 0]] * wb[:, :1] + X[voff[b] + eb[:, 1]] * wb[:, 1:2]
-                parts.append((a, va, wa, b, vb, wb, 0.5 * (pa_ + pb_), ne, ge, np.full(k, _EE), mine, b))
+                # the edge pair in the key (an edge may touch several of the other body's edges: one key each)
+                feat = mine * (self._eoff[b + 1] - self._eoff[b]) + other
+                parts.append((a, va, wa, b, vb, wb, 0.5 * (pa_ + pb_), ne, ge, np.full(k, _EE), feat, b))
         if not parts:
             return None
         cols = [np.concatenate([p[j] for p in parts]) for j in range(12)]
