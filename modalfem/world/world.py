@@ -1214,10 +1214,10 @@ class World:
         if len(sel):
             key = data["body"][sel] * len(names) + data["other"][sel]
             uniq, inv = np.unique(key, return_inverse=True)
-            J = np.zeros((len(uniq), 3))
-            L = np.zeros((len(uniq), 3))
-            np.add.at(J, inv, lam[sel])
-            np.add.at(L, inv, np.cross(data["point"][sel], lam[sel]))
+            moment = np.cross(data["point"][sel], lam[sel])
+            # per pair sums in contact order (bincount adds in index order, as np.add.at, and is ~10x faster)
+            J = np.stack([np.bincount(inv, lam[sel, c], minlength=len(uniq)) for c in range(3)], axis=1)
+            L = np.stack([np.bincount(inv, moment[:, c], minlength=len(uniq)) for c in range(3)], axis=1)
             for i, kk in enumerate(uniq):
                 ctx.report.exchanged.append((names[kk // len(names)], names[kk % len(names)], J[i], L[i]))
         for name in self._sounds:  # what sounding bodies hear: the modal kick of the contacts that bounced
@@ -1239,10 +1239,13 @@ class World:
         out = []
         for name in names:
             o, nd = seg[name]
-            g = np.zeros(3)
-            for e in self.effects_of(name):
-                if isinstance(e, fx.Gravity):
-                    g += np.asarray(e.g)
+            if name in self._modal:
+                g = self._modal[name]["g"]  # its gravity effects' sum, formed at build
+            else:
+                g = np.zeros(3)
+                for e in self.effects_of(name):
+                    if isinstance(e, fx.Gravity):
+                        g += np.asarray(e.g)
             if name in self._modal:
                 body = self._modal[name]["body"]
                 R = ctx.state_in.bodies[name].rotation()
