@@ -50,13 +50,17 @@ def _psi(z: np.ndarray, k: np.ndarray, e: np.ndarray):
     """Penalty energy, force and stiffness at depths ``z`` [m]: ``0.5 k z^2`` where ``e == 0``; else C2,
     ``k z^3 / (6 e)`` below ``e`` [m] and ``k (z^2 / 2 - e z / 2 + e^2 / 6)`` beyond."""
     z = np.maximum(z, 0.0)
-    es = np.where(e > 0, e, 1.0)
-    ramp = (e > 0) & (z < e)
-    beyond = np.where(e > 0, k * (0.5 * z * z - 0.5 * e * z + e * e / 6), 0.5 * k * z * z)
-    psi = np.where(ramp, k * z**3 / (6 * es), beyond)
-    f = np.where(ramp, k * z * z / (2 * es), k * (z - 0.5 * e))
-    h = np.where(ramp, k * z / es, np.where(z > 0, k, 0.0))
-    return psi, np.where(z > 0, f, 0.0), h
+    kz = k * z
+    psi, f, h = 0.5 * kz * z, kz, np.where(z > 0, k, 0.0)
+    m = np.flatnonzero(e > 0)
+    if len(m):
+        zm, km, em = z[m], k[m], e[m]
+        ramp = zm < em
+        q = km * zm / em  # the onset's stiffness
+        psi[m] = np.where(ramp, q * zm * zm / 6, km * (0.5 * zm * zm - 0.5 * em * zm + em * em / 6))
+        f[m] = np.where(ramp, 0.5 * q * zm, km * (zm - 0.5 * em))
+        h[m] = np.where(ramp, q, km)
+    return psi, f, h
 
 
 class PenaltyContacts:
