@@ -19,9 +19,21 @@ prediction says converged; the solve stops when the true residual does. So the s
 Why: block SGS propagates a correction across the whole sheet in one sweep, which block Jacobi plus the additive
 aggregation levels cannot: on the 64x64 pile's step-60 systems CG takes 31 iterations instead of 51 (implicit step,
 1e-4) and 18 instead of 28 (smoothing, 0.1), for about the cost of one matrix product per iteration as before, and
-without the levels' setup (their Galerkin matrices and coarse inverse, twice per step). The sweeps are serial
-(a sweep split into independent chunks lost the gain: 44-48 iterations with 4-16 chunks), so a solve gives the
-same bits on any thread count; the residual checks use ``_kernels``' chunked parallel kernels.
+without the levels' setup (their Galerkin matrices and coarse inverse, twice per step).
+
+Sweep orders (``SweepOrder``): in vertex order a sweep is serial (splitting it into chunks that ignore each
+other's blocks, block Jacobi between chunks, lost the gain: 44-48 iterations with 4-16 chunks). A multicolour
+order keeps the coupling between chunks and lets the uncoupled ones run in parallel: the sweeps go colour by
+colour, and the tasks of one colour (sets of rows no block couples) run in parallel, each task's rows in order.
+"colours" colours the vertex graph greedily (7 colours on a triangle mesh with its hinges; each colour's vertices
+in chunks), "blocks" colours groups of ``GROUP`` consecutive vertices (two colours of stripes on a grid) and keeps
+vertex order inside a group. Either is a symmetric permutation ``Pi A Pi^T``, so the splitting ``L + D + L^T`` and
+Eisenstat's trick hold unchanged in the new order; the solve gathers the matrix into it (one pass). The tasks and
+their order depend on the pattern only, and the dot products add per-task (per-chunk) partial sums in task order,
+so a solve gives the same bits on any number of threads. On the 64x64 pile's step-60 implicit system (1e-4): 31
+iterations in vertex order, 32 in "blocks", 39 in "colours" (a sweep in vertex order carries a correction across the whole
+sheet, one in a vertex multicolour order at most as many vertices far as there are colours; "blocks" keeps the
+long reach inside each group).
 """
 
 from __future__ import annotations
@@ -29,9 +41,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from modalfem.cloth._kernels import _preconditioner, _project, _residual
+from modalfem._threads import chunk_bounds, chunk_count
+from modalfem.cloth._kernels import CHUNK, _preconditioner, _project, _residual, _sum
 
-__all__ = ["pcg_sgs"]
+__all__ = ["ORDERS", "SweepOrder", "greedy_colours", "pcg_sgs", "pcg_sgs_ordered"]
 
 #: floating-point freedoms of the sweeps: reassociation and fused multiply-adds (no assumptions about NaN or
 #: infinity); they let LLVM vectorise the 3x3 block products: a sweep over the 64x64 pile's ~20k blocks on one
@@ -39,85 +52,98 @@ __all__ = ["pcg_sgs"]
 _FAST = {"reassoc", "contract"}
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _backward(indptr, indices, data, diag, P, rhs, t, z, beta, direction):
-    """``t = (D + L^T)^-1 rhs`` (``rhs`` in range(S)): vertices from last to first, the blocks right of the
-    diagonal; ``P`` the projected inverses of the diagonal blocks (``_kernels._preconditioner``). With
-    ``direction``, ``rhs`` is first updated to ``z + beta rhs`` row by row (CG's new search direction)."""
-    n = len(diag)
-    for i in range(n - 1, -1, -1):
-        if direction:
-            for a in range(3):
-                rhs[i, a] = z[i, a] + beta * rhs[i, a]
-        s0 = rhs[i, 0]
-        s1 = rhs[i, 1]
-        s2 = rhs[i, 2]
-        for p in range(diag[i] + 1, indptr[i + 1]):
-            j = indices[p]
-            x0, x1, x2 = t[j, 0], t[j, 1], t[j, 2]
-            s0 -= data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-            s1 -= data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-            s2 -= data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
-        for a in range(3):
-            t[i, a] = P[i, a, 0] * s0 + P[i, a, 1] * s1 + P[i, a, 2] * s2
+@numba.njit(cache=True, parallel=True, fastmath=_FAST)
+def _backward(indptr, indices, data, diag, P, rhs, t, z, beta, direction, cptr, tptr):
+    """``t = (D + L^T)^-1 rhs`` (``rhs`` in range(S)): colours from last to first, the tasks of one colour in
+    parallel, each task's rows from last to first, the blocks right of the diagonal; ``P`` the projected inverses
+    of the diagonal blocks (``_kernels._preconditioner``). With ``direction``, ``rhs`` is first updated to
+    ``z + beta rhs`` row by row (CG's new search direction)."""
+    for c in range(len(cptr) - 2, -1, -1):
+        for k in numba.prange(cptr[c], cptr[c + 1]):
+            for i in range(tptr[k + 1] - 1, tptr[k] - 1, -1):
+                if direction:
+                    for a in range(3):
+                        rhs[i, a] = z[i, a] + beta * rhs[i, a]
+                s0 = rhs[i, 0]
+                s1 = rhs[i, 1]
+                s2 = rhs[i, 2]
+                for p in range(diag[i] + 1, indptr[i + 1]):
+                    j = indices[p]
+                    x0, x1, x2 = t[j, 0], t[j, 1], t[j, 2]
+                    s0 -= data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
+                    s1 -= data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
+                    s2 -= data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+                for a in range(3):
+                    t[i, a] = P[i, a, 0] * s0 + P[i, a, 1] * s1 + P[i, a, 2] * s2
 
 
-@numba.njit(cache=True, fastmath=_FAST)
-def _forward(indptr, indices, data, diag, P, rhs, t, u, q, with_t):
+@numba.njit(cache=True, parallel=True, fastmath=_FAST)
+def _forward(indptr, indices, data, diag, P, rhs, t, u, q, with_t, cptr, tptr):
     """``u = (D + L)^-1 rhs`` (``with_t`` False), or (True: ``Abar rhs`` given ``t = (D + L^T)^-1 rhs``)
-    ``u = (D + L)^-1 (rhs - D t)`` and ``q = t + u``, returning ``rhs . q``; vertices from first to last, the
+    ``u = (D + L)^-1 (rhs - D t)`` and ``q = t + u``, returning ``rhs . q`` (per task, added in task order);
+    colours from first to last, the tasks of one colour in parallel, each task's rows from first to last, the
     blocks left of the diagonal."""
-    n = len(diag)
-    cq = 0.0
-    for i in range(n):
-        s0 = rhs[i, 0]
-        s1 = rhs[i, 1]
-        s2 = rhs[i, 2]
-        for p in range(indptr[i], diag[i]):
-            j = indices[p]
-            x0, x1, x2 = u[j, 0], u[j, 1], u[j, 2]
-            s0 -= data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
-            s1 -= data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
-            s2 -= data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
-        if with_t:
-            d = diag[i]
-            x0, x1, x2 = t[i, 0], t[i, 1], t[i, 2]
-            s0 -= data[d, 0, 0] * x0 + data[d, 0, 1] * x1 + data[d, 0, 2] * x2
-            s1 -= data[d, 1, 0] * x0 + data[d, 1, 1] * x1 + data[d, 1, 2] * x2
-            s2 -= data[d, 2, 0] * x0 + data[d, 2, 1] * x1 + data[d, 2, 2] * x2
-        for a in range(3):
-            u[i, a] = P[i, a, 0] * s0 + P[i, a, 1] * s1 + P[i, a, 2] * s2
-        if with_t:
-            for a in range(3):
-                q[i, a] = t[i, a] + u[i, a]
-                cq += rhs[i, a] * q[i, a]
-    return cq
+    part = np.zeros(len(tptr) - 1)
+    for c in range(len(cptr) - 1):
+        for k in numba.prange(cptr[c], cptr[c + 1]):
+            cq = 0.0
+            for i in range(tptr[k], tptr[k + 1]):
+                s0 = rhs[i, 0]
+                s1 = rhs[i, 1]
+                s2 = rhs[i, 2]
+                for p in range(indptr[i], diag[i]):
+                    j = indices[p]
+                    x0, x1, x2 = u[j, 0], u[j, 1], u[j, 2]
+                    s0 -= data[p, 0, 0] * x0 + data[p, 0, 1] * x1 + data[p, 0, 2] * x2
+                    s1 -= data[p, 1, 0] * x0 + data[p, 1, 1] * x1 + data[p, 1, 2] * x2
+                    s2 -= data[p, 2, 0] * x0 + data[p, 2, 1] * x1 + data[p, 2, 2] * x2
+                if with_t:
+                    d = diag[i]
+                    x0, x1, x2 = t[i, 0], t[i, 1], t[i, 2]
+                    s0 -= data[d, 0, 0] * x0 + data[d, 0, 1] * x1 + data[d, 0, 2] * x2
+                    s1 -= data[d, 1, 0] * x0 + data[d, 1, 1] * x1 + data[d, 1, 2] * x2
+                    s2 -= data[d, 2, 0] * x0 + data[d, 2, 1] * x1 + data[d, 2, 2] * x2
+                for a in range(3):
+                    u[i, a] = P[i, a, 0] * s0 + P[i, a, 1] * s1 + P[i, a, 2] * s2
+                if with_t:
+                    for a in range(3):
+                        q[i, a] = t[i, a] + u[i, a]
+                        cq += rhs[i, a] * q[i, a]
+            part[k] = cq
+    return _sum(part)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def _diagonal(data, diag, kind, normal, r, s, alpha, c, q, x):
     """``x += alpha c`` and ``r -= alpha q`` (CG's update; alpha 0: none), then ``s = D r`` (the projected diagonal
-    blocks, ``r`` in range(S)); returns ``(r . s, |r|^2)``."""
+    blocks, ``r`` in range(S)); returns ``(r . s, |r|^2)`` (chunks in parallel, partial sums in chunk order)."""
     n = len(diag)
-    rs = 0.0
-    rr = 0.0
-    for i in range(n):
-        if alpha != 0.0:
-            for a in range(3):
-                x[i, a] += alpha * c[i, a]
-                r[i, a] -= alpha * q[i, a]
-        d = diag[i]
-        x0, x1, x2 = r[i, 0], r[i, 1], r[i, 2]
-        a0 = data[d, 0, 0] * x0 + data[d, 0, 1] * x1 + data[d, 0, 2] * x2
-        a1 = data[d, 1, 0] * x0 + data[d, 1, 1] * x1 + data[d, 1, 2] * x2
-        a2 = data[d, 2, 0] * x0 + data[d, 2, 1] * x1 + data[d, 2, 2] * x2
-        a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
-        s[i, 0] = a0
-        s[i, 1] = a1
-        s[i, 2] = a2
-        rs += x0 * a0 + x1 * a1 + x2 * a2
-        rr += x0 * x0 + x1 * x1 + x2 * x2
-    return rs, rr
+    chunks = chunk_count(n, CHUNK)
+    prs = np.zeros(chunks)
+    prr = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        rs = 0.0
+        rr = 0.0
+        for i in range(start, stop):
+            if alpha != 0.0:
+                for a in range(3):
+                    x[i, a] += alpha * c[i, a]
+                    r[i, a] -= alpha * q[i, a]
+            d = diag[i]
+            x0, x1, x2 = r[i, 0], r[i, 1], r[i, 2]
+            a0 = data[d, 0, 0] * x0 + data[d, 0, 1] * x1 + data[d, 0, 2] * x2
+            a1 = data[d, 1, 0] * x0 + data[d, 1, 1] * x1 + data[d, 1, 2] * x2
+            a2 = data[d, 2, 0] * x0 + data[d, 2, 1] * x1 + data[d, 2, 2] * x2
+            a0, a1, a2 = _project(kind, normal, i, a0, a1, a2)
+            s[i, 0] = a0
+            s[i, 1] = a1
+            s[i, 2] = a2
+            rs += x0 * a0 + x1 * a1 + x2 * a2
+            rr += x0 * x0 + x1 * x1 + x2 * x2
+        prs[ch] = rs
+        prr[ch] = rr
+    return _sum(prs), _sum(prr)
 
 
 @numba.njit(cache=True)
@@ -132,9 +158,18 @@ def _handles2(kind, z):
 
 @numba.njit(cache=True)
 def pcg_sgs(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter):
+    """``pcg_sgs_ordered`` in vertex order (one colour, one serial task): the natural-order SGS CG."""
+    cptr = np.array([0, 1], dtype=np.int64)
+    tptr = np.array([0, len(diag)], dtype=np.int64)
+    return pcg_sgs_ordered(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, cptr, tptr)
+
+
+@numba.njit(cache=True)
+def pcg_sgs_ordered(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, cptr, tptr):
     """Solve ``A y = b`` on the free components (filtered PCG, SGS preconditioner; module docstring).
 
-    Args and returns as :func:`modalfem.cloth._kernels.pcg` without the levels: ``y`` (n, 3) updated in place
+    Args and returns as :func:`modalfem.cloth._kernels.pcg` without the levels, plus the sweeps' tasks
+    (``SweepOrder``: ``cptr`` (colours + 1,) the tasks of each colour, ``tptr`` (tasks + 1,) each task's rows): ``y`` (n, 3) updated in place
     (on entry the start, whose constrained components are kept); returns (iterations, relative residual
     reached), iterations = -1 if ``maxiter`` was not enough. ``|S (b - A y)| <= rtol |b'|`` holds on return
     (it is computed, not predicted).
@@ -175,7 +210,7 @@ def pcg_sgs(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter):
     c = np.empty((n, 3))
     t = np.empty((n, 3))
     q = np.empty((n, 3))
-    _forward(indptr, indices, data, diag, P, r, t, rb, q, False)  # rbar = (D + L)^-1 r
+    _forward(indptr, indices, data, diag, P, r, t, rb, q, False, cptr, tptr)  # rbar = (D + L)^-1 r
     rho, rb2 = _diagonal(data, diag, kind, normal, rb, s, 0.0, c, q, xb)
     if not rb2 > 0.0:
         return -1, rn / nb
@@ -185,14 +220,14 @@ def pcg_sgs(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter):
             c[i, a] = s[i, a]
     beta = 0.0
     for k in range(1, maxiter + 1):
-        _backward(indptr, indices, data, diag, P, c, t, s, beta, k > 1)  # c = s + beta c on the way
-        cq = _forward(indptr, indices, data, diag, P, c, t, w, q, True)  # q = Abar c (w: scratch)
+        _backward(indptr, indices, data, diag, P, c, t, s, beta, k > 1, cptr, tptr)  # c = s + beta c on the way
+        cq = _forward(indptr, indices, data, diag, P, c, t, w, q, True, cptr, tptr)  # q = Abar c (w: scratch)
         if not cq > 0.0:
             return -1, rn / nb
         alpha = rho / cq
         rho_new, rb2 = _diagonal(data, diag, kind, normal, rb, s, alpha, c, q, xb)
         if np.sqrt(rb2) * ratio <= goal or k == maxiter:  # predicted converged: compute the true residual
-            _backward(indptr, indices, data, diag, P, xb, t, s, 0.0, False)  # e = (D + L^T)^-1 xbar
+            _backward(indptr, indices, data, diag, P, xb, t, s, 0.0, False, cptr, tptr)  # e = (D + L^T)^-1 xbar
             for i in range(n):
                 for a in range(3):
                     w[i, a] = y[i, a] + t[i, a]
@@ -208,3 +243,128 @@ def pcg_sgs(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter):
         beta = rho_new / rho
         rho = rho_new
     return -1, rn / nb
+
+
+@numba.njit(cache=True)
+def greedy_colours(indptr, indices, group, gptr, gverts):
+    """Greedy colouring of the graph of vertex groups (groups ``g`` and ``h`` adjacent when a block couples a vertex
+    of ``g`` with one of ``h``): groups in index order, each the smallest colour none of its coloured neighbours has.
+    ``group`` (n,) each vertex's group, ``gverts[gptr[g]:gptr[g + 1]]`` group ``g``'s vertices. Returns (groups,)."""
+    ng = len(gptr) - 1
+    colour = np.full(ng, -1, np.int64)
+    mark = np.full(ng + 1, -1, np.int64)
+    for g in range(ng):
+        for q in range(gptr[g], gptr[g + 1]):
+            v = gverts[q]
+            for p in range(indptr[v], indptr[v + 1]):
+                h = group[indices[p]]
+                if h != g and colour[h] >= 0:
+                    mark[colour[h]] = g
+        c = 0
+        while mark[c] == g:
+            c += 1
+        colour[g] = c
+    return colour
+
+
+@numba.njit(cache=True, parallel=True)
+def _gather_blocks(data, src, out):
+    """``out[p] = data[src[p]]`` (blocks (nnzb, 3, 3); chunks in parallel)."""
+    m = len(src)
+    chunks = chunk_count(m, 8 * CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        for p in range(start, stop):
+            q = src[p]
+            for a in range(3):
+                for b in range(3):
+                    out[p, a, b] = data[q, a, b]
+
+
+#: vertices per group of the block multicolour ordering (``SweepOrder("blocks")``)
+GROUP = 256
+
+#: the sweep orders: ``"natural"`` (vertex order, serial), ``"colours"`` (vertex multicolour), ``"blocks"`` (block
+#: multicolour: groups of ``GROUP`` consecutive vertices coloured, natural order inside a group)
+ORDERS = ("natural", "colours", "blocks")
+
+
+class SweepOrder:
+    """The order of the SGS sweeps for one block pattern (built once per pattern; independent of the thread count,
+    so a solve gives the same bits on any).
+
+    ``"natural"``: vertex order, one serial task. ``"colours"``: a greedy colouring of the vertex graph (vertices
+    sharing a block get different colours); the sweeps go colour by colour, the vertices of one colour (uncoupled)
+    in parallel chunks of ``CHUNK``. ``"blocks"``: the vertices cut into groups of ``GROUP`` consecutive indices,
+    the groups' graph coloured greedily; the sweeps go colour by colour, the groups of a colour (uncoupled) in
+    parallel, each group's vertices in order. Either is a symmetric permutation of the matrix, so the splitting
+    ``L + D + L^T`` and Eisenstat's trick hold in the new order; the solve gathers the matrix into it.
+
+    Attributes: ``perm`` (n,) new -> old vertex (None for "natural"), ``indptr``, ``indices``, ``diag`` the pattern
+    in the new order, ``src`` (nnzb,) each new block's old position, ``cptr``/``tptr`` the colours' tasks and the
+    tasks' rows, ``colours`` the number of colours.
+    """
+
+    def __init__(self, indptr: np.ndarray, indices: np.ndarray, diag: np.ndarray, kind: str = "blocks"):
+        if kind not in ORDERS:
+            raise ValueError(f"sweep order must be one of {ORDERS}, got {kind!r}")
+        n = len(indptr) - 1
+        self.kind = kind
+        if kind == "natural":
+            self.perm = None
+            self.indptr, self.indices, self.diag = indptr, indices, diag
+            self.cptr = np.array([0, 1], np.int64)
+            self.tptr = np.array([0, n], np.int64)
+            self.colours = 1
+            return
+        if kind == "colours":
+            group = np.arange(n, dtype=np.int64)
+        else:
+            ng = max(1, n // GROUP)
+            group = (np.arange(n, dtype=np.int64) * ng) // n
+        ng = int(group[-1]) + 1 if n else 0
+        gptr = np.searchsorted(group, np.arange(ng + 1)).astype(np.int64)
+        gcol = greedy_colours(indptr, indices, group, gptr, np.arange(n, dtype=np.int64))
+        vcol = gcol[group]
+        perm = np.lexsort((np.arange(n), group, vcol)).astype(np.int64)  # by colour, then group, then index
+        self.colours = int(gcol.max()) + 1 if n else 0
+        csize = np.bincount(vcol, minlength=self.colours)
+        cstart = np.concatenate([[0], np.cumsum(csize)])
+        if kind == "colours":  # the uncoupled vertices of a colour in chunks
+            counts = [chunk_count(int(s), CHUNK) for s in csize]
+            tptr = [0]
+            for c, k in enumerate(counts):
+                tptr += [int(cstart[c]) + (j * int(csize[c])) // k for j in range(1, k + 1)]
+            self.cptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        else:  # one task per group, the groups of a colour together
+            gorder = np.lexsort((np.arange(ng), gcol))
+            gsize = np.diff(gptr)[gorder]
+            tptr = np.concatenate([[0], np.cumsum(gsize)])
+            self.cptr = np.concatenate([[0], np.cumsum(np.bincount(gcol, minlength=self.colours))]).astype(np.int64)
+        self.tptr = np.asarray(tptr, np.int64)
+        inv = np.empty(n, np.int64)
+        inv[perm] = np.arange(n)
+        rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
+        nr, nc = inv[rows], inv[indices]
+        self.src = np.lexsort((nc, nr)).astype(np.int64)
+        self.indices = np.ascontiguousarray(nc[self.src])
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(nr, minlength=n))]).astype(np.int64)
+        self.diag = np.flatnonzero(nr[self.src] == self.indices).astype(np.int64)
+        self.perm = perm
+
+    def solve(self, data, kind, normal, b, y, rtol: float, maxiter: int):
+        """``pcg_sgs_ordered`` in this order on the pattern's ``data`` (nnzb, 3, 3) with the constraints ``kind``,
+        ``normal``, right-hand side ``b`` (n, 3) and start ``y`` (n, 3), updated in place, all in vertex order.
+        Returns (iterations, relative residual)."""
+        if self.perm is None:
+            return pcg_sgs_ordered(self.indptr, self.indices, data, self.diag, kind, normal, b, y, rtol, maxiter,
+                                   self.cptr, self.tptr)
+        p = self.perm
+        pdata = np.empty_like(data)
+        _gather_blocks(data, self.src, pdata)
+        py = np.ascontiguousarray(y[p])
+        out = pcg_sgs_ordered(self.indptr, self.indices, pdata, self.diag, np.ascontiguousarray(kind[p]),
+                              np.ascontiguousarray(normal[p]), np.ascontiguousarray(b[p]), py, rtol, maxiter,
+                              self.cptr, self.tptr)
+        y[p] = py
+        return out

@@ -221,12 +221,15 @@ class _Levels:
 
 
 def _solve_cg(indptr, indices, data, diag, b, kind, normal, z, guess, rtol: float, maxiter: int,
-              levels: _Levels | None):
-    """Filtered PCG: the multilevel preconditioner on ``levels``, or symmetric block Gauss-Seidel (levels None)."""
+              levels):
+    """Filtered PCG: the multilevel preconditioner on ``levels`` (``_Levels``), or symmetric block Gauss-Seidel in
+    vertex order (None) or in a ``_sgs_kernels.SweepOrder``."""
     from modalfem.cloth import _kernels, _sgs_kernels
 
     y = z + (_project(kind, normal, guess) if guess is not None else 0.0)
-    if levels is None:
+    if isinstance(levels, _sgs_kernels.SweepOrder):
+        it, res = levels.solve(data, kind, normal, b, y, float(rtol), int(maxiter))
+    elif levels is None:
         it, res = _sgs_kernels.pcg_sgs(indptr, indices, data, diag, kind, normal, b, y, float(rtol), int(maxiter))
     else:
         Dinv, Cinv = levels.inverses(indptr, indices, data, kind, normal)
@@ -238,9 +241,27 @@ def _solve_cg(indptr, indices, data, diag, b, kind, normal, z, guess, rtol: floa
     return y, it
 
 
+#: the CG preconditioners: symmetric block Gauss-Seidel with its sweeps in vertex order (serial), in a block
+#: multicolour order (groups of consecutive vertices coloured, a colour's groups in parallel) or in a vertex
+#: multicolour order (a colour's vertices in parallel); block Jacobi plus additive aggregation levels
+PRECONDITIONERS = ("sgs", "sgs-blocks", "sgs-colours", "multilevel")
+_SWEEPS = {"sgs": "natural", "sgs-blocks": "blocks", "sgs-colours": "colours"}
+
+
 def _check_preconditioner(name) -> None:
-    if name not in ("sgs", "multilevel"):
-        raise InputError(f"CG preconditioner must be 'sgs' or 'multilevel', got {name!r}")
+    if name not in PRECONDITIONERS:
+        raise InputError(f"CG preconditioner must be one of {', '.join(map(repr, PRECONDITIONERS))}, got {name!r}")
+
+
+def _preconditioner_setup(name: str, indptr, indices, diag):
+    """What ``_solve_cg`` takes as ``levels`` for the preconditioner ``name`` (built once per pattern)."""
+    from modalfem.cloth import _sgs_kernels
+
+    if name == "multilevel":
+        return _Levels(indptr, indices)
+    if name == "sgs":
+        return None
+    return _sgs_kernels.SweepOrder(indptr, indices, diag, _SWEEPS[name])
 
 
 def pcg_constrained(A, b: np.ndarray, *, fixed=None, fixed_values=None, contacts=None, x0=None,
@@ -287,7 +308,7 @@ def pcg_constrained(A, b: np.ndarray, *, fixed=None, fixed_values=None, contacts
     ip, ind = B.indptr.astype(np.int64), B.indices.astype(np.int64)
     y, it = _solve_cg(ip, ind, np.ascontiguousarray(B.data, float), diag, np.asarray(b, dtype=float).reshape(n, 3),
                       kind, normal, z, guess, rtol, maxiter,
-                      _Levels(ip, ind) if preconditioner == "multilevel" else None)
+                      _preconditioner_setup(preconditioner, ip, ind, diag))
     return y.reshape(-1), it
 
 
@@ -318,7 +339,7 @@ class ImplicitEuler:
         self.cg_maxiter = int(cg_maxiter)
         mesh = model.mesh
         self._pattern = _Pattern(mesh.point_count, [mesh.triangles, mesh.hinges.vertices])
-        self._levels = _Levels(self._pattern.indptr, self._pattern.indices)
+        self._setups = {}  # per preconditioner, its levels or sweep order (built on first use)
         self._m3 = np.repeat(model.masses, 3)
         self._Kdata = None
         self._mblocks = None
@@ -405,8 +426,21 @@ class ImplicitEuler:
             return y, 0, time.perf_counter() - t0
         rtol = self.cg_rtol if rtol is None else rtol
         y, it = _solve_cg(pat.indptr, pat.indices, data, pat.diag, b, kind, normal, z, guess, rtol, self.cg_maxiter,
-                          self._levels if (preconditioner or self.cg_preconditioner) == "multilevel" else None)
+                          self._setup(preconditioner or self.cg_preconditioner))
         return y, it, time.perf_counter() - t0
+
+    @property
+    def _levels(self) -> _Levels:
+        """The multilevel preconditioner's aggregation levels on this cloth's pattern."""
+        return self._setup("multilevel")
+
+    def _setup(self, name: str):
+        """The levels or sweep order of the preconditioner ``name`` on this cloth's pattern (cached)."""
+        _check_preconditioner(name)
+        if name not in self._setups:
+            pat = self._pattern
+            self._setups[name] = _preconditioner_setup(name, pat.indptr, pat.indices, pat.diag)
+        return self._setups[name]
 
     @serial_blas
     def step_velocity(self, x, v, forces, dt: float, *, fixed=None, fixed_velocity=None, damping_blocks=None,

@@ -44,12 +44,51 @@ def _dense_projector(kind, normal):
     return sp.block_diag(list(S)).toarray()
 
 
-def test_eisenstat_product_is_the_sgs_preconditioned_operator():
-    pat, data, rng = _system(8, 1e-3)
+def _ordered(pat, data, kind, normal, order: str):
+    """The pattern, data and constraints in the sweep order ``order`` (new vertex i = old ``perm[i]``)."""
+    o = _sgs_kernels.SweepOrder(pat.indptr, pat.indices, pat.diag, order)
+    if o.perm is None:
+        return o, np.arange(pat.n), data, kind, normal
+    pdata = np.empty_like(data)
+    _sgs_kernels._gather_blocks(data, o.src, pdata)
+    return o, o.perm, pdata, kind[o.perm], np.ascontiguousarray(normal[o.perm])
+
+
+@pytest.mark.parametrize("order", _sgs_kernels.ORDERS)
+def test_sweep_orders_are_colourings_and_permute_the_matrix(order):
+    pat, data, rng = _system(40, 1e-3)  # 1600 vertices: several groups and colour chunks
+    n = pat.n
+    kind, normal, _ = _constraints(n, None, None, None)
+    o, perm, pdata, _, _ = _ordered(pat, data, kind, normal, order)
+    assert np.array_equal(np.sort(perm), np.arange(n))
+    A = sp.bsr_matrix((data, pat.indices, pat.indptr), shape=(3 * n, 3 * n)).toarray()
+    B = sp.bsr_matrix((pdata, o.indices, o.indptr), shape=(3 * n, 3 * n)).toarray()
+    dof = (3 * perm[:, None] + np.arange(3)).reshape(-1)
+    assert np.array_equal(B, A[np.ix_(dof, dof)])  # exactly P A P^T
+    assert np.array_equal(o.indices[o.diag], np.arange(n))
+    # tasks of one colour share no block (so they may run in parallel), and cover the rows in order
+    task = np.repeat(np.arange(len(o.tptr) - 1), np.diff(o.tptr))
+    colour = np.repeat(np.arange(len(o.cptr) - 1), np.diff(o.cptr))[task]
+    assert o.tptr[0] == 0 and o.tptr[-1] == n and np.all(np.diff(o.tptr) > 0)
+    rows = np.repeat(np.arange(n), np.diff(o.indptr))
+    cols = o.indices
+    same = (colour[rows] == colour[cols]) & (task[rows] != task[cols])
+    assert not same.any()
+    if order == "colours":  # no block inside a colour at all; a triangle mesh with its hinges: 7 colours here
+        assert not np.any((colour[rows] == colour[cols]) & (rows != cols))
+        assert 5 <= o.colours <= 12
+    if order == "blocks":  # groups of consecutive rows of the grid: stripes, two colours
+        assert o.colours == 2 and len(o.tptr) - 1 == n // _sgs_kernels.GROUP
+
+
+@pytest.mark.parametrize("order", _sgs_kernels.ORDERS)
+def test_eisenstat_product_is_the_sgs_preconditioned_operator(order):
+    pat, data, rng = _system(8 if order == "natural" else 24, 1e-3)
     n = pat.n
     fixed, fval, con = _constraint_set(n, rng)
     kind, normal, _ = _constraints(n, fixed, fval, con)
-    A = sp.bsr_matrix((data, pat.indices, pat.indptr), shape=(3 * n, 3 * n)).toarray()
+    o, perm, data, kind, normal = _ordered(pat, data, kind, normal, order)
+    A = sp.bsr_matrix((data, o.indices, o.indptr), shape=(3 * n, 3 * n)).toarray()
     S = _dense_projector(kind, normal)
     As = S @ A @ S
     blk = np.arange(3 * n) // 3
@@ -60,10 +99,10 @@ def test_eisenstat_product_is_the_sgs_preconditioned_operator():
     inv_lower = Q @ np.linalg.inv(Q.T @ (D + L) @ Q) @ Q.T
     inv_upper = Q @ np.linalg.inv(Q.T @ (D + L.T) @ Q) @ Q.T
     c = (S @ rng.standard_normal(3 * n)).reshape(n, 3)
-    P = _kernels._preconditioner(data, pat.diag, kind, normal)
+    P = _kernels._preconditioner(data, o.diag, kind, normal)
     t, u, q = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
-    _sgs_kernels._backward(pat.indptr, pat.indices, data, pat.diag, P, c, t, c, 0.0, False)
-    cq = _sgs_kernels._forward(pat.indptr, pat.indices, data, pat.diag, P, c, t, u, q, True)
+    _sgs_kernels._backward(o.indptr, o.indices, data, o.diag, P, c, t, c, 0.0, False, o.cptr, o.tptr)
+    cq = _sgs_kernels._forward(o.indptr, o.indices, data, o.diag, P, c, t, u, q, True, o.cptr, o.tptr)
     tref = inv_upper @ c.reshape(-1)
     ref = inv_lower @ As @ tref
     scale = np.abs(ref).max()
@@ -95,15 +134,16 @@ def test_sgs_cg_stops_on_the_true_residual_with_handles_and_contacts(rtol):
     assert np.allclose(np.sum(y[con[0]] * con[1], axis=1), con[2], rtol=0, atol=1e-12)
 
 
-def test_sgs_and_multilevel_cg_agree_within_their_residuals():
+@pytest.mark.parametrize("pre", ["sgs", "sgs-blocks", "sgs-colours"])
+def test_sgs_and_multilevel_cg_agree_within_their_residuals(pre):
     pat, data, rng = _system(24, 1e-1)
     n = pat.n
     A = sp.bsr_matrix((data, pat.indices, pat.indptr), shape=(3 * n, 3 * n)).tocsr()
     fixed, fval, con = _constraint_set(n, rng)
     b = rng.standard_normal(3 * n)
     out = {p: pcg_constrained(A, b, fixed=fixed, fixed_values=fval, contacts=con, rtol=1e-8, maxiter=5000,
-                              preconditioner=p) for p in ("sgs", "multilevel")}
-    (ys, its), (ym, itm) = out["sgs"], out["multilevel"]
+                              preconditioner=p) for p in (pre, "multilevel")}
+    (ys, its), (ym, itm) = out[pre], out["multilevel"]
     # both to 1e-8 of the right-hand side: their difference is bounded by the two residuals through A^-1
     # (same constrained components, so S A S (ys - ym) = r_m - r_s on range(S): |ys - ym| <= 2 rtol |b'| / lam_min)
     kind, normal, z = _constraints(n, fixed, fval, con)

@@ -47,10 +47,11 @@ def _drape(threads: int, n: int, steps: int, preconditioner: str = "sgs"):
         return setup, np.array(setup.scene.x), its
 
 
-@pytest.mark.parametrize("preconditioner", ["sgs", "multilevel"])
+@pytest.mark.parametrize("preconditioner", ["sgs", "sgs-blocks", "multilevel"])
 def test_drape_solver_is_bit_identical_on_one_and_two_threads(preconditioner):
     # 40 x 40 = 1600 vertices: the stiffness gather and the CG's parallel passes run in 7 chunks, the level
-    # matrices in 4 (multilevel; the SGS sweeps are serial, its residual checks chunked); the sheet lands on the
+    # matrices in 4 (multilevel; the natural-order SGS sweeps are serial, its residual checks chunked; the block
+    # multicolour sweeps run 3 groups per colour in parallel); the sheet lands on the
     # ball (contact constraints with varying normals in the implicit solve, then smoothing of the collision
     # response with its re-check)
     one, x1, its1 = _drape(1, 40, 25, preconditioner)
@@ -59,3 +60,35 @@ def test_drape_solver_is_bit_identical_on_one_and_two_threads(preconditioner):
     assert sum(s for _, s in its1) > 0  # the smoothing solve ran
     np.testing.assert_array_equal(x1, x2)
     assert scenes.intersections(one) == 0 and scenes.intersections(two) == 0
+
+
+@pytest.mark.parametrize("preconditioner", ["sgs", "sgs-blocks", "sgs-colours"])
+def test_multicolour_sgs_solve_is_bit_identical_on_one_and_two_threads(preconditioner):
+    # a 64 x 64 sheet (4096 vertices): the block multicolour sweeps run 8 groups per colour in parallel, the vertex
+    # multicolour ones 2 chunks of each of their colours; a stiff system with handles and contacts
+    from modalfem.cloth.mesh import grid
+    from modalfem.cloth.model import ClothModel
+    from modalfem.cloth.solver import ImplicitEuler, _constraints
+
+    m = grid((1.0, 1.0), (64, 64))
+    rng = np.random.default_rng(5)
+    s = ImplicitEuler(ClothModel(m, scenes.MATERIAL))
+    x = m.points * np.array([1.05, 0.97, 1.0]) + 0.003 * rng.standard_normal(m.points.shape)
+    s.stiffness(x)
+    data = s._scale_plus_diagonal(s._Kdata, 1e-2, np.repeat(s.model.masses, 3))
+    n = m.point_count
+    idx = rng.permutation(n)[:300]
+    nrm = rng.standard_normal((300, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    kind, normal, z = _constraints(n, idx[:5], rng.standard_normal((5, 3)), (idx[5:], nrm[5:], rng.standard_normal(295)))
+    b = rng.standard_normal((n, 3))
+    setup = s._setup(preconditioner)
+    if preconditioner != "sgs":
+        assert np.diff(setup.cptr).max() >= 2  # some colour really runs in parallel
+    out = []
+    for threads in (1, 2):
+        with thread_count(threads):
+            y, it, _ = s._solve(data, b, kind, normal, z, preconditioner=preconditioner)
+            out.append((y, it))
+    assert out[0][1] == out[1][1] > 0
+    np.testing.assert_array_equal(out[0][0], out[1][0])
