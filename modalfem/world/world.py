@@ -686,7 +686,12 @@ class World:
                 self._tet_reaction(ctx, name, out)
                 self._tet_friction(ctx, name, out, obstacles)
                 self._tet_restitution(ctx, name, s, out)
-                ctx.contacts[(_REACTION_KEY, name)] = t["penalty"].penalty_energy(out.x)
+                pen = t["penalty"]
+                ctx.contacts[(_REACTION_KEY, name)] = pen.penalty_energy(out.x)
+                n_obstacle = t["modal_contacts"][0]
+                force = np.zeros(len(out.x))
+                np.add.at(force, pen.verts[:n_obstacle, 0], pen.forces(out.x)[:n_obstacle])
+                ctx.contacts[(_REACTION_KEY, name, "obstacle force")] = force
             ctx.out.bodies[name] = out
             ctx.start[name] = s  # the start the step used (strikes applied)
             ctx.done.add(name)
@@ -829,6 +834,9 @@ class World:
         m = t["masses"][vid]
         inv = np.where((V >= 0) & np.isfinite(m), W**2 / np.where(np.isfinite(m), m, 1.0), 0.0).sum(1)
         k = np.where(inv > 0, STIFFNESS / np.where(inv > 0, inv, 1.0) / dt**2, 0.0)
+        last = ctx.state_in.contacts.get((_REACTION_KEY, name, "obstacle force"))  # [N] by vertex, last step
+        if last is not None and n_obstacle:  # (a soft body's vertices bear the weight of what rests on it too)
+            k[:n_obstacle] = np.maximum(k[:n_obstacle], DEPTH_SHARE * last[V[:n_obstacle, 0]] / dhat)
         # each modal body's rigid displacement by the reaction is solved with the tet (``tetcontact``): no explicit
         # limit on the stiffness; its contacts share the body's weight and hold its approach (the tet's too) in a
         # part of the skin: at least DEPTH_SHARE (approach + |g| dt^2) / dhat times its mass / dt^2, summed
@@ -1500,7 +1508,8 @@ MODAL_BATCH = True
 _FAST_KEY = "modal contacts"
 #: ``WorldState.contacts[(_REACTION_KEY, tet body)]``: the energy [J] stored in the tet body's penalty contacts at
 #: the end of the last step (``World.energy``'s ``contact``); ``[(_REACTION_KEY, tet body, "force")]``: the normal
-#: force [N] its contacts bore from each modal body (the next step's stiffness is sized to hold it);
+#: force [N] its contacts bore from each modal body (the next step's stiffness is sized to hold it), ``[(...,
+#: "obstacle force")]`` its vertices' from the obstacles (n,) [N];
 #: ``[(_REACTION_KEY, tet body, "impact", modal body)]``: an impact in progress (``_tet_restitution``)
 _REACTION_KEY = "tet reaction"
 
