@@ -34,7 +34,7 @@ def _to_local(x, R, p, out):
 def _vf_test(y, Xb, Tb, t, reach, x, w, i, best, dbest, gbest, bary, nloc):
     """Point ``y`` (b's axes) against b's triangle ``t``: when within ``reach`` [m] and closer than query ``i``'s
     best so far (ties: the one ``y`` is most in front of), it becomes the best (its distance, plane gap [m],
-    barycentric weights and unit normal in b's axes)."""
+    barycentric weights and unit normal in b's axes). Returns the distance [m]."""
     a, b, c = Tb[t, 0], Tb[t, 1], Tb[t, 2]
     for d in range(3):
         x[0, d] = y[d]
@@ -43,13 +43,13 @@ def _vf_test(y, Xb, Tb, t, reach, x, w, i, best, dbest, gbest, bary, nloc):
         x[3, d] = Xb[c, d]
     dist = point_triangle_closest(x, w)
     if not dist <= reach:
-        return
+        return dist
     e10, e11, e12 = x[2, 0] - x[1, 0], x[2, 1] - x[1, 1], x[2, 2] - x[1, 2]
     e20, e21, e22 = x[3, 0] - x[1, 0], x[3, 1] - x[1, 1], x[3, 2] - x[1, 2]
     f0, f1, f2 = e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20
     ln = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
     if not ln > 0.0:
-        return
+        return dist
     f0, f1, f2 = f0 / ln, f1 / ln, f2 / ln
     g = 0.0
     for d in range(3):
@@ -59,6 +59,7 @@ def _vf_test(y, Xb, Tb, t, reach, x, w, i, best, dbest, gbest, bary, nloc):
         best[i], dbest[i], gbest[i] = t, dist, g
         bary[i, 0], bary[i, 1], bary[i, 2] = w[0], w[1], w[2]
         nloc[i, 0], nloc[i, 1], nloc[i, 2] = f0, f1, f2
+    return dist
 
 
 @numba.njit(cache=True)
@@ -129,13 +130,15 @@ def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty,
 @numba.njit(cache=True, inline="always")
 def _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res):
     """Edge ``y0 y1`` (b's axes) against b's edge ``f``: True when within ``margin`` [m] with closest points inside
-    both edges, at least ~12 degrees from parallel; then ``res`` = (s, t, gap, normal in b's axes (3))."""
+    both edges, at least ~12 degrees from parallel; then ``res`` = (s, t, gap, normal in b's axes (3)); ``res[6]``:
+    the edges' distance [m], always."""
     for d in range(3):
         x[0, d] = y0[d]
         x[1, d] = y1[d]
         x[2, d] = Xb[Eb[f, 0], d]
         x[3, d] = Xb[Eb[f, 1], d]
     dist, s, t = edge_edge_closest(x)
+    res[6] = dist
     if not (dist <= margin and 1e-6 < s < 1 - 1e-6 and 1e-6 < t < 1 - 1e-6):
         return False
     u0, u1, u2 = x[1, 0] - x[0, 0], x[1, 1] - x[0, 1], x[1, 2] - x[0, 2]
@@ -221,7 +224,7 @@ def edge_edge(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, bound, margin, blo, bhi, P, lo, h
     gap = np.empty(n)
     normal = np.empty((n, 3))
     x = np.empty((4, 3))
-    res = np.empty(6)
+    res = np.empty(7)
     k = 0
     for p in range(n):
         q, f = pairs[p, 0], pairs[p, 1]
@@ -506,9 +509,12 @@ def _vf_candidates(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonem
 
 
 @numba.njit(cache=True)
-def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct):
+def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
     """``vertex_face`` over the candidate pairs ``cv``, ``ct`` of ``_vf_candidates`` (a superset of the pairs
-    within ``reach``): the same contacts, in the same order."""
+    within ``reach``): the same contacts, in the same order. ``lb`` (k,): lower bounds of the pairs' distances [m]
+    at the last evaluation, which the bodies' motion since may have lowered by at most ``drop`` [m]: a pair still
+    beyond ``reach`` by them is skipped (``_vf_test`` would reject it) and its bound lowered; the others are
+    tested and their bound set to their distance."""
     n = cv.shape[0]
     m = 0
     prev = -1
@@ -533,7 +539,10 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct):
             prev = cv[k]
             vid[i] = prev
             _to_local(xa[prev], Rb, pb, y)
-        _vf_test(y, Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
+        if lb[k] - drop > reach:
+            lb[k] -= drop
+            continue
+        lb[k] = _vf_test(y, Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
     k = 0
     for i in range(m):
         if best[i] >= 0:
@@ -601,9 +610,10 @@ def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, n
 
 
 @numba.njit(cache=True)
-def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co):
+def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co, lb, drop):
     """``edge_edge`` over the candidate pairs ``cm``, ``co`` of ``_ee_candidates`` (a superset of the pairs within
-    ``margin``; ``scale``: max(1, largest |coordinate| of ``Xb``) [m]): the same pairs, in the same order."""
+    ``margin``; ``scale``: max(1, largest |coordinate| of ``Xb``) [m]): the same pairs, in the same order. ``lb``,
+    ``drop``: as ``_vf_eval`` (a pair beyond the margin is rejected by ``_ee_test``)."""
     n = cm.shape[0]
     mine = np.empty(n, dtype=np.int64)
     other = np.empty(n, dtype=np.int64)
@@ -612,7 +622,7 @@ def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co):
     gap = np.empty(n)
     normal = np.empty((n, 3))
     x = np.empty((4, 3))
-    res = np.empty(6)
+    res = np.empty(7)
     y0 = np.empty(3)
     y1 = np.empty(3)
     k = 0
@@ -623,7 +633,12 @@ def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co):
             prev = e
             _to_local(xa[Ea[e, 0]], Rb, pb, y0)
             _to_local(xa[Ea[e, 1]], Rb, pb, y1)
-        if _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res):
+        if lb[p] - drop > margin:
+            lb[p] -= drop
+            continue
+        ok = _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res)
+        lb[p] = res[6]
+        if ok:
             mine[k], other[k], so[k], to[k], gap[k] = e, f, res[0], res[1], res[2]
             for c in range(3):
                 normal[k, c] = Rb[c, 0] * res[3] + Rb[c, 1] * res[4] + Rb[c, 2] * res[5]
@@ -633,7 +648,8 @@ def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co):
 
 #: layout of a pair's row in the coherence cache's ``meta`` (see ``coherent_pairs``)
 _M_AB, _T_AB, _M_BA, _T_BA, _BOUND_A, _BOUND_B, _R_VF, _R_EE, _VALID = 0, 9, 12, 21, 24, 25, 26, 27, 28
-META = 29
+_EVAL = 29  # the same frames and bounds (_M_AB ... _BOUND_B) at the pair's last evaluation, from here
+META = 55
 
 
 @numba.njit(cache=True)
@@ -674,7 +690,7 @@ def _deformed(q, o, r, amp, snap):
 
 @numba.njit(cache=True)
 def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q, qoff, nm, amp, blo, bhi, tris, toff,
-                   edges, eoff, adj, meta, qsnap, cva, cta, cvb, ctb, cem, ceo,
+                   edges, eoff, adj, meta, qsnap, cva, cta, cvb, ctb, cem, ceo, cla, clb, cle,
                    tP, tlo, thi, tne, tslot, tslo, tshi, eP, elo, ehi, ene, eslot, eslo, eshi):
     """``all_pairs`` with temporal coherence: the same contacts in the same order, the trees walked only when a
     pair's bodies have moved, relative to each other or in shape, more than a slack since its last walk.
@@ -691,15 +707,18 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
     therefore a superset of the pairs within this step's ``reach`` (``margin``) while ``reach + da + deform_b
     <= R`` (``margin + da + deform_b <= Re``), and the same both ways with a and b swapped; else the pair is
     walked again with this step's radii. ``_vf_eval`` / ``_ee_eval`` then test the kept pairs in the order the
-    walk met them: the same selection, ties included, as ``vertex_face`` / ``edge_edge``.
+    walk met them: the same selection, ties included, as ``vertex_face`` / ``edge_edge``. The same bound from the
+    pair's last evaluation (its frames and modal coordinates then) lets them skip a kept pair whose distance then,
+    lowered by the motion since, is still beyond reach (margin).
 
     Args:
         pa ... bhi, tris ... adj, tP ... eshi: as ``all_pairs``; slack: (p,) [m]; radius: (n,) the bodies' rest
             radii about their centres of mass [m]; q: every body's modal coordinates, body i's ``nm[i]`` from
             ``qoff[i]``; amp: the same layout, max over vertices of |Phi_v m| [m / q unit].
-        meta, qsnap, cva ... ceo: the cache, one row per ordered pair ``a * n + b`` (a < b): ``meta`` (n*n,
-            ``META``) floats, ``qsnap`` (n*n, 2, max modes), typed lists of int64 arrays (a's vertices on b's
-            triangles, b's vertices on a's, a's edges on b's). Updated in place.
+        meta, qsnap, cva ... cle: the cache, one row per ordered pair ``a * n + b`` (a < b): ``meta`` (n*n,
+            ``META``) floats, ``qsnap`` (n*n, 4, max modes) (a's and b's at the walk, then at the last
+            evaluation), typed lists of int64 arrays (a's vertices on b's triangles, b's vertices on a's, a's edges on
+            b's) and of the float lower bounds of their distances [m]. Updated in place.
 
     Returns:
         ``(vf, ee, walks)``: as ``all_pairs``, and the number of pairs whose trees were walked.
@@ -754,17 +773,29 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
                                         tris[toff[o]:toff[o + 1]], bound[o], row[_R_VF], blo[o], bhi[o], tP[o],
                                         tlo[o], thi[o], tne[o], tslot[o], tslo[o], tshi[o])
                 if side == 0:
-                    cva[s], cta[s] = cv, ct
+                    cva[s], cta[s], cla[s] = cv, ct, np.zeros(cv.shape[0])
                 else:
-                    cvb[s], ctb[s] = cv, ct
+                    cvb[s], ctb[s], clb[s] = cv, ct, np.zeros(cv.shape[0])
             cm, co = _ee_candidates(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b],
                                     Xl[voff[b]:voff[b + 1]], edges[eoff[b]:eoff[b + 1]], bound[b], row[_R_EE], blo[b],
                                     bhi[b], eP[b], elo[b], ehi[b], ene[b], eslot[b], eslo[b], eshi[b])
-            cem[s], ceo[s] = cm, co
+            cem[s], ceo[s], cle[s] = cm, co, np.zeros(cm.shape[0])
+            # evaluated now: no motion since (the zero bounds make every kept pair tested)
+            row[_EVAL:_EVAL + 26] = row[0:26]
+            qsnap[s, 2], qsnap[s, 3] = qsnap[s, 0], qsnap[s, 1]
+        # how far the pair's distances may have dropped since its last evaluation (as the walk's test above)
+        fa = _deformed(q, qoff[a], nm[a], amp, qsnap[s, 2])
+        fb = _deformed(q, qoff[b], nm[b], amp, qsnap[s, 3])
+        e = _EVAL
+        drop_a = _drift(M, t, row[e + _M_AB:e + _M_AB + 9], row[e + _T_AB:e + _T_AB + 3],
+                        radius[a] + row[e + _BOUND_A]) + fa + fb
+        drop_b = _drift(M2, t2, row[e + _M_BA:e + _M_BA + 9], row[e + _T_BA:e + _T_BA + 3],
+                        radius[b] + row[e + _BOUND_B]) + fb + fa
         for side in range(2):
             p, o = (a, b) if side == 0 else (b, a)
             out = _vf_eval(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]], tris[toff[o]:toff[o + 1]],
-                           rr[i], cva[s] if side == 0 else cvb[s], cta[s] if side == 0 else ctb[s])
+                           rr[i], cva[s] if side == 0 else cvb[s], cta[s] if side == 0 else ctb[s],
+                           cla[s] if side == 0 else clb[s], drop_a if side == 0 else drop_b)
             if out[0].shape[0]:
                 vl_a.append(p)
                 vl_b.append(o)
@@ -772,12 +803,19 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
                 nvf += out[0].shape[0]
         out2 = _ee_eval(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
                         edges[eoff[b]:eoff[b + 1]], adj[eoff[b]:eoff[b + 1]], tris[toff[b]:toff[b + 1]], mm[i],
-                        scale[b], cem[s], ceo[s])
+                        scale[b], cem[s], ceo[s], cle[s], drop_a)
         if out2[0].shape[0]:
             el_a.append(a)
             el_b.append(b)
             el.append(out2)
             nee += out2[0].shape[0]
+        row[e + _M_AB:e + _M_AB + 9] = M
+        row[e + _T_AB:e + _T_AB + 3] = t
+        row[e + _M_BA:e + _M_BA + 9] = M2
+        row[e + _T_BA:e + _T_BA + 3] = t2
+        row[e + _BOUND_A], row[e + _BOUND_B] = bound[a], bound[b]
+        qsnap[s, 2, :nm[a]] = q[qoff[a]:qoff[a] + nm[a]]
+        qsnap[s, 3, :nm[b]] = q[qoff[b]:qoff[b] + nm[b]]
     vf, ee = _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee)
     return vf, ee, walks
 

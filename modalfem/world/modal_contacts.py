@@ -96,9 +96,10 @@ class ModalContacts:
 
         nb = len(self.bodies)
         self._meta = np.zeros((nb * nb, SK.META))
-        self._qsnap = np.zeros((nb * nb, 2, max([int(v) for v in self.nm] + [1])))
+        self._qsnap = np.zeros((nb * nb, 4, max([int(v) for v in self.nm] + [1])))
         empty = np.zeros(0, dtype=np.int64)
-        self._cache = tuple(List([empty] * (nb * nb)) for _ in range(6))
+        self._cache = tuple(List([empty] * (nb * nb)) for _ in range(6)) + tuple(
+            List([np.zeros(0)] * (nb * nb)) for _ in range(3))
 
     def velocity_blocks(self, states: dict, g: dict, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Every body's block ``(v + g dt, w, qdot)`` (6 + r) of the solve's velocities, one after another in
