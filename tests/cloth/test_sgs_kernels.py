@@ -103,6 +103,11 @@ def test_eisenstat_product_is_the_sgs_preconditioned_operator(order):
     t, u, q = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
     _sgs_kernels._backward(o.indptr, o.indices, data, o.diag, P, c, t, c, 0.0, False, o.cptr, o.tptr)
     cq = _sgs_kernels._forward(o.indptr, o.indices, data, o.diag, P, c, t, u, q, True, o.cptr, o.tptr)
+    # the fused call (first colour's tasks doing both sweeps) performs the same row operations
+    t2, u2, q2 = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    cq2 = _sgs_kernels._eisenstat(o.indptr, o.indices, data, o.diag, P, c.copy(), t2, c, 0.0, False, u2, q2, o.cptr,
+                                  o.tptr)
+    assert cq2 == cq and np.array_equal(q2, q) and np.array_equal(t2, t)
     tref = inv_upper @ c.reshape(-1)
     ref = inv_lower @ As @ tref
     scale = np.abs(ref).max()
