@@ -204,14 +204,14 @@ def _minimise(S: np.ndarray, A: np.ndarray, k: np.ndarray, e: np.ndarray, d: np.
 
     scale = 1e-14 * (1.0 + float(np.abs(d).max(initial=0.0)) * float(np.abs(A).max(initial=0.0)))
     for _ in range(100):
-        _, fz, hz = _psi(d + A @ u, k, e)
+        pz, fz, hz = _psi(d + A @ u, k, e)
         H = S + (A.T * hz) @ A
         g = S @ u + A.T @ fz
         du = -np.linalg.solve(H, g)
         slope = float(g @ du)
         if slope >= 0.0:  # at the minimiser to roundoff
             return u
-        f0, t = f(u), 1.0
+        f0, t = 0.5 * float(u @ S @ u) + float(pz.sum()), 1.0
         while t > 1e-12 and f(u + t * du) > f0 + 1e-4 * t * slope:
             t *= 0.5
         u = u + t * du
