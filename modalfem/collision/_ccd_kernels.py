@@ -193,17 +193,18 @@ def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, 
         ``(idx, toi)``: (h,) indices into ``quads`` of the colliding pairs (ascending) and their (h,) times
         in [0, 1].
     """
-    return ccd_block(vf, X0, X1, quads, np.zeros(0, dtype=np.int64), 0, np.zeros(0, dtype=np.bool_), movable, roots,
-                     eta, max_depth, max_intervals)
+    none = np.zeros(0, dtype=np.bool_)
+    return ccd_block(vf, X0, X1, quads, none, none, movable, roots, eta, max_depth, max_intervals)
 
 
 @numba.njit(cache=True, parallel=True)
-def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, stamp: np.ndarray, epoch: int,
-              only: np.ndarray, movable: np.ndarray, roots: np.ndarray, eta: float, max_depth: int, max_intervals: int):
+def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone: np.ndarray, only: np.ndarray,
+              movable: np.ndarray, roots: np.ndarray, eta: float, max_depth: int, max_intervals: int):
     """:func:`ccd_candidates` of a block of the pipeline's pair store (:class:`modalfem.collision._system.PairStore`),
     its filters in the same parallel pass as the CCD instead of a compacted copy of the selected pairs first:
-    only the pairs still in the store (unless ``stamp`` is empty: no vertex's ``stamp`` ((N,) int) above the
-    block's ``epoch``) and, unless ``only`` ((N,) bool) is empty, holding a flagged vertex.
+    only the pairs still in the store (unless ``gone`` ((N,) bool) is empty: without a vertex flagged in it, one
+    searched again since the block was found) and, unless ``only`` ((N,) bool) is empty, holding a flagged
+    vertex.
 
     Returns:
         ``(idx, toi)``: (h,) indices into ``quads`` (ascending) and times in [0, 1].
@@ -216,7 +217,7 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, stamp
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
         counts[ch] = _ccd_range(vf, X0, X1, quads, movable, roots, eta, max_depth, max_intervals, start, stop, idx,
-                                tois, stamp, epoch, only)
+                                tois, gone, only)
     n = 0
     for ch in range(chunks):  # compact the chunks' hits (each written from its chunk's start) in order
         start, _ = chunk_bounds(k, chunks, ch)
@@ -228,11 +229,11 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, stamp
 
 @numba.njit(cache=True)
 def _ccd_range(vf: bool, X0, X1, quads, movable, roots, eta: float, max_depth: int, max_intervals: int, start: int,
-               stop: int, idx, tois, stamp, epoch: int, only) -> int:
+               stop: int, idx, tois, gone, only) -> int:
     """:func:`ccd_block` of the pairs ``start..stop-1``: hits written to
     ``idx``/``tois`` from ``start`` on; returns their count."""
     zones = len(roots) > 0
-    use_stamp, use_only = len(stamp) > 0, len(only) > 0
+    use_gone, use_only = len(gone) > 0, len(only) > 0
     n = start
     t0, td, x = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
     coef = np.empty(4)
@@ -242,7 +243,7 @@ def _ccd_range(vf: bool, X0, X1, quads, movable, roots, eta: float, max_depth: i
         c0, c1, c2, c3 = quads[q, 0], quads[q, 1], quads[q, 2], quads[q, 3]
         if use_only and not (only[c0] | only[c1] | only[c2] | only[c3]):
             continue
-        if use_stamp and ((stamp[c0] > epoch) | (stamp[c1] > epoch) | (stamp[c2] > epoch) | (stamp[c3] > epoch)):
+        if use_gone and (gone[c0] | gone[c1] | gone[c2] | gone[c3]):
             continue  # dropped from the store: a vertex searched again after this block was found
         if not (movable[c0] or movable[c1] or movable[c2] or movable[c3]):
             continue

@@ -80,12 +80,13 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     out = []
     for kind in ("vf", "ee"):
         qs, ts = [], []
-        # the store's large blocks go to the CCD as they are, with the store's stamps and ``only`` (filtered in
-        # the CCD's parallel pass), the selected pairs of the small ones as a list: hits in the store's order
-        for q, stamp, epoch, flags in store.segments(kind, only):
+        # the store's large blocks go to the CCD as they are, with the vertices whose pairs in them are gone and
+        # ``only`` (filtered in the CCD's parallel pass), the selected pairs of the small ones as a list: hits in
+        # the store's order
+        for q, gone, flags in store.segments(kind, only):
             if len(q) == 0:
                 continue
-            idx, toi = _ccd_kernels.ccd_block(kind == "vf", X0, X1, q, stamp, epoch, flags, movable, zones, eta,
+            idx, toi = _ccd_kernels.ccd_block(kind == "vf", X0, X1, q, gone, flags, movable, zones, eta,
                                               PIPELINE_DEPTH, MAX_INTERVALS)
             if len(idx):
                 qs.append(q[idx].astype(np.int64))

@@ -109,26 +109,30 @@ class PairStore:
 
     def segments(self, kind: str, only: np.ndarray | None = None):
         """The pairs of ``kind`` for a compiled pass that filters them itself (e.g.
-        :func:`modalfem.collision._ccd_kernels.ccd_block`), in block order, as ``(q, stamp, epoch, flags)``:
-        the pass takes the pairs of ``q`` that hold no vertex whose ``stamp`` is above ``epoch`` (empty: no
-        stamp test) and hold a vertex flagged in ``flags`` (empty: no flag test). A block of at least
-        ``INDEXED`` pairs comes as stored, consecutive smaller blocks as their selected pairs
+        :func:`modalfem.collision._ccd_kernels.ccd_block`), in block order, as ``(q, gone, flags)``: the pass
+        takes the pairs of ``q`` that hold no vertex flagged in ``gone`` ((N,) bool, the vertices stamped after
+        the block was found; empty: none) and hold a vertex flagged in ``flags`` (empty: no flag test). A block
+        of at least ``INDEXED`` pairs comes as stored (its ``gone`` a byte per vertex, cheaper to read in the
+        pass than the stamps), consecutive smaller blocks as their selected pairs
         (:func:`_pair_kernels.select_pairs`)."""
         flags = _NO_FLAGS if only is None else only
         small = []
+        gone = {}
         for k, q, e in self.blocks:
             if k != kind:
                 continue
             stamp = self.stamp if e < self.epoch else _NO_STAMP  # no drop since the block was found: all in
             if len(q) >= self.INDEXED:
                 if small:
-                    yield (small[0] if len(small) == 1 else np.concatenate(small)), _NO_STAMP, 0, _NO_FLAGS
+                    yield (small[0] if len(small) == 1 else np.concatenate(small)), _NO_FLAGS, _NO_FLAGS
                     small = []
-                yield q, stamp, e, flags
+                if len(stamp) and e not in gone:
+                    gone[e] = stamp > e
+                yield q, (gone[e] if len(stamp) else _NO_FLAGS), flags
             else:
                 small.append(_pair_kernels.select_pairs(q, stamp, e, flags))
         if small:
-            yield (small[0] if len(small) == 1 else np.concatenate(small)), _NO_STAMP, 0, _NO_FLAGS
+            yield (small[0] if len(small) == 1 else np.concatenate(small)), _NO_FLAGS, _NO_FLAGS
 
     def pairs(self, kind: str, only: np.ndarray | None = None) -> np.ndarray:
         """(k, 4) pairs of ``kind`` (``"vf"``/``"ee"``) in the store, only those holding a vertex flagged in
