@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from modalfem.collision.bvh import BroadPhaseBVH
+from modalfem.world import _coherent_kernels as CK
 from modalfem.world import _solid_kernels as SK
 from modalfem.world.proximity import surface_edges
 
@@ -77,7 +78,7 @@ class ModalContacts:
         self._adj = np.concatenate(self.adj) if self.bodies else np.zeros((0, 2), int)
         self._treelists = _tree_lists(self.trees) + _tree_lists(self.etrees)
         self.mask = np.zeros(int(nm.sum()), dtype=np.int64)
-        # temporal coherence of the pair search (``_solid_kernels.coherent_pairs``): each mode's largest vertex
+        # temporal coherence of the pair search (``_coherent_kernels.coherent_pairs``): each mode's largest vertex
         # displacement per unit coordinate, the bodies' rest radii, and the cache of every pair's last walk
         self._amp = np.concatenate([np.zeros(0)] + [
             np.sqrt(np.einsum("mvc,mvc->mv", b._modes3, b._modes3, dtype=np.float64)).max(1) for b in self.bodies
@@ -95,7 +96,7 @@ class ModalContacts:
         from numba.typed import List
 
         nb = len(self.bodies)
-        self._meta = np.zeros((nb * nb, SK.META))
+        self._meta = np.zeros((nb * nb, CK.META))
         self._qsnap = np.zeros((nb * nb, 4, max([int(v) for v in self.nm] + [1])))
         empty = np.zeros(0, dtype=np.int64)
         self._cache = tuple(List([empty] * (nb * nb)) for _ in range(6)) + tuple(
@@ -159,7 +160,7 @@ class ModalContacts:
         ia, ib = np.nonzero(np.triu(meet, 1))
         self.walks = 0
         if len(ia):
-            (pa, qa, v, tri, wb, g, nrm), (a, b, mine, other, s, tt, ge, ne), self.walks = SK.coherent_pairs(
+            (pa, qa, v, tri, wb, g, nrm), (a, b, mine, other, s, tt, ge, ne), self.walks = CK.coherent_pairs(
                 ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], SLACK * mm[ia, ib], X, Xl, voff, R,
                 pos, bound, self._radius, q, self._qoff, self.nm, self._amp, lo, hi,
                 self._tris, self._toff, self._edges, self._eoff, self._adj, self._meta, self._qsnap, *self._cache,

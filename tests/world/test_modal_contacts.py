@@ -286,11 +286,12 @@ def test_blocks_dropped_on_each_other_do_not_interpenetrate(bar_model, dt):
 
 
 def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(bar_model, monkeypatch):
-    """Temporal coherence (``_solid_kernels.coherent_pairs``: a pair's tree walk reused while its bodies move less
+    """Temporal coherence (``_coherent_kernels.coherent_pairs``: a pair's tree walk reused while its bodies move less
     than a slack) changes nothing: at every step of five bars thrown at each other and ringing (their modal
     coordinates set each step to move vertices by up to ~2 mm, more than the slack, so shape changes alone must
     trigger new walks), the vertex-face and edge-edge contacts are exactly those of ``all_pairs`` (every pair's
     trees walked afresh), in the same order; walks are reused and redone."""
+    from modalfem.world import _coherent_kernels as CK
     from modalfem.world import _solid_kernels as SK
 
     rng = np.random.default_rng(5)
@@ -308,7 +309,7 @@ def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(ba
     r = body.mode_count
     amp = 1.5e-3 / np.abs(body.shapes).max() / np.sqrt(r)
     phase = rng.uniform(0, 2 * np.pi, size=(5, r))
-    coherent = SK.coherent_pairs
+    coherent = CK.coherent_pairs
     seen = {"walks": 0, "pairs": 0, "contacts": 0}
 
     def checked(*a):
@@ -322,7 +323,7 @@ def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(ba
         seen["contacts"] += len(out[0][0]) + len(out[1][0])
         return out
 
-    monkeypatch.setattr(SK, "coherent_pairs", checked)
+    monkeypatch.setattr(CK, "coherent_pairs", checked)
     for k in range(200):
         for i, b in enumerate(bodies):  # ringing: each mode at its own phase, a period of ~600 steps
             s[b.name].q[:] = amp * np.sin(0.01 * k + phase[i])
@@ -337,6 +338,7 @@ def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the
     ends). Each alone is enough to bring features within reach that were beyond the last walk's radius: the
     contacts found stay exactly those of a fresh walk at every step, and new walks happen in both phases."""
     from modalfem.runtime.rotation import quat_multiply
+    from modalfem.world import _coherent_kernels as CK
     from modalfem.world import _solid_kernels as SK
 
     rng = np.random.default_rng(7)
@@ -344,7 +346,7 @@ def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the
     r = w._modal["a"]["body"].mode_count
     amp = 6e-3 / np.abs(w._modal["a"]["body"].shapes).max() / np.sqrt(r)
     phase = rng.uniform(0, 2 * np.pi, size=(2, r))
-    coherent = SK.coherent_pairs
+    coherent = CK.coherent_pairs
     walks = []
 
     def checked(*a):
@@ -355,7 +357,7 @@ def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the
         walks.append(out[2])
         return out
 
-    monkeypatch.setattr(SK, "coherent_pairs", checked)
+    monkeypatch.setattr(CK, "coherent_pairs", checked)
     q0 = s["b"].orientation.copy()
     found = 0
     for k in range(300):

@@ -1,0 +1,375 @@
+"""Temporal coherence of the modal bodies' pair search (numba, cached on disk): ``coherent_pairs`` gives the
+contacts of ``_solid_kernels.all_pairs`` (the same, in the same order) but walks a pair's rest-surface trees only
+when its bodies have moved, relative to each other or in shape, more than a slack since the last walk, and skips
+the kept feature pairs that the motion since their last test cannot have brought within reach (the argument is in
+``coherent_pairs``' docstring; tests/world/test_modal_contacts.py checks it against the brute-force walk).
+
+numba's disk cache does not notice edits of the other modules a kernel calls: after changing the per-pair tests in
+:mod:`modalfem.world._solid_kernels` (``_vf_test``, ``_ee_test``, ``_to_local``, ``_gather``), delete
+``modalfem/world/__pycache__``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from modalfem.collision._bvh_kernels import _query_range
+from modalfem.collision._distance_kernels import edge_edge_closest, point_triangle_closest
+from modalfem.world._solid_kernels import _ee_test, _gather, _to_local, _vf_test
+
+
+@numba.njit(cache=True)
+def _vf_candidates(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
+    """Every (vertex of a, triangle of b) pair closer than ``radius`` [m] (arguments as ``vertex_face``), grouped
+    by vertex in increasing order, each vertex's triangles in the tree's order (the order ``vertex_face`` meets
+    them in): ``(vertices, triangles)``, (k,) each."""
+    na = xa.shape[0]
+    near = np.empty(na, dtype=np.int64)
+    m = 0
+    for j in range(na):
+        if (blo[0] - radius <= xa[j, 0] <= bhi[0] + radius and blo[1] - radius <= xa[j, 1] <= bhi[1] + radius
+                and blo[2] - radius <= xa[j, 2] <= bhi[2] + radius):
+            near[m] = j
+            m += 1
+    y = np.empty((m, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for i in range(m):
+        _to_local(xa[near[i]], Rb, pb, y[i])
+        for c in range(3):
+            qlo[i, c] = y[i, c] - grow
+            qhi[i, c] = y[i, c] + grow
+    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    n = pairs.shape[0]
+    cv = np.empty(n, dtype=np.int64)
+    ct = np.empty(n, dtype=np.int64)
+    x = np.empty((4, 3))
+    w = np.empty(3)
+    k = 0
+    for p in range(n):
+        i, t = pairs[p, 0], pairs[p, 1]
+        for d in range(3):
+            x[0, d] = y[i, d]
+            x[1, d] = Xb[Tb[t, 0], d]
+            x[2, d] = Xb[Tb[t, 1], d]
+            x[3, d] = Xb[Tb[t, 2], d]
+        if point_triangle_closest(x, w) <= radius:
+            cv[k], ct[k] = near[i], t
+            k += 1
+    return cv[:k].copy(), ct[:k].copy()
+
+
+@numba.njit(cache=True)
+def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
+    """``vertex_face`` over the candidate pairs ``cv``, ``ct`` of ``_vf_candidates`` (a superset of the pairs
+    within ``reach``): the same contacts, in the same order. ``lb`` (k,): lower bounds of the pairs' distances [m]
+    at the last evaluation, which the bodies' motion since may have lowered by at most ``drop`` [m]: a pair still
+    beyond ``reach`` by them is skipped (``_vf_test`` would reject it) and its bound lowered; the others are
+    tested and their bound set to their distance."""
+    n = cv.shape[0]
+    m = 0
+    prev = -1
+    for k in range(n):
+        if cv[k] != prev:
+            m += 1
+            prev = cv[k]
+    vid = np.empty(m, dtype=np.int64)
+    best = np.full(m, -1, dtype=np.int64)
+    dbest = np.full(m, np.inf)
+    gbest = np.zeros(m)
+    bary = np.zeros((m, 3))
+    nloc = np.zeros((m, 3))
+    x = np.empty((4, 3))
+    w = np.empty(3)
+    y = np.empty(3)
+    i = -1
+    prev = -1
+    for k in range(n):
+        if cv[k] != prev:
+            i += 1
+            prev = cv[k]
+            vid[i] = prev
+            _to_local(xa[prev], Rb, pb, y)
+        if lb[k] - drop > reach:
+            lb[k] -= drop
+            continue
+        lb[k] = _vf_test(y, Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
+    k = 0
+    for i in range(m):
+        if best[i] >= 0:
+            k += 1
+    vertex = np.empty(k, dtype=np.int64)
+    tri = np.empty(k, dtype=np.int64)
+    wb = np.empty((k, 3))
+    gap = np.empty(k)
+    normal = np.empty((k, 3))
+    k = 0
+    for i in range(m):
+        if best[i] < 0:
+            continue
+        vertex[k], tri[k], gap[k] = vid[i], best[i], gbest[i]
+        for c in range(3):
+            wb[k, c] = bary[i, c]
+            normal[k, c] = Rb[c, 0] * nloc[i, 0] + Rb[c, 1] * nloc[i, 1] + Rb[c, 2] * nloc[i, 2]
+        k += 1
+    return vertex, tri, wb, gap, normal
+
+
+@numba.njit(cache=True)
+def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
+    """Every (edge of a, edge of b) pair closer than ``radius`` [m] (arguments as ``edge_edge``), grouped by a's
+    edge in increasing order, in the order ``edge_edge`` meets them: ``(mine, other)``, (k,) each."""
+    ne = Ea.shape[0]
+    sel = np.empty(ne, dtype=np.int64)
+    m = 0
+    for e in range(ne):
+        i, j = Ea[e, 0], Ea[e, 1]
+        ok = True
+        for c in range(3):
+            if min(xa[i, c], xa[j, c]) > bhi[c] + radius or max(xa[i, c], xa[j, c]) < blo[c] - radius:
+                ok = False
+        if ok:
+            sel[m] = e
+            m += 1
+    y = np.empty((m, 2, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for q in range(m):
+        _to_local(xa[Ea[sel[q], 0]], Rb, pb, y[q, 0])
+        _to_local(xa[Ea[sel[q], 1]], Rb, pb, y[q, 1])
+        for c in range(3):
+            qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
+            qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
+    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    n = pairs.shape[0]
+    cm = np.empty(n, dtype=np.int64)
+    co = np.empty(n, dtype=np.int64)
+    x = np.empty((4, 3))
+    k = 0
+    for p in range(n):
+        q, f = pairs[p, 0], pairs[p, 1]
+        for d in range(3):
+            x[0, d] = y[q, 0, d]
+            x[1, d] = y[q, 1, d]
+            x[2, d] = Xb[Eb[f, 0], d]
+            x[3, d] = Xb[Eb[f, 1], d]
+        if edge_edge_closest(x)[0] <= radius:
+            cm[k], co[k] = sel[q], f
+            k += 1
+    return cm[:k].copy(), co[:k].copy()
+
+
+@numba.njit(cache=True)
+def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co, lb, drop):
+    """``edge_edge`` over the candidate pairs ``cm``, ``co`` of ``_ee_candidates`` (a superset of the pairs within
+    ``margin``; ``scale``: max(1, largest |coordinate| of ``Xb``) [m]): the same pairs, in the same order. ``lb``,
+    ``drop``: as ``_vf_eval`` (a pair beyond the margin is rejected by ``_ee_test``)."""
+    n = cm.shape[0]
+    mine = np.empty(n, dtype=np.int64)
+    other = np.empty(n, dtype=np.int64)
+    so = np.empty(n)
+    to = np.empty(n)
+    gap = np.empty(n)
+    normal = np.empty((n, 3))
+    x = np.empty((4, 3))
+    res = np.empty(7)
+    y0 = np.empty(3)
+    y1 = np.empty(3)
+    k = 0
+    prev = -1
+    for p in range(n):
+        e, f = cm[p], co[p]
+        if e != prev:
+            prev = e
+            _to_local(xa[Ea[e, 0]], Rb, pb, y0)
+            _to_local(xa[Ea[e, 1]], Rb, pb, y1)
+        if lb[p] - drop > margin:
+            lb[p] -= drop
+            continue
+        ok = _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res)
+        lb[p] = res[6]
+        if ok:
+            mine[k], other[k], so[k], to[k], gap[k] = e, f, res[0], res[1], res[2]
+            for c in range(3):
+                normal[k, c] = Rb[c, 0] * res[3] + Rb[c, 1] * res[4] + Rb[c, 2] * res[5]
+            k += 1
+    return mine[:k], other[:k], so[:k], to[:k], gap[:k], normal[:k]
+
+
+#: layout of a pair's row in the coherence cache's ``meta`` (see ``coherent_pairs``)
+_M_AB, _T_AB, _M_BA, _T_BA, _BOUND_A, _BOUND_B, _R_VF, _R_EE, _VALID = 0, 9, 12, 21, 24, 25, 26, 27, 28
+_EVAL = 29  # the same frames and bounds (_M_AB ... _BOUND_B) at the pair's last evaluation, from here
+META = 55
+
+
+@numba.njit(cache=True)
+def _relative(Ra, Rb, pa, pb, M, t):
+    """a's body axes in b's: ``y = M x + t`` with ``M = Rb^T Ra``, ``t = Rb^T (pa - pb)`` [m]."""
+    for i in range(3):
+        for j in range(3):
+            M[3 * i + j] = Rb[0, i] * Ra[0, j] + Rb[1, i] * Ra[1, j] + Rb[2, i] * Ra[2, j]
+        t[i] = Rb[0, i] * (pa[0] - pb[0]) + Rb[1, i] * (pa[1] - pb[1]) + Rb[2, i] * (pa[2] - pb[2])
+
+
+@numba.njit(cache=True)
+def _drift(M, t, M0, t0, size):
+    """Largest move [m] of a point within ``size`` of a's centre (in a's axes) when a's axes in b's go from
+    (M0, t0) to (M, t): ``|(M - M0) x + (t - t0)| <= ||M - M0||_F |x| + |t - t0|``."""
+    f = 0.0
+    for i in range(9):
+        f += (M[i] - M0[i]) ** 2
+    d = 0.0
+    for i in range(3):
+        d += (t[i] - t0[i]) ** 2
+    return math.sqrt(f) * size + math.sqrt(d)
+
+
+@numba.njit(cache=True)
+def _deformed(q, o, r, amp, snap):
+    """Largest move [m] of any surface vertex of a body in its own axes since its modal coordinates were ``snap``:
+    ``sum_m amp_m |q_m - snap_m|`` (amp_m = max over vertices of |Phi_v m|), plus the rounding of the products
+    (1e-5 of ``sum_m amp_m (|q_m| + |snap_m|)``, above float32's for up to ~80 modes) and 1e-12 m (float64
+    rounding of the coordinates; the positions' flush of modes below 1e-20 m is within it)."""
+    s = 0.0
+    u = 0.0
+    for m in range(r):
+        s += amp[o + m] * abs(q[o + m] - snap[m])
+        u += amp[o + m] * (abs(q[o + m]) + abs(snap[m]))
+    return s + 1e-5 * u + 1e-12
+
+
+@numba.njit(cache=True)
+def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q, qoff, nm, amp, blo, bhi, tris, toff,
+                   edges, eoff, adj, meta, qsnap, cva, cta, cvb, ctb, cem, ceo, cla, clb, cle,
+                   tP, tlo, thi, tne, tslot, tslo, tshi, eP, elo, ehi, ene, eslot, eslo, eshi):
+    """``all_pairs`` with temporal coherence: the same contacts in the same order, the trees walked only when a
+    pair's bodies have moved, relative to each other or in shape, more than a slack since its last walk.
+
+    Why nothing is missed: the walk of pair (a, b) at time t0 keeps every (vertex, triangle) pair within
+    ``R = reach + slack`` [m] and every (edge, edge) pair within ``Re = margin + slack`` (``_vf_candidates``,
+    ``_ee_candidates``), and records a's axes in b's (M0, t0), both bodies' modal coordinates and deformation
+    bounds. Later a vertex of a, at ``x`` in a's axes (``|x| <= radius_a + bound_a(t0)`` then), sits in b's axes
+    at ``M x + t``; since t0 it has moved by at most ``da = ||M - M0||_F (radius_a + bound_a(t0)) + |t - t0| +
+    deform_a`` (``_drift``; deform_a: ``_deformed``, the most any vertex moved in a's own axes), and every point
+    of b's triangles by at most ``deform_b`` in b's axes. Point-triangle and segment-segment distances move by
+    at most the sum of their ends' moves (1-Lipschitz; a triangle's points are convex combinations of its
+    corners), so a pair farther than R at t0 is farther than ``R - da - deform_b`` now. The kept pairs are
+    therefore a superset of the pairs within this step's ``reach`` (``margin``) while ``reach + da + deform_b
+    <= R`` (``margin + da + deform_b <= Re``), and the same both ways with a and b swapped; else the pair is
+    walked again with this step's radii. ``_vf_eval`` / ``_ee_eval`` then test the kept pairs in the order the
+    walk met them: the same selection, ties included, as ``vertex_face`` / ``edge_edge``. The same bound from the
+    pair's last evaluation (its frames and modal coordinates then) lets them skip a kept pair whose distance then,
+    lowered by the motion since, is still beyond reach (margin).
+
+    Args:
+        pa ... bhi, tris ... adj, tP ... eshi: as ``all_pairs``; slack: (p,) [m]; radius: (n,) the bodies' rest
+            radii about their centres of mass [m]; q: every body's modal coordinates, body i's ``nm[i]`` from
+            ``qoff[i]``; amp: the same layout, max over vertices of |Phi_v m| [m / q unit].
+        meta, qsnap, cva ... cle: the cache, one row per ordered pair ``a * n + b`` (a < b): ``meta`` (n*n,
+            ``META``) floats, ``qsnap`` (n*n, 4, max modes) (a's and b's at the walk, then at the last
+            evaluation), typed lists of int64 arrays (a's vertices on b's triangles, b's vertices on a's, a's edges on
+            b's) and of the float lower bounds of their distances [m]. Updated in place.
+
+    Returns:
+        ``(vf, ee, walks)``: as ``all_pairs``, and the number of pairs whose trees were walked.
+    """
+    nb = voff.shape[0] - 1
+    scale = np.ones(nb)
+    for i in range(nb):
+        for v in range(voff[i], voff[i + 1]):
+            for c in range(3):
+                scale[i] = max(scale[i], abs(Xl[v, c]))
+    M = np.empty(9)
+    t = np.empty(3)
+    M2 = np.empty(9)
+    t2 = np.empty(3)
+    vl_a = numba.typed.List()
+    vl_b = numba.typed.List()
+    vl = numba.typed.List()
+    el_a = numba.typed.List()
+    el_b = numba.typed.List()
+    el = numba.typed.List()
+    nvf = 0
+    nee = 0
+    walks = 0
+    for i in range(pa.shape[0]):
+        a, b = pa[i], pb[i]
+        s = a * nb + b
+        row = meta[s]
+        _relative(R[a], R[b], pos[a], pos[b], M, t)
+        _relative(R[b], R[a], pos[b], pos[a], M2, t2)
+        ok = row[_VALID] > 0.0
+        if ok:
+            fa = _deformed(q, qoff[a], nm[a], amp, qsnap[s, 0])
+            fb = _deformed(q, qoff[b], nm[b], amp, qsnap[s, 1])
+            da = _drift(M, t, row[_M_AB:_M_AB + 9], row[_T_AB:_T_AB + 3], radius[a] + row[_BOUND_A]) + fa
+            db = _drift(M2, t2, row[_M_BA:_M_BA + 9], row[_T_BA:_T_BA + 3], radius[b] + row[_BOUND_B]) + fb
+            ok = (rr[i] + da + fb <= row[_R_VF] and rr[i] + db + fa <= row[_R_VF] and mm[i] + da + fb <= row[_R_EE])
+        if not ok:
+            walks += 1
+            row[_R_VF] = rr[i] + slack[i]
+            row[_R_EE] = mm[i] + slack[i]
+            row[_M_AB:_M_AB + 9] = M
+            row[_T_AB:_T_AB + 3] = t
+            row[_M_BA:_M_BA + 9] = M2
+            row[_T_BA:_T_BA + 3] = t2
+            row[_BOUND_A], row[_BOUND_B] = bound[a], bound[b]
+            row[_VALID] = 1.0
+            qsnap[s, 0, :nm[a]] = q[qoff[a]:qoff[a] + nm[a]]
+            qsnap[s, 1, :nm[b]] = q[qoff[b]:qoff[b] + nm[b]]
+            for side in range(2):
+                p, o = (a, b) if side == 0 else (b, a)
+                cv, ct = _vf_candidates(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]],
+                                        tris[toff[o]:toff[o + 1]], bound[o], row[_R_VF], blo[o], bhi[o], tP[o],
+                                        tlo[o], thi[o], tne[o], tslot[o], tslo[o], tshi[o])
+                if side == 0:
+                    cva[s], cta[s], cla[s] = cv, ct, np.zeros(cv.shape[0])
+                else:
+                    cvb[s], ctb[s], clb[s] = cv, ct, np.zeros(cv.shape[0])
+            cm, co = _ee_candidates(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b],
+                                    Xl[voff[b]:voff[b + 1]], edges[eoff[b]:eoff[b + 1]], bound[b], row[_R_EE], blo[b],
+                                    bhi[b], eP[b], elo[b], ehi[b], ene[b], eslot[b], eslo[b], eshi[b])
+            cem[s], ceo[s], cle[s] = cm, co, np.zeros(cm.shape[0])
+            # evaluated now: no motion since (the zero bounds make every kept pair tested)
+            row[_EVAL:_EVAL + 26] = row[0:26]
+            qsnap[s, 2], qsnap[s, 3] = qsnap[s, 0], qsnap[s, 1]
+        # how far the pair's distances may have dropped since its last evaluation (as the walk's test above)
+        fa = _deformed(q, qoff[a], nm[a], amp, qsnap[s, 2])
+        fb = _deformed(q, qoff[b], nm[b], amp, qsnap[s, 3])
+        e = _EVAL
+        drop_a = _drift(M, t, row[e + _M_AB:e + _M_AB + 9], row[e + _T_AB:e + _T_AB + 3],
+                        radius[a] + row[e + _BOUND_A]) + fa + fb
+        drop_b = _drift(M2, t2, row[e + _M_BA:e + _M_BA + 9], row[e + _T_BA:e + _T_BA + 3],
+                        radius[b] + row[e + _BOUND_B]) + fb + fa
+        for side in range(2):
+            p, o = (a, b) if side == 0 else (b, a)
+            out = _vf_eval(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]], tris[toff[o]:toff[o + 1]],
+                           rr[i], cva[s] if side == 0 else cvb[s], cta[s] if side == 0 else ctb[s],
+                           cla[s] if side == 0 else clb[s], drop_a if side == 0 else drop_b)
+            if out[0].shape[0]:
+                vl_a.append(p)
+                vl_b.append(o)
+                vl.append(out)
+                nvf += out[0].shape[0]
+        out2 = _ee_eval(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
+                        edges[eoff[b]:eoff[b + 1]], adj[eoff[b]:eoff[b + 1]], tris[toff[b]:toff[b + 1]], mm[i],
+                        scale[b], cem[s], ceo[s], cle[s], drop_a)
+        if out2[0].shape[0]:
+            el_a.append(a)
+            el_b.append(b)
+            el.append(out2)
+            nee += out2[0].shape[0]
+        row[e + _M_AB:e + _M_AB + 9] = M
+        row[e + _T_AB:e + _T_AB + 3] = t
+        row[e + _M_BA:e + _M_BA + 9] = M2
+        row[e + _T_BA:e + _T_BA + 3] = t2
+        row[e + _BOUND_A], row[e + _BOUND_B] = bound[a], bound[b]
+        qsnap[s, 2, :nm[a]] = q[qoff[a]:qoff[a] + nm[a]]
+        qsnap[s, 3, :nm[b]] = q[qoff[b]:qoff[b] + nm[b]]
+    vf, ee = _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee)
+    return vf, ee, walks
