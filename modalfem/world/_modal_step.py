@@ -12,39 +12,7 @@ import math
 import numba
 import numpy as np
 
-#: the free rotation's splitting, as ``runtime.rotation._SPLIT``: (principal axis, fraction of the step)
-_AXIS = np.array([0, 1, 2, 1, 0], dtype=np.int64)
-_FRAC = np.array([0.5, 0.5, 1.0, 0.5, 0.5])
-
-
-@numba.njit(cache=True)
-def _rotate(quat, L, axes, moments, h, axis, frac):
-    """``runtime.rotation.free_rotation_step`` in place on ``quat`` (4,): axes (3, 3) rows the principal axes in
-    body axes, moments (3,) [kg m^2], L (3,) world angular momentum [kg m^2/s]."""
-    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
-    vx, vy, vz = L[0], L[1], L[2]
-    ux, uy, uz = -x, -y, -z
-    tx, ty, tz = 2 * (uy * vz - uz * vy), 2 * (uz * vx - ux * vz), 2 * (ux * vy - uy * vx)
-    lx = vx + w * tx + (uy * tz - uz * ty)
-    ly = vy + w * ty + (uz * tx - ux * tz)
-    lz = vz + w * tz + (ux * ty - uy * tx)
-    for p in range(5):
-        k = axis[p]
-        ax, ay, az = axes[k, 0], axes[k, 1], axes[k, 2]
-        angle = frac[p] * h * (ax * lx + ay * ly + az * lz) / moments[k]
-        c, s = math.cos(0.5 * angle), math.sin(0.5 * angle)
-        bx, by, bz = s * ax, s * ay, s * az
-        w, x, y, z = (w * c - x * bx - y * by - z * bz, w * bx + x * c + y * bz - z * by,
-                      w * by - x * bz + y * c + z * bx, w * bz + x * by - y * bx + z * c)
-        ca, sa = math.cos(angle), -math.sin(angle)
-        d = (ax * lx + ay * ly + az * lz) * (1.0 - ca)
-        cx, cy, cz = ay * lz - az * ly, az * lx - ax * lz, ax * ly - ay * lx
-        lx, ly, lz = lx * ca + cx * sa + ax * d, ly * ca + cy * sa + ay * d, lz * ca + cz * sa + az * d
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    if w < 0:
-        n = -n
-    quat[0], quat[1], quat[2], quat[3] = w / n, x / n, y / n, z / n
-
+from modalfem.runtime._contact_step_kernels import _free_rotation
 
 @numba.njit(cache=True)
 def free_steps(pos, vel, L, quat, q, qdot, qoff, nm, dV, dvoff, kick, inertia, mass, g, axes, moments, coef, h,
@@ -62,7 +30,6 @@ def free_steps(pos, vel, L, quat, q, qdot, qoff, nm, dV, dvoff, kick, inertia, m
         h: step [s]. tiny: modal values below this are set to 0 (``runtime.solver.TINY``).
     """
     nb = pos.shape[0]
-    axis, frac = _AXIS, _FRAC
     ok = True
     R = np.empty((3, 3))
     for b in range(nb):
@@ -93,7 +60,7 @@ def free_steps(pos, vel, L, quat, q, qdot, qoff, nm, dV, dvoff, kick, inertia, m
             pos[b, c] += h * vel[b, c] + hh * a
             vel[b, c] += h * a
         if L[b, 0] != 0.0 or L[b, 1] != 0.0 or L[b, 2] != 0.0:
-            _rotate(quat[b], L[b], axes[b], moments[b], h, axis, frac)
+            _free_rotation(quat[b], L[b], axes[b], moments[b], h)
         k = 6 * o
         for m in range(r):
             a11, a12, a21, a22 = coef[k + m], coef[k + r + m], coef[k + 2 * r + m], coef[k + 3 * r + m]
