@@ -322,6 +322,36 @@ def _gather_blocks(data, src, out):
                     out[p, a, b] = data[q, a, b]
 
 
+@numba.njit(cache=True, parallel=True)
+def _to_order(perm, src, data, kind, normal, b, y, pdata, pkind, pnormal, pb, py):
+    """The matrix (``_gather_blocks``), constraints, right-hand side and start in the new order (one parallel
+    pass)."""
+    _gather_blocks(data, src, pdata)
+    n = len(perm)
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            j = perm[i]
+            pkind[i] = kind[j]
+            for a in range(3):
+                pnormal[i, a] = normal[j, a]
+                pb[i, a] = b[j, a]
+                py[i, a] = y[j, a]
+
+
+@numba.njit(cache=True, parallel=True)
+def _from_order(perm, py, y):
+    """``y[perm] = py``."""
+    n = len(perm)
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            for a in range(3):
+                y[perm[i], a] = py[i, a]
+
+
 #: vertices per group of the block multicolour ordering (``SweepOrder("blocks")``)
 GROUP = 256
 
@@ -400,12 +430,10 @@ class SweepOrder:
         if self.perm is None:
             return pcg_sgs_ordered(self.indptr, self.indices, data, self.diag, kind, normal, b, y, rtol, maxiter,
                                    self.cptr, self.tptr)
-        p = self.perm
-        pdata = np.empty_like(data)
-        _gather_blocks(data, self.src, pdata)
-        py = np.ascontiguousarray(y[p])
-        out = pcg_sgs_ordered(self.indptr, self.indices, pdata, self.diag, np.ascontiguousarray(kind[p]),
-                              np.ascontiguousarray(normal[p]), np.ascontiguousarray(b[p]), py, rtol, maxiter,
+        pdata, pkind, pnormal = np.empty_like(data), np.empty_like(kind), np.empty_like(normal)
+        pb, py = np.empty_like(b), np.empty_like(y)
+        _to_order(self.perm, self.src, data, kind, normal, b, y, pdata, pkind, pnormal, pb, py)
+        out = pcg_sgs_ordered(self.indptr, self.indices, pdata, self.diag, pkind, pnormal, pb, py, rtol, maxiter,
                               self.cptr, self.tptr)
-        y[p] = py
+        _from_order(self.perm, py, y)
         return out
