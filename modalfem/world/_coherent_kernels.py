@@ -18,7 +18,7 @@ import numpy as np
 
 from modalfem.collision._bvh_kernels import _query_range
 from modalfem.collision._distance_kernels import edge_edge_closest, point_triangle_closest
-from modalfem.world._solid_kernels import _ee_test, _gather, _to_local, _vf_test
+from modalfem.world._solid_kernels import _edge_queries, _ee_test, _gather, _to_local, _vertex_queries, _vf_found, _vf_test
 
 
 @numba.njit(cache=True)
@@ -26,23 +26,8 @@ def _vf_candidates(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonem
     """Every (vertex of a, triangle of b) pair closer than ``radius`` [m] (arguments as ``vertex_face``), grouped
     by vertex in increasing order, each vertex's triangles in the tree's order (the order ``vertex_face`` meets
     them in): ``(vertices, triangles)``, (k,) each."""
-    na = xa.shape[0]
-    near = np.empty(na, dtype=np.int64)
-    m = 0
-    for j in range(na):
-        if (blo[0] - radius <= xa[j, 0] <= bhi[0] + radius and blo[1] - radius <= xa[j, 1] <= bhi[1] + radius
-                and blo[2] - radius <= xa[j, 2] <= bhi[2] + radius):
-            near[m] = j
-            m += 1
-    y = np.empty((m, 3))
-    qlo = np.empty((m, 3))
-    qhi = np.empty((m, 3))
-    grow = radius + bound
-    for i in range(m):
-        _to_local(xa[near[i]], Rb, pb, y[i])
-        for c in range(3):
-            qlo[i, c] = y[i, c] - grow
-            qhi[i, c] = y[i, c] + grow
+    near, y, qlo, qhi = _vertex_queries(xa, Rb, pb, bound, radius, blo, bhi)
+    m = near.shape[0]
     pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
     n = pairs.shape[0]
     cv = np.empty(n, dtype=np.int64)
@@ -98,54 +83,15 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
             lb[k] -= drop
             continue
         lb[k] = _vf_test(y, Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
-    k = 0
-    for i in range(m):
-        if best[i] >= 0:
-            k += 1
-    vertex = np.empty(k, dtype=np.int64)
-    tri = np.empty(k, dtype=np.int64)
-    wb = np.empty((k, 3))
-    gap = np.empty(k)
-    normal = np.empty((k, 3))
-    k = 0
-    for i in range(m):
-        if best[i] < 0:
-            continue
-        vertex[k], tri[k], gap[k] = vid[i], best[i], gbest[i]
-        for c in range(3):
-            wb[k, c] = bary[i, c]
-            normal[k, c] = Rb[c, 0] * nloc[i, 0] + Rb[c, 1] * nloc[i, 1] + Rb[c, 2] * nloc[i, 2]
-        k += 1
-    return vertex, tri, wb, gap, normal
+    return _vf_found(vid, best, gbest, bary, nloc, Rb)
 
 
 @numba.njit(cache=True)
 def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
     """Every (edge of a, edge of b) pair closer than ``radius`` [m] (arguments as ``edge_edge``), grouped by a's
     edge in increasing order, in the order ``edge_edge`` meets them: ``(mine, other)``, (k,) each."""
-    ne = Ea.shape[0]
-    sel = np.empty(ne, dtype=np.int64)
-    m = 0
-    for e in range(ne):
-        i, j = Ea[e, 0], Ea[e, 1]
-        ok = True
-        for c in range(3):
-            if min(xa[i, c], xa[j, c]) > bhi[c] + radius or max(xa[i, c], xa[j, c]) < blo[c] - radius:
-                ok = False
-        if ok:
-            sel[m] = e
-            m += 1
-    y = np.empty((m, 2, 3))
-    qlo = np.empty((m, 3))
-    qhi = np.empty((m, 3))
-    grow = radius + bound
-    for q in range(m):
-        _to_local(xa[Ea[sel[q], 0]], Rb, pb, y[q, 0])
-        _to_local(xa[Ea[sel[q], 1]], Rb, pb, y[q, 1])
-        for c in range(3):
-            qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
-            qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
-    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    sel, y, qlo, qhi = _edge_queries(xa, Ea, Rb, pb, bound, radius, blo, bhi)
+    pairs = _query_range(qlo, qhi, 0, sel.shape[0], P, lo, hi, nonempty, slot_tri, slo, shi)
     n = pairs.shape[0]
     cm = np.empty(n, dtype=np.int64)
     co = np.empty(n, dtype=np.int64)

@@ -69,6 +69,84 @@ def _vf_test(y, Xb, Tb, t, reach, x, w, i, best, dbest, gbest, bary, nloc):
 
 
 @numba.njit(cache=True)
+def _vertex_queries(xa, Rb, pb, bound, radius, blo, bhi):
+    """a's vertices inside b's world box grown by ``radius`` [m] (``near`` (m,)), in b's body axes (``y`` (m, 3)),
+    and their query boxes in b's rest tree (grown by ``radius + bound``): ``(near, y, qlo, qhi)``."""
+    na = xa.shape[0]
+    near = np.empty(na, dtype=np.int64)
+    m = 0
+    for j in range(na):
+        if (blo[0] - radius <= xa[j, 0] <= bhi[0] + radius and blo[1] - radius <= xa[j, 1] <= bhi[1] + radius
+                and blo[2] - radius <= xa[j, 2] <= bhi[2] + radius):
+            near[m] = j
+            m += 1
+    y = np.empty((m, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for i in range(m):
+        _to_local(xa[near[i]], Rb, pb, y[i])
+        for c in range(3):
+            qlo[i, c] = y[i, c] - grow
+            qhi[i, c] = y[i, c] + grow
+    return near[:m], y, qlo, qhi
+
+
+@numba.njit(cache=True)
+def _vf_found(vid, best, gbest, bary, nloc, Rb):
+    """``vertex_face``'s outputs from the per-vertex bests (vertex ``vid[i]``, triangle ``best[i]``, -1: none)."""
+    m = best.shape[0]
+    k = 0
+    for i in range(m):
+        if best[i] >= 0:
+            k += 1
+    vertex = np.empty(k, dtype=np.int64)
+    tri = np.empty(k, dtype=np.int64)
+    wb = np.empty((k, 3))
+    gap = np.empty(k)
+    normal = np.empty((k, 3))
+    k = 0
+    for i in range(m):
+        if best[i] < 0:
+            continue
+        vertex[k], tri[k], gap[k] = vid[i], best[i], gbest[i]
+        for c in range(3):
+            wb[k, c] = bary[i, c]
+            normal[k, c] = Rb[c, 0] * nloc[i, 0] + Rb[c, 1] * nloc[i, 1] + Rb[c, 2] * nloc[i, 2]
+        k += 1
+    return vertex, tri, wb, gap, normal
+
+
+@numba.njit(cache=True)
+def _edge_queries(xa, Ea, Rb, pb, bound, radius, blo, bhi):
+    """a's edges whose box meets b's world box grown by ``radius`` [m] (``sel`` (m,)), their ends in b's body axes
+    (``y`` (m, 2, 3)) and their query boxes in b's rest edge tree (grown by ``radius + bound``)."""
+    ne = Ea.shape[0]
+    sel = np.empty(ne, dtype=np.int64)
+    m = 0
+    for e in range(ne):
+        i, j = Ea[e, 0], Ea[e, 1]
+        ok = True
+        for c in range(3):
+            if min(xa[i, c], xa[j, c]) > bhi[c] + radius or max(xa[i, c], xa[j, c]) < blo[c] - radius:
+                ok = False
+        if ok:
+            sel[m] = e
+            m += 1
+    y = np.empty((m, 2, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for q in range(m):
+        _to_local(xa[Ea[sel[q], 0]], Rb, pb, y[q, 0])
+        _to_local(xa[Ea[sel[q], 1]], Rb, pb, y[q, 1])
+        for c in range(3):
+            qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
+            qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
+    return sel[:m], y, qlo, qhi
+
+
+@numba.njit(cache=True)
 def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
     """Vertices of body a within ``reach`` [m] of body b's deformed surface, each with its closest triangle.
 
@@ -84,23 +162,8 @@ def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty,
         (negative behind it), (k, 3) the world unit normal of the triangle. The closest triangle is the one at
         the least distance (ties: the one the point is most in front of), as ``proximity.SurfaceProximity``.
     """
-    na = xa.shape[0]
-    near = np.empty(na, dtype=np.int64)
-    m = 0
-    for j in range(na):
-        if (blo[0] - reach <= xa[j, 0] <= bhi[0] + reach and blo[1] - reach <= xa[j, 1] <= bhi[1] + reach
-                and blo[2] - reach <= xa[j, 2] <= bhi[2] + reach):
-            near[m] = j
-            m += 1
-    y = np.empty((m, 3))
-    qlo = np.empty((m, 3))
-    qhi = np.empty((m, 3))
-    grow = reach + bound
-    for i in range(m):
-        _to_local(xa[near[i]], Rb, pb, y[i])
-        for c in range(3):
-            qlo[i, c] = y[i, c] - grow
-            qhi[i, c] = y[i, c] + grow
+    near, y, qlo, qhi = _vertex_queries(xa, Rb, pb, bound, reach, blo, bhi)
+    m = near.shape[0]
     pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
     best = np.full(m, -1, dtype=np.int64)
     dbest = np.full(m, np.inf)
@@ -112,25 +175,7 @@ def vertex_face(xa, Rb, pb, Xb, Tb, bound, reach, blo, bhi, P, lo, hi, nonempty,
     for k in range(pairs.shape[0]):
         i = pairs[k, 0]
         _vf_test(y[i], Xb, Tb, pairs[k, 1], reach, x, w, i, best, dbest, gbest, bary, nloc)
-    k = 0
-    for i in range(m):
-        if best[i] >= 0:
-            k += 1
-    vertex = np.empty(k, dtype=np.int64)
-    tri = np.empty(k, dtype=np.int64)
-    wb = np.empty((k, 3))
-    gap = np.empty(k)
-    normal = np.empty((k, 3))
-    k = 0
-    for i in range(m):
-        if best[i] < 0:
-            continue
-        vertex[k], tri[k], gap[k] = near[i], best[i], gbest[i]
-        for c in range(3):
-            wb[k, c] = bary[i, c]
-            normal[k, c] = Rb[c, 0] * nloc[i, 0] + Rb[c, 1] * nloc[i, 1] + Rb[c, 2] * nloc[i, 2]
-        k += 1
-    return vertex, tri, wb, gap, normal
+    return _vf_found(near, best, gbest, bary, nloc, Rb)
 
 
 @numba.njit(cache=True, inline="always")
@@ -195,29 +240,8 @@ def edge_edge(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, bound, margin, blo, bhi, P, lo, h
         ``(mine, other, s, t, gap, normal)``: (k,) edges of a and of b, (k,) closest-point parameters on each,
         (k,) gap [m] (negative: a's edge behind b's surface), (k, 3) world normals.
     """
-    ne = Ea.shape[0]
-    sel = np.empty(ne, dtype=np.int64)
-    m = 0
-    for e in range(ne):
-        i, j = Ea[e, 0], Ea[e, 1]
-        ok = True
-        for c in range(3):
-            if min(xa[i, c], xa[j, c]) > bhi[c] + margin or max(xa[i, c], xa[j, c]) < blo[c] - margin:
-                ok = False
-        if ok:
-            sel[m] = e
-            m += 1
-    y = np.empty((m, 2, 3))
-    qlo = np.empty((m, 3))
-    qhi = np.empty((m, 3))
-    grow = margin + bound
-    for q in range(m):
-        _to_local(xa[Ea[sel[q], 0]], Rb, pb, y[q, 0])
-        _to_local(xa[Ea[sel[q], 1]], Rb, pb, y[q, 1])
-        for c in range(3):
-            qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
-            qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
-    pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
+    sel, y, qlo, qhi = _edge_queries(xa, Ea, Rb, pb, bound, margin, blo, bhi)
+    pairs = _query_range(qlo, qhi, 0, sel.shape[0], P, lo, hi, nonempty, slot_tri, slo, shi)
     scale = 1.0
     for v in range(Xb.shape[0]):
         for c in range(3):
