@@ -657,6 +657,18 @@ class World:
     def _strikes(self, ctx, name: str):
         return [(p, J) for b, p, J in ctx.control.impulses if b == name]
 
+    def _strike_control(self, ctx, name: str):
+        """A modal solver's ``Control`` holding this step's strikes of body ``name`` (None without any)."""
+        strikes = self._strikes(ctx, name)
+        if not strikes:
+            return None
+        from modalfem import runtime as rt
+
+        ctl = rt.Control()
+        for p, J in strikes:
+            ctl.add_impulse(p, J)
+        return ctl
+
     def _stage_tet_step(self, ctx) -> None:
         from modalfem.tet import TetControl
 
@@ -712,14 +724,7 @@ class World:
         m = self._modal[name]
         body, s = m["body"], ctx.state_in.bodies[name]
         x0 = np.array(body.positions(s, precise=True), dtype=np.float64)
-        ctl = None
-        strikes = self._strikes(ctx, name)
-        if strikes:
-            from modalfem import runtime as rt
-
-            ctl = rt.Control()
-            for p, J in strikes:
-                ctl.add_impulse(p, J)
+        ctl = self._strike_control(ctx, name)
         p = s.copy()
         try:
             m["solver"].step(s, p, ctl, None, ctx.dt)
@@ -1285,14 +1290,8 @@ class World:
                 R = s.rotation()
                 s.angular_momentum += R @ (body.inertia @ (R.T @ dV[3:6]))
                 s.qdot += dV[6:]
-            ctl = None
             strikes = self._strikes(ctx, name)
-            if strikes:
-                from modalfem import runtime as rt
-
-                ctl = rt.Control()
-                for p, J in strikes:
-                    ctl.add_impulse(p, J)
+            ctl = self._strike_control(ctx, name)
             out = m["scratch"]  # reused every step; the caller's state receives a copy at the end of the step
             contacts = self._modal_body_step(name, s, out, ctl, dt, ctx.report)
             if strikes and name in self._sounds:
