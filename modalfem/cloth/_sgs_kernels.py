@@ -31,8 +31,8 @@ vertex order inside a group. Either is a symmetric permutation ``Pi A Pi^T``, so
 Eisenstat's trick hold unchanged in the new order; the solve gathers the matrix into it (one pass). The tasks and
 their order depend on the pattern only, and the dot products add per-task (per-chunk) partial sums in task order,
 so a solve gives the same bits on any number of threads. On the 64x64 pile's step-60 implicit system (1e-4): 31
-iterations in vertex order, 32 in "blocks", 39 in "colours" (a sweep in vertex order carries a correction across the whole
-sheet, one in a vertex multicolour order at most as many vertices far as there are colours; "blocks" keeps the
+iterations in vertex order, 32 in "blocks", 39 in "colours" (a sweep in vertex order carries a correction across
+the whole sheet, one in a vertex multicolour order at most as many vertices far as there are colours; "blocks" keeps the
 long reach inside each group).
 """
 
@@ -210,7 +210,8 @@ def pcg_sgs_ordered(indptr, indices, data, diag, kind, normal, b, y, rtol, maxit
     """Solve ``A y = b`` on the free components (filtered PCG, SGS preconditioner; module docstring).
 
     Args and returns as :func:`modalfem.cloth._kernels.pcg` without the levels, plus the sweeps' tasks
-    (``SweepOrder``: ``cptr`` (colours + 1,) the tasks of each colour, ``tptr`` (tasks + 1,) each task's rows): ``y`` (n, 3) updated in place
+    (``SweepOrder``: ``cptr`` (colours + 1,) the tasks of each colour, ``tptr`` (tasks + 1,) each task's rows):
+    ``y`` (n, 3) updated in place
     (on entry the start, whose constrained components are kept); returns (iterations, relative residual
     reached), iterations = -1 if ``maxiter`` was not enough. ``|S (b - A y)| <= rtol |b'|`` holds on return
     (it is computed, not predicted).

@@ -12,15 +12,17 @@ and the system ``S A S`` on range(S) is SPD). Two linear solvers: ``"cg"`` (the 
 gradients of ``modalfem.cloth._sgs_kernels.pcg_sgs`` or ``_kernels.pcg``, compiled, warm start from the previous
 step's velocity change, relative residual ``cg_rtol``) and ``"splu"`` (scipy's SuperLU on ``S A S + I - S``,
 minimum-degree ordering of A^T + A). The CG preconditioner (``cg_preconditioner``) is by default symmetric block
-Gauss-Seidel in vertex order (``"sgs"``, :mod:`modalfem.cloth._sgs_kernels`: Eisenstat's trick makes an iteration
-cost about one matrix product; serial sweeps). The same in a block multicolour order (``"sgs-blocks"``: groups of
-256 consecutive vertices, two colours of stripes on a grid, the groups of a colour swept in parallel) takes about
-as many iterations (pile 64x64: 39.7 against 39.2 per step) but costs a gather of the matrix into its order per
-solve and more parallel launches; in a vertex multicolour order (``"sgs-colours"``, 7 colours) 49.2 (a sweep
-carries a correction only as many vertices far as there are colours). The orders are fixed by the pattern, so
-every choice gives the same bits on any thread count. Per step on the 64x64 pile (80 steps, one thread) the implicit solve
-takes 38.0 iterations against the multilevel preconditioner's 53.3 (drape 64x64: 37.0 against 56.8; the twist without
-collisions 23.5 against 25.4), and needs no setup of levels (the smoothing solve keeps the multilevel one:
+Gauss-Seidel (:mod:`modalfem.cloth._sgs_kernels`: Eisenstat's trick makes an iteration cost about one matrix
+product) in a block multicolour order (``"sgs-blocks"``: groups of 256 consecutive vertices coloured, two colours
+of stripes on a grid, the groups of a colour swept in parallel, vertex order inside a group). In vertex order
+(``"sgs"``) the sweeps are serial; it takes about as many iterations (64x64 pile: 39.2 against 39.7 per step) and
+needs no gather of the matrix into the order nor the extra parallel launches: on the pile's step-60 system
+(Intel Xeon, 2 cores free) a solve takes 10.0-10.3 ms on one thread and the same on two, the block multicolour
+one 11.6-11.9 ms on one thread and 7.7-8.0 on two. In a vertex multicolour order (``"sgs-colours"``, 7 colours) it
+takes 49.2 (a sweep carries a correction only as many vertices far as there are colours). The orders are fixed
+by the pattern, so every choice gives the same bits on any thread count. Per step on the 64x64 pile (80 steps,
+one thread) SGS in vertex order took 38.0 iterations against the multilevel preconditioner's 53.3 (drape 64x64:
+37.0 against 56.8; the twist without collisions 23.5 against 25.4), and needs no setup of levels (the smoothing solve keeps the multilevel one:
 ``SMOOTH_PRECONDITIONER``); its sweeps do not reach a
 free-floating stiff sheet's global modes as well (a synthetic ``M + 1e-4 K`` on 24x24 vertices without constraints,
 random right-hand side: 49 against 35 iterations). The other, ``"multilevel"``, is additive: block Jacobi (the
@@ -274,7 +276,7 @@ def _preconditioner_setup(name: str, indptr, indices, diag):
 
 
 def pcg_constrained(A, b: np.ndarray, *, fixed=None, fixed_values=None, contacts=None, x0=None,
-                    rtol: float = 1e-6, maxiter: int = 1000, preconditioner: str = "sgs"):
+                    rtol: float = 1e-6, maxiter: int = 1000, preconditioner: str = "sgs-blocks"):
     """Filtered preconditioned conjugate gradients (the ``"cg"`` solver of ``ImplicitEuler``) for a sparse SPD
     ``A`` (3n, 3n).
 
@@ -291,9 +293,10 @@ def pcg_constrained(A, b: np.ndarray, *, fixed=None, fixed_values=None, contacts
         x0: start (3n,) (its constrained components are replaced).
         rtol: relative residual.
         maxiter: iteration cap.
-        preconditioner: one of ``PRECONDITIONERS``: ``"sgs"`` (symmetric block Gauss-Seidel, ``_sgs_kernels``),
-            ``"sgs-blocks"``, ``"sgs-colours"`` (the same in a multicolour order, parallel sweeps) or ``"multilevel"``
-            (block Jacobi plus additive aggregation levels, ``_kernels.pcg``).
+        preconditioner: one of ``PRECONDITIONERS``: ``"sgs-blocks"`` (default: symmetric block Gauss-Seidel in a
+            block multicolour order, parallel sweeps, ``_sgs_kernels``), ``"sgs"`` (in vertex order, serial sweeps),
+            ``"sgs-colours"`` (in a vertex multicolour order) or ``"multilevel"`` (block Jacobi plus additive
+            aggregation levels, ``_kernels.pcg``).
 
     Returns:
         (y (3n,), iterations).
@@ -330,16 +333,16 @@ class ImplicitEuler:
         linear_solver: ``"cg"`` (default) or ``"splu"``.
         cg_rtol: CG relative residual.
         cg_maxiter: CG iteration cap.
-        cg_preconditioner: ``"sgs"`` (default: symmetric block Gauss-Seidel in vertex order), ``"sgs-blocks"`` /
-            ``"sgs-colours"`` (the same in a block / vertex multicolour order, parallel sweeps) or ``"multilevel"``
-            (block Jacobi plus aggregation levels); see the module docstring.
+        cg_preconditioner: ``"sgs-blocks"`` (default: symmetric block Gauss-Seidel in a block multicolour order,
+            parallel sweeps), ``"sgs"`` (the same in vertex order, serial sweeps), ``"sgs-colours"`` (in a vertex
+            multicolour order) or ``"multilevel"`` (block Jacobi plus aggregation levels); see the module docstring.
 
     Raises:
         InputError: unknown linear solver or preconditioner.
     """
 
     def __init__(self, model: ClothModel, *, linear_solver: str = "cg", cg_rtol: float = 1e-4, cg_maxiter: int = 2000,
-                 cg_preconditioner: str = "sgs"):
+                 cg_preconditioner: str = "sgs-blocks"):
         if linear_solver not in ("cg", "splu"):
             raise InputError(f"linear_solver must be 'cg' or 'splu', got {linear_solver!r}")
         _check_preconditioner(cg_preconditioner)

@@ -80,7 +80,8 @@ def test_multicolour_sgs_solve_is_bit_identical_on_one_and_two_threads(precondit
     idx = rng.permutation(n)[:300]
     nrm = rng.standard_normal((300, 3))
     nrm /= np.linalg.norm(nrm, axis=1)[:, None]
-    kind, normal, z = _constraints(n, idx[:5], rng.standard_normal((5, 3)), (idx[5:], nrm[5:], rng.standard_normal(295)))
+    contacts = (idx[5:], nrm[5:], rng.standard_normal(295))
+    kind, normal, z = _constraints(n, idx[:5], rng.standard_normal((5, 3)), contacts)
     b = rng.standard_normal((n, 3))
     setup = s._setup(preconditioner)
     if preconditioner != "sgs":
