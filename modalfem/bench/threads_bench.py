@@ -268,8 +268,8 @@ def kernel_times(n: int, repeats: int) -> dict:
         blocks.solve(data, kind, normal, b, z.copy(), 1e-4, 2000)
 
     cases = {
-        "cloth: implicit-step CG solve, SGS (the default; serial sweeps) (rtol 1e-4)": pcg_sgs,
-        "cloth: implicit-step CG solve, SGS block multicolour (parallel sweeps) (rtol 1e-4)": pcg_sgs_blocks,
+        "cloth: implicit-step CG solve, SGS in vertex order (serial sweeps) (rtol 1e-4)": pcg_sgs,
+        "cloth: implicit-step CG solve, SGS block multicolour (default; parallel sweeps) (rtol 1e-4)": pcg_sgs_blocks,
         "cloth: implicit-step CG solve, multilevel (rtol 1e-4)": pcg,
         "cloth: stiffness assembly (element blocks + per-block gather)": lambda: sol._stiffness_data(x),
         "cloth: multilevel preconditioner setup (level matrices)": lambda: lv.inverses(
