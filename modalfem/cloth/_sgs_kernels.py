@@ -43,6 +43,7 @@ import numpy as np
 
 from modalfem._threads import chunk_bounds, chunk_count
 from modalfem.cloth._kernels import CHUNK, _preconditioner, _project, _residual, _sum
+from modalfem.errors import InputError
 
 __all__ = ["ORDERS", "SweepOrder", "greedy_colours", "pcg_sgs", "pcg_sgs_ordered"]
 
@@ -379,7 +380,7 @@ class SweepOrder:
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, diag: np.ndarray, kind: str = "blocks"):
         if kind not in ORDERS:
-            raise ValueError(f"sweep order must be one of {ORDERS}, got {kind!r}")
+            raise InputError(f"sweep order must be one of {', '.join(ORDERS)}, got {kind!r}")
         n = len(indptr) - 1
         self.kind = kind
         if kind == "natural":

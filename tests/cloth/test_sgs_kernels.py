@@ -186,6 +186,8 @@ def test_bad_preconditioner_and_too_few_iterations():
         pcg_constrained(A, np.ones(A.shape[0]), preconditioner="amg")
     with pytest.raises(InputError, match="preconditioner"):
         ImplicitEuler(ClothModel(grid((0.4, 0.4), (4, 4)), SOFT), cg_preconditioner="jacobi")
+    with pytest.raises(InputError, match="sweep order"):
+        _sgs_kernels.SweepOrder(pat.indptr, pat.indices, pat.diag, "red-black")
     with pytest.raises(SolverError, match="did not reach"):
         pcg_constrained(A, rng.standard_normal(A.shape[0]), rtol=1e-14, maxiter=2)
 
