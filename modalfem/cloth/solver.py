@@ -19,14 +19,14 @@ of stripes on a grid, the groups of a colour swept in parallel, vertex order ins
 needs no gather of the matrix into the order nor the extra parallel launches: on the pile's step-60 system
 (Intel Xeon, 2 cores free) a solve takes 10.0-10.3 ms on one thread and the same on two, the block multicolour
 one 11.6-11.9 ms on one thread and 7.7-8.0 on two; whole pile steps 61-68 replayed (34 paired runs, 2 cores free,
-median ms/step) 132.8 -> 136.1 on one thread, 100.3 -> 98.8 on two (1.32x -> 1.38x). In a vertex multicolour order (``"sgs-colours"``, 7 colours) it
-takes 49.2 (a sweep carries a correction only as many vertices far as there are colours). The orders are fixed
-by the pattern, so every choice gives the same bits on any thread count. Per step on the 64x64 pile (80 steps,
-one thread) SGS in vertex order took 38.0 iterations against the multilevel preconditioner's 53.3 (drape 64x64:
-37.0 against 56.8; the twist without collisions 23.5 against 25.4), and needs no setup of levels (the smoothing solve keeps the multilevel one:
-``SMOOTH_PRECONDITIONER``); its sweeps do not reach a
-free-floating stiff sheet's global modes as well (a synthetic ``M + 1e-4 K`` on 24x24 vertices without constraints,
-random right-hand side: 49 against 35 iterations). The other, ``"multilevel"``, is additive: block Jacobi (the
+median ms/step) 132.8 -> 136.1 on one thread, 100.3 -> 98.8 on two (1.32x -> 1.38x). In a vertex multicolour
+order (``"sgs-colours"``, 7 colours) it takes 49.2 (a sweep carries a correction only as many vertices far as
+there are colours). The orders are fixed by the pattern, so every choice gives the same bits on any thread count.
+Per step on the 64x64 pile (80 steps, one thread) SGS in vertex order took 38.0 iterations against the multilevel
+preconditioner's 53.3 (drape 64x64: 37.0 against 56.8; the twist without collisions 23.5 against 25.4), and needs
+no setup of levels (the smoothing solve keeps the multilevel one: ``SMOOTH_PRECONDITIONER``); its sweeps do not
+reach a free-floating stiff sheet's global modes as well (a synthetic ``M + 1e-4 K`` on 24x24 vertices without
+constraints, random right-hand side: 49 against 35 iterations). The other, ``"multilevel"``, is additive: block Jacobi (the
 inverses of the vertices' projected 3x3 diagonal blocks) plus, on a hierarchy of vertex aggregates
 (greedy aggregation of the matrix graph, repeated until at most ``COARSEST`` aggregates remain, built
 once), block Jacobi of each level's Galerkin matrix for piecewise-constant translations and a direct
