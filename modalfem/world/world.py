@@ -75,6 +75,10 @@ TET_RETRIES = 6
 EDGE_END = 0.05
 
 
+def _contacts_of(modal: list, body: str) -> np.ndarray:
+    """Indices (int64, in order) of a tet body's modal contacts ``modal`` ((body, ids, weights) each) with ``body``."""
+    return np.array([i for i, (b, _, _) in enumerate(modal) if b == body], dtype=np.int64)
+
 @dataclass
 class WorldState:
     """Changing state: ``time`` [s], one state per body (``bodies[name]``: ``runtime.State`` for a modal
@@ -847,7 +851,7 @@ class World:
         # part of the skin: at least DEPTH_SHARE (approach + |g| dt^2) / dhat times its mass / dt^2, summed
         bodies, arms, inertia = np.full(len(k), -1, np.int64), np.zeros((len(k), 6)), []
         for b in self._tet_modal.get(name, ()):
-            sel = n_obstacle + np.array([i for i, (mb, _, _) in enumerate(modal) if mb == b], dtype=np.int64)
+            sel = n_obstacle + _contacts_of(modal, b)
             if not len(sel):
                 continue
             body, (end, travel) = self._modal[b]["body"], ends[b]
@@ -887,7 +891,7 @@ class World:
         en = t["solver"].energies(out)
         stored = en["elastic"] + pen.penalty_energy(out.x) + en["kinetic"] - 0.5 * M * float(Vt @ Vt)
         for b in self._tet_modal[name]:
-            sel = np.array([i for i, (mb, _, _) in enumerate(modal) if mb == b], dtype=np.int64)
+            sel = _contacts_of(modal, b)
             J = ((f[sel] * ctx.dt)[:, None] * pen.nrm[n_obstacle + sel]).sum(0) if len(sel) else np.zeros(3)
             key = (_REACTION_KEY, name, "impact", b)
             rec = ctx.state_in.contacts.get(key)
@@ -951,9 +955,10 @@ class World:
         f = pen.forces(out.x)[n_obstacle:]
         J = -(f * ctx.dt)[:, None] * pen.nrm[n_obstacle:]  # on the modal body
         ctx.contacts[(_REACTION_KEY, name, "force")] = {  # [N] by body: the next step's stiffness holds it
-            b: float(f[[i for i, (m, _, _) in enumerate(modal) if m == b]].sum()) for b in self._tet_modal[name]}
+            b: float(f[_contacts_of(modal, b)].sum()) for b in self._tet_modal[name]}
         for b in self._tet_modal[name]:
-            sel = np.array([i for i, (m, _, _) in enumerate(modal) if m == b and f[i] > 0], dtype=np.int64)
+            sel = _contacts_of(modal, b)
+            sel = sel[f[sel] > 0]
             if not len(sel):
                 continue
             ids = np.array([modal[i][1] for i in sel])
