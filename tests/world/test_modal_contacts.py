@@ -147,19 +147,26 @@ def _momenta(w, s):
     return p, L
 
 
-def test_a_pile_of_modal_bodies_conserves_momentum_and_never_gains_energy(bar_model):
-    """Five bars thrown at each other without gravity or obstacles: only body-body impulses act, so the total linear
-    and angular momentum stay what they were (to rounding) and the total energy never rises (beyond the free step's
-    own energy error: never above the free step's); their surfaces never cross."""
-    rng = np.random.default_rng(3)
+def _thrown_bars(bar_model, rng, *, inward: float, jitter: float, spin: float) -> list:
+    """Five bars on a helix around the origin, randomly turned, thrown towards it (``-inward * position`` plus
+    ``jitter`` random [m/s]) and spinning (``spin`` random [rad/s]), drawn from ``rng``."""
     bodies = []
     for i in range(5):
         axis = rng.normal(size=3)
         pos = 0.09 * np.array([np.cos(1.3 * i), np.sin(1.3 * i), 0.6 * (i - 2)])
         bodies.append(mw.Modal(bar_model, name=f"b{i}", position=pos,
                                orientation=quat_from_axis_angle(axis / np.linalg.norm(axis), rng.uniform(0, 3)),
-                               velocity=-4.0 * pos + 0.1 * rng.normal(size=3),
-                               angular_velocity=rng.normal(size=3)))
+                               velocity=-inward * pos + jitter * rng.normal(size=3),
+                               angular_velocity=spin * rng.normal(size=3)))
+    return bodies
+
+
+def test_a_pile_of_modal_bodies_conserves_momentum_and_never_gains_energy(bar_model):
+    """Five bars thrown at each other without gravity or obstacles: only body-body impulses act, so the total linear
+    and angular momentum stay what they were (to rounding) and the total energy never rises (beyond the free step's
+    own energy error: never above the free step's); their surfaces never cross."""
+    rng = np.random.default_rng(3)
+    bodies = _thrown_bars(bar_model, rng, inward=4.0, jitter=0.1, spin=1.0)
     # the free step keeps the energy only to ~1e-9 of itself per step (the rigid rotation step), so each step is
     # compared with the free step of the same start state (a world without contact)
     free = mw.World(bodies=bodies)
@@ -295,14 +302,7 @@ def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(ba
     from modalfem.world import _solid_kernels as SK
 
     rng = np.random.default_rng(5)
-    bodies = []
-    for i in range(5):
-        axis = rng.normal(size=3)
-        pos = 0.09 * np.array([np.cos(1.3 * i), np.sin(1.3 * i), 0.6 * (i - 2)])
-        bodies.append(mw.Modal(bar_model, name=f"b{i}", position=pos,
-                               orientation=quat_from_axis_angle(axis / np.linalg.norm(axis), rng.uniform(0, 3)),
-                               velocity=-0.5 * pos + 0.02 * rng.normal(size=3),
-                               angular_velocity=0.2 * rng.normal(size=3)))
+    bodies = _thrown_bars(bar_model, rng, inward=0.5, jitter=0.02, spin=0.2)
     w = mw.World(bodies=bodies, effects=[Contact(restitution=0.5, friction=0.4, margin=2e-3)])
     s = w.state()
     body = w._modal["b0"]["body"]
