@@ -146,3 +146,40 @@ def apply_impulses(V, ptr, off, nd, jptr, WJt, lam):
         d0, d1, d2 = lam[c, 0], lam[c, 1], lam[c, 2]
         if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
             _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2)
+
+
+@numba.njit(cache=True)
+def modal_energy_change(dV, V0, off, size, mass, R, inertia, shift):
+    """The kinetic energy change of velocity changes ``dV`` from ``V0`` on modal bodies, as ``(work, quad)``:
+    ``work = sum dv . M (v0 - shift)`` and ``quad = sum dv . M dv`` over the bodies' blocks ``(v, w, qdot)`` of
+    ``size[i]`` velocities at ``off[i]`` (the change is ``work + quad / 2`` [J]); M holds the mass [kg], the world
+    inertia ``R I R^T`` [kg m^2] (R (m, 3, 3) rotations, ``inertia`` (m, 3, 3) in body axes) and unit modal masses;
+    ``shift`` (m, 3) [m/s] is taken off the linear velocity (``g dt``: see ``World._inverse_mass_blocks``)."""
+    work = 0.0
+    quad = 0.0
+    Iw = np.empty((3, 3))
+    for i in range(off.shape[0]):
+        o = off[i]
+        m = mass[i]
+        for a in range(3):
+            for b in range(3):
+                s = 0.0
+                for c in range(3):
+                    for d in range(3):
+                        s += R[i, a, c] * inertia[i, c, d] * R[i, b, d]
+                Iw[a, b] = s
+        for a in range(3):
+            work += m * dV[o + a] * (V0[o + a] - shift[i, a])
+            quad += m * dV[o + a] * dV[o + a]
+        for a in range(3):
+            s0 = 0.0
+            s1 = 0.0
+            for b in range(3):
+                s0 += Iw[a, b] * V0[o + 3 + b]
+                s1 += Iw[a, b] * dV[o + 3 + b]
+            work += dV[o + 3 + a] * s0
+            quad += dV[o + 3 + a] * s1
+        for j in range(o + 6, o + size[i]):
+            work += dV[j] * V0[j]
+            quad += dV[j] * dV[j]
+    return work, quad

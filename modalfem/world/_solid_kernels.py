@@ -1,4 +1,4 @@
-"""Compiled contact search and Jacobian rows for modal bodies in the World's solid solve (numba, cached on disk).
+"""Compiled contact search for modal bodies in the World's solid solve (numba, cached on disk).
 
 Every modal body keeps a BVH of its rest surface (triangles, and edges as degenerate triangles) built once and
 never refitted: its deformed surface in body axes is the rest surface plus ``Phi q``, which moves no vertex by
@@ -7,9 +7,7 @@ do not change under a rigid motion) and its box, grown by ``bound``, is walked a
 triangle whose deformed box is within the search radius is found (a superset), and the exact point-triangle
 (edge-edge) distances to the deformed triangles select the contacts. No tree is refitted per step.
 
-``rows`` writes, for all contacts at once, the entries of ``modalfem.world._kernels`` (a body's block of
-``6 + r`` velocities ``(v, w, qdot)`` per side, J and W J^T) with each side's rigid lever arm at a given world
-point (the same point on both sides: the impulse conserves linear and angular momentum to rounding).
+``modalfem.world._contact_rows.assemble`` turns the contacts found into the solve's entries.
 
 ``vertex_face``, ``edge_edge`` and ``all_pairs`` walk the trees afresh (the reference); the World uses
 ``modalfem.world._coherent_kernels.coherent_pairs``, which reuses a walk over steps with the same per-pair tests
@@ -303,114 +301,6 @@ def plane_contacts(X, voff, center, radius, reach, normals, offsets):
 
 
 @numba.njit(cache=True)
-def _side(c, body, verts, wts, sign, point, R, Iw_inv, pos, mass, nm, nuse, phi_off, phi, mask_off, mask, vel_off,
-          off, nd, jptr, J, WJt, e, jbase):
-    """Entry ``e`` of contact ``c``: body ``body``'s block (6 + nuse) at the world point ``point[c]``, the modal
-    part at ``sum_j wts[c, j] verts[c, j]``; J and W J^T written from ``jbase``. Returns the next jbase."""
-    r = nm[body]
-    n = 6 + nuse[body]
-    off[e] = vel_off[body]
-    nd[e] = n
-    jptr[e] = jbase
-    r0 = point[c, 0] - pos[body, 0]
-    r1 = point[c, 1] - pos[body, 1]
-    r2 = point[c, 2] - pos[body, 2]
-    # S = [r]x; J rows: (I, -S, R Phi); W J^T rows: (I / m, Iw^-1 S, (R Phi)^T) (S's entries as scalars: no
-    # allocation per contact)
-    im = 1.0 / mass[body]
-    for a in range(3):
-        # column a of S
-        if a == 0:
-            c0, c1, c2 = 0.0, r2, -r1
-        elif a == 1:
-            c0, c1, c2 = -r2, 0.0, r0
-        else:
-            c0, c1, c2 = r1, -r0, 0.0
-        for j in range(3):
-            J[jbase + a * n + j] = sign if a == j else 0.0
-            WJt[jbase + j * 3 + a] = sign * im if a == j else 0.0
-            WJt[jbase + (3 + j) * 3 + a] = sign * (Iw_inv[body, j, 0] * c0 + Iw_inv[body, j, 1] * c1
-                                                   + Iw_inv[body, j, 2] * c2)
-        # row a of S is minus column a (S is skew): J's rotational entries -sign S[a, j] = sign c_j
-        J[jbase + a * n + 3] = sign * c0
-        J[jbase + a * n + 4] = sign * c1
-        J[jbase + a * n + 5] = sign * c2
-    Rb = R[body]
-    base = phi_off[body]
-    for mo in range(nuse[body]):
-        p0 = p1 = p2 = 0.0
-        if mask[mask_off[body] + mo]:
-            for q in range(verts.shape[1]):
-                wq = wts[c, q]
-                if wq == 0.0:
-                    continue
-                o = base + (verts[c, q] * 3) * r + mo
-                p0 += wq * phi[o]
-                p1 += wq * phi[o + r]
-                p2 += wq * phi[o + 2 * r]
-        for a in range(3):
-            v = sign * (Rb[a, 0] * p0 + Rb[a, 1] * p1 + Rb[a, 2] * p2)
-            J[jbase + a * n + 6 + mo] = v
-            WJt[jbase + (6 + mo) * 3 + a] = v
-    return jbase + 3 * n
-
-
-@numba.njit(cache=True)
-def rows(body_a, verts_a, w_a, body_b, verts_b, w_b, point, point_b, R, Iw_inv, pos, mass, nm, phi_off, phi, mask_off,
-         mask, vel_off):
-    """Entries of k contacts between modal bodies (``body_b`` -1: a static obstacle, one entry).
-
-    Args:
-        body_a, body_b: (k,) body indices. verts_a, verts_b: (k, 3) vertices of the touching feature (unused
-            slots weight 0) with weights w_a, w_b (k, 3). point, point_b: (k, 3) the world points [m] of the rigid
-            lever arms of sides a and b (the same point for a momentum-exact impulse).
-        R, Iw_inv: (nb, 3, 3) rotations and world inverse inertias [1/(kg m^2)]; pos: (nb, 3) centres of mass
-            [m]; mass: (nb,) [kg]; nm: (nb,) mode counts. phi: every body's mode shapes flattened, body b's
-            (nv, 3, r) from ``phi_off[b]``; mask: modes taking part (1) or not (0) from ``mask_off[b]``.
-            vel_off: (nb,) offsets of the bodies' blocks in the velocity vector.
-
-    Returns:
-        ``(ptr, off, nd, jptr, J, WJt)`` in the layout of ``modalfem.world._kernels``; a body's entries span its
-        ``6 + m`` first velocities, m the last mode taking part (``mask``) plus one.
-    """
-    k = body_a.shape[0]
-    # a body's entries cover its modes up to the last one taking part: the modes after it (the fast ones, when the
-    # modes rise in frequency) would only add zero columns to J, and every sweep of the solve reads them
-    nuse = np.zeros(nm.shape[0], dtype=np.int64)
-    for b in range(nm.shape[0]):
-        for mo in range(nm[b]):
-            if mask[mask_off[b] + mo]:
-                nuse[b] = mo + 1
-    ne = 0
-    jl = 0
-    for c in range(k):
-        ne += 1
-        jl += 3 * (6 + nuse[body_a[c]])
-        if body_b[c] >= 0:
-            ne += 1
-            jl += 3 * (6 + nuse[body_b[c]])
-    ptr = np.empty(k + 1, dtype=np.int64)
-    off = np.empty(ne, dtype=np.int64)
-    nd = np.empty(ne, dtype=np.int64)
-    jptr = np.empty(ne, dtype=np.int64)
-    J = np.empty(jl)
-    WJt = np.empty(jl)
-    e = 0
-    jb = 0
-    ptr[0] = 0
-    for c in range(k):
-        jb = _side(c, body_a[c], verts_a, w_a, 1.0, point, R, Iw_inv, pos, mass, nm, nuse, phi_off, phi, mask_off,
-                   mask, vel_off, off, nd, jptr, J, WJt, e, jb)
-        e += 1
-        if body_b[c] >= 0:
-            jb = _side(c, body_b[c], verts_b, w_b, -1.0, point_b, R, Iw_inv, pos, mass, nm, nuse, phi_off, phi, mask_off,
-                       mask, vel_off, off, nd, jptr, J, WJt, e, jb)
-            e += 1
-        ptr[c + 1] = e
-    return ptr, off, nd, jptr, J, WJt
-
-
-@numba.njit(cache=True)
 def _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee):
     """The per-pair outputs of ``vertex_face`` (bodies ``vl_a`` on ``vl_b``) and ``edge_edge`` in one array each,
     as ``all_pairs`` returns them."""
@@ -502,8 +392,9 @@ def frames(quat, position, q, qoff, nm, phi, phi_off, rest, voff, inertia_inv):
 
     Args:
         quat: (nb, 4) unit orientations (w, x, y, z); position: (nb, 3) centres of mass [m]. q: the bodies' modal
-            coordinates, body i's ``nm[i]`` from ``qoff[i]``; phi: their mode shapes as in ``rows``; rest: (n, 3)
-            every body's rest surface about its centre of mass [m], body i's ``voff[i]:voff[i + 1]``;
+            coordinates, body i's ``nm[i]`` from ``qoff[i]``; phi: their mode shapes as in
+            ``_contact_rows.assemble``; rest: (n, 3) every body's rest surface about its centre of mass [m], body
+            i's ``voff[i]:voff[i + 1]``;
             inertia_inv: (nb, 3, 3) inverse inertias in body axes [1/(kg m^2)].
 
     Returns:

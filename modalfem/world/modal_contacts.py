@@ -1,6 +1,6 @@
 """The modal part of the World's solid contact solve, compiled: contacts between modal bodies and of modal bodies
 with static planes (the ground, box walls), found and turned into solve entries without a Python loop per pair
-of vertices or per contact (``modalfem.world._solid_kernels``).
+of vertices or per contact (``modalfem.world._solid_kernels``, ``_coherent_kernels``, ``_contact_rows``).
 
 Per step: every body's deformed surface (body axes and world), a body-level broad phase (world boxes grown by the
 search radius), then per pair of bodies whose boxes meet the compiled vertex-face search both ways and the
@@ -17,14 +17,12 @@ import numpy as np
 
 from modalfem.collision.bvh import BroadPhaseBVH
 from modalfem.world import _coherent_kernels as CK
+from modalfem.world import _contact_rows as CR
 from modalfem.world import _solid_kernels as SK
 from modalfem.world.proximity import surface_edges
 
 __all__ = ["ModalContacts"]
 
-#: contact kinds in the warm-start keys
-_VF, _EE, _PLANE = 0, 1, 2
-_FEATURES = 1 << 40  # feature indices (a vertex; an edge pair, mine * (other body's edge count) + other) below this
 #: a pair's tree walk keeps the features within its search radius plus this fraction of its margin, and is reused
 #: while the bodies move (relative to each other, or in shape) less than what is left of that slack
 SLACK = 0.5
@@ -43,6 +41,7 @@ class ModalContacts:
 
     def __init__(self, bodies: dict, contacts: dict, planes: list, *, slow: float) -> None:
         self.names = list(bodies)
+        self.index = {n: i for i, n in enumerate(self.names)}  # a body's index in ``names``
         self.bodies = [bodies[n] for n in self.names]
         self.contacts = [contacts[n] for n in self.names]
         self.slow = float(slow)
@@ -69,6 +68,11 @@ class ModalContacts:
         self.phi_off = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
         self.mask_off = np.concatenate([[0], np.cumsum(nm)[:-1]]).astype(np.int64)
         self.mass = np.array([b.mass for b in self.bodies], dtype=np.float64)
+        self._friction = np.array([c.friction for c in self.contacts], dtype=np.float64)
+        self._restitution = np.array([c.restitution for c in self.contacts], dtype=np.float64)
+        self._iterations = max([c.iterations for c in self.contacts] + [1])
+        self.rotations = np.zeros((len(self.bodies), 3, 3))  # the bodies' rotations at the last ``collect``
+        self.inertia = np.array([b.inertia for b in self.bodies], dtype=np.float64).reshape(-1, 3, 3)  # body axes
         self._mask_dt = None
         self._voff = np.concatenate([[0], np.cumsum([b.vertex_count for b in self.bodies])]).astype(np.int64)
         self._tris = np.concatenate([b.triangles for b in self.bodies]) if self.bodies else np.zeros((0, 3), int)
@@ -140,18 +144,17 @@ class ModalContacts:
         R, Iw_inv, Xl, X, bound, lo, hi = SK.frames(np.array([s.orientation for s in sts]), pos, q, self.mask_off,
                                                    self.nm, self.phi, self.phi_off, self._rest, self._voff,
                                                    self._inertia_inv)
+        self.rotations = R
         reach = np.array([speed[n] for n in self.names]) * dt
         marg = self._marg
-        parts = []  # (body_a, verts_a, w_a, body_b, verts_b, w_b, point, normal, gap, kind, feature, other)
+        empty_i, empty_v, empty_n = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 3))
+        plane = (empty_i, empty_i, empty_i, empty_v)
+        vf = (empty_i, empty_i, empty_i, empty_i, empty_n, empty_v, empty_n)
+        ee = (empty_i, empty_i, empty_i, empty_i, empty_v, empty_v, empty_v, empty_n)
         # static planes
         voff = self._voff
         if len(self.plane_d):
-            ba, v, p, g = SK.plane_contacts(X, voff, pos, self._radius + bound, marg + reach, self.plane_n, self.plane_d)
-            if len(ba):
-                k = len(ba)
-                va, wa = _one_vertex(v)
-                parts.append((ba, va, wa, np.full(k, -1), np.zeros((k, 3), dtype=np.int64), np.zeros((k, 3)),
-                              X[voff[ba] + v], self.plane_n[p], g, np.full(k, _PLANE), v, nb + p))
+            plane = SK.plane_contacts(X, voff, pos, self._radius + bound, marg + reach, self.plane_n, self.plane_d)
         # body pairs whose boxes meet within the search radius
         mm = np.maximum(marg[:, None], marg[None, :])
         rr = mm + reach[:, None] + reach[None, :]
@@ -160,80 +163,23 @@ class ModalContacts:
         ia, ib = np.nonzero(np.triu(meet, 1))
         self.walks = 0
         if len(ia):
-            (pa, qa, v, tri, wb, g, nrm), (a, b, mine, other, s, tt, ge, ne), self.walks = CK.coherent_pairs(
+            vf, ee, self.walks = CK.coherent_pairs(
                 ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], SLACK * mm[ia, ib], X, Xl, voff, R,
                 pos, bound, self._radius, q, self._qoff, self.nm, self._amp, lo, hi,
                 self._tris, self._toff, self._edges, self._eoff, self._adj, self._meta, self._qsnap, *self._cache,
                 *self._treelists)
-            if len(v):
-                k = len(v)
-                va, wa = _one_vertex(v)
-                parts.append((pa, va, wa, qa, self._tris[self._toff[qa] + tri], wb, X[voff[pa] + v], nrm, g,
-                              np.full(k, _VF), v, qa))
-            if len(mine):
-                k = len(mine)
-                ea, eb = self._edges[self._eoff[a] + mine], self._edges[self._eoff[b] + other]
-                va = np.zeros((k, 3), dtype=np.int64)
-                va[:, :2] = ea
-                wa = np.zeros((k, 3))
-                wa[:, 0], wa[:, 1] = 1.0 - s, s
-                vb = np.zeros((k, 3), dtype=np.int64)
-                vb[:, :2] = eb
-                wb = np.zeros((k, 3))
-                wb[:, 0], wb[:, 1] = 1.0 - tt, tt
-                pa_ = X[voff[a] + ea[:, 0]] * wa[:, :1] + X[voff[a] + ea[:, 1]] * wa[:, 1:2]
-                pb_ = X[voff[b] + eb[:, 0]] * wb[:, :1] + X[voff[b] + eb[:, 1]] * wb[:, 1:2]
-                # the edge pair in the key (an edge may touch several of the other body's edges: one key each)
-                feat = mine * (self._eoff[b + 1] - self._eoff[b]) + other
-                parts.append((a, va, wa, b, vb, wb, 0.5 * (pa_ + pb_), ne, ge, np.full(k, _EE), feat, b))
-        if not parts:
+        if len(plane[0]) + len(vf[0]) + len(ee[0]) == 0:
             return None
-        cols = [np.concatenate([p[j] for p in parts]) for j in range(12)]
-        body_a, verts_a, w_a, body_b, verts_b, w_b, point, normal, gap, kind, feat, other = cols
-        body_a = body_a.astype(np.int64)
-        body_b = body_b.astype(np.int64)
-        vel = np.array([vel_off[n] for n in self.names], dtype=np.int64)
-        # the rigid lever arms: one world point for both sides of a contact whose gap is within its margin (touching
-        # or inside: exact linear and angular momentum); a speculative contact farther apart has no friction (it is
-        # not touching yet) and acts on body b at the foot of a's point on b's tangent plane when that is within the
-        # margin of b's closest point (a's point minus a multiple of the normal: the normal impulse's moment is the
-        # same at both, so momentum stays exact), else at b's closest point itself (at a's point the far body
-        # would be turned about a point off its surface: at dt = 0.1 s bars then tunnelled; the angular momentum
-        # then changes by (x_a - x_b) x impulse)
-        pb = np.zeros_like(point)
-        pair = body_b >= 0
-        for j in range(3):
-            pb[pair] += w_b[pair, j:j + 1] * X[voff[body_b[pair]] + verts_b[pair, j]]
-        far = pair & (gap > np.maximum(marg[body_a], marg[np.maximum(body_b, 0)]))
-        foot = point - normal * np.einsum("ij,ij->i", point - pb, normal)[:, None]
-        lateral = np.sqrt(np.einsum("ij,ij->i", foot - pb, foot - pb))
-        point_b = np.where(far[:, None], np.where((lateral <= marg[body_a])[:, None], foot, pb), point)
-        ptr, off, nd, jptr, J, WJt = SK.rows(body_a, np.ascontiguousarray(verts_a, dtype=np.int64), w_a, body_b,
-                                             np.ascontiguousarray(verts_b, dtype=np.int64), w_b,
-                                             np.ascontiguousarray(point), np.ascontiguousarray(point_b), R, Iw_inv, pos, self.mass, self.nm,
-                                             self.phi_off, self.phi, self.mask_off, self._masks(dt), vel)
-        k = len(gap)
-        cont = self.contacts
-        fr = np.array([c.friction for c in cont])
-        rs = np.array([c.restitution for c in cont])
-        pair = body_b >= 0
-        bb = np.where(pair, body_b, body_a)
-        mu = np.where(pair, np.sqrt(fr[body_a] * fr[bb]), fr[body_a]) * ~far
-        e = np.where(pair, np.minimum(rs[body_a], rs[bb]), rs[body_a])
-        margin = np.where(pair, np.maximum(marg[body_a], marg[bb]), marg[body_a])
-        keys = (((body_a * (nb + len(self.plane_d)) + other) * 3 + kind) * _FEATURES + feat).astype(np.int64)
-        lam0 = np.zeros((k, 3))
-        if warm is not None and len(warm[0]):
-            wk, wl = warm
-            j = np.minimum(np.searchsorted(wk, keys), len(wk) - 1)
-            hit = wk[j] == keys
-            lam0[hit] = wl[j[hit]]
-        names_idx = np.array([index[n] for n in self.names], dtype=np.int64)
-        return {"ptr": ptr, "off": off, "nd": nd, "jptr": jptr, "J": J, "WJt": WJt,
-                "normal": np.ascontiguousarray(normal, dtype=np.float64), "gap": gap.astype(np.float64),
-                "vobs_n": np.zeros(k), "mu": mu, "restitution": e, "margin": margin,
-                "body": names_idx[body_a], "other": np.where(pair, names_idx[bb], -1), "point": point,
-                "iterations": max(c.iterations for c in cont), "keys": keys, "warm": lam0,
+        wk, wl = warm if warm is not None and len(warm[0]) else (empty_i, empty_n)
+        (ptr, off, nd, jptr, J, WJt, K, normal, gap, mu, e, margin, body, other, point, keys, lam0, body_a, verts_a,
+         w_a, body_b, verts_b, w_b) = CR.assemble(
+            *plane, *vf, *ee, X, voff, self._tris, self._toff, self._edges, self._eoff, self.plane_n, marg,
+            self._friction, self._restitution, R, Iw_inv, pos, self.mass, self.nm, self.phi_off, self.phi,
+            self.mask_off, self._masks(dt), np.array([vel_off[n] for n in self.names], dtype=np.int64),
+            np.array([index[n] for n in self.names], dtype=np.int64), wk, wl)
+        return {"ptr": ptr, "off": off, "nd": nd, "jptr": jptr, "J": J, "WJt": WJt, "K": K, "normal": normal,
+                "gap": gap, "vobs_n": np.zeros(len(gap)), "mu": mu, "restitution": e, "margin": margin, "body": body,
+                "other": other, "point": point, "iterations": self._iterations, "keys": keys, "warm": lam0,
                 "_modal": (body_a, verts_a, w_a, body_b, verts_b, w_b, R)}
 
     def modal_change(self, name: str, data: dict, sel: np.ndarray, lam: np.ndarray) -> np.ndarray:
@@ -264,12 +210,3 @@ def _tree_lists(trees: list) -> tuple:
         out.append(lst)
     return (np.array([t.P for t in trees], dtype=np.int64),) + tuple(out)
 
-
-def _one_vertex(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Contacts at single vertices ``v`` (k,) in the three-slot layout of the solve's rows: vertex ids (k, 3)
-    (``v`` then 0) and weights (k, 3) (1 then 0)."""
-    va = np.zeros((len(v), 3), dtype=np.int64)
-    va[:, 0] = v
-    wa = np.zeros((len(v), 3))
-    wa[:, 0] = 1.0
-    return va, wa

@@ -1134,11 +1134,13 @@ class World:
         builder = _ContactBuilder(self, ctx, seg, names)
         driven = False  # a moving obstacle in contact: it may do work on the bodies (no energy rule then)
         for name, obs in self._world_obstacles.items():  # modal bodies: moving obstacles and meshes (all if shared)
-            c = self._one(name, fx.Contact)
+            c = None
             for o in obs:
                 tag = self.obstacles.index(o)
                 if tag in self._fast_planes:
                     continue
+                if c is None:
+                    c = self._one(name, fx.Contact)
                 x = where(name)
                 reach = c.margin + speed[name] * dt
                 if o.moving:
@@ -1248,14 +1250,24 @@ class World:
                         dq = dq + fast.modal_change(name, fdata, sel[sel >= kp] - kp, lam[kp:])
                     ctx.impacts[name] = dq
 
-    def _inverse_mass_blocks(self, ctx, seg: dict, names: list) -> list:
+    def _inverse_mass_blocks(self, ctx, seg: dict, names: list) -> tuple:
         """Per body ``(offset, size, mass, inertia, shift)`` to measure the energy of velocity changes: a modal
         body's mass [kg] and world inertia [kg m^2] (its modal coordinates have unit mass), a tet body's vertex
         masses (inf, pinned: 0) and no inertia; ``shift`` (3,) [m/s] is ``g dt``, which the solve's velocities hold
         but the energy must not count: a velocity change dv at the step start moves the body by ``dv dt`` in the
-        gravity field, which costs ``-m g . dv dt``, so the energy change is ``dv . M (V - g dt) + 0.5 dv . M dv``."""
+        gravity field, which costs ``-m g . dv dt``, so the energy change is ``dv . M (V - g dt) + 0.5 dv . M dv``.
+        Returns ``(fast, out)``: the compiled modal contacts' bodies as arrays for ``_kernels.modal_energy_change``
+        (offsets, sizes, masses, rotations at the step start, body-axes inertias, shifts; None without them), and
+        the list of the other bodies' tuples."""
+        fast = self._fast
+        quick = None
+        if fast is not None and all(n in seg for n in fast.names):
+            quick = (np.array([seg[n][0] for n in fast.names], dtype=np.int64), 6 + fast.nm, fast.mass,
+                     fast.rotations, fast.inertia, np.array([self._modal[n]["g"] for n in fast.names]) * ctx.dt)
         out = []
         for name in names:
+            if quick is not None and name in fast.index:
+                continue
             o, nd = seg[name]
             if name in self._modal:
                 g = self._modal[name]["g"]  # its gravity effects' sum, formed at build
@@ -1271,7 +1283,7 @@ class World:
             else:
                 m = self._tet[name]["masses"]
                 out.append((o, nd, np.where(np.isfinite(m), m, 0.0), None, g * ctx.dt))
-        return out
+        return quick, out
 
     def _stage_modal_step(self, ctx) -> None:
         dt = ctx.dt
@@ -1535,14 +1547,16 @@ def _merge(a: dict | None, b: dict | None) -> dict:
 VELOCITY_STOP = 1e-2
 
 
-def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: list | None):
+def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None):
     """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
     kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
     ``World._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 by scaling
     every impulse back (equal and opposite impulses stay so). Returns ``(lam (k, 3), bounce (k,), sweeps)`` and
     leaves ``data["dV"]``."""
     ptr, off, nd, jptr, J, WJt = (data[key] for key in ("ptr", "off", "nd", "jptr", "J", "WJt"))
-    K = _kernels.effective_masses(ptr, off, nd, jptr, J, WJt)
+    K = data.get("K")  # the compiled modal contacts' come with their entries
+    if K is None:
+        K = _kernels.effective_masses(ptr, off, nd, jptr, J, WJt)
     u = _kernels.contact_velocities(V, ptr, off, nd, jptr, J)
     n = data["normal"]
     vn = np.einsum("ij,ij->i", u, n) - data["vobs_n"]
@@ -1560,7 +1574,9 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     lam = lam_n[:, None] * n + lam_t
     dV = V - V0
     work = quad = 0.0
-    for o, m, mass, inertia, shift in blocks or ():
+    if blocks is not None and blocks[0] is not None:
+        work, quad = _kernels.modal_energy_change(dV, V0, *blocks[0])
+    for o, m, mass, inertia, shift in blocks[1] if blocks is not None else ():
         dv, v0 = dV[o:o + m], V0[o:o + m]
         if inertia is not None:  # modal: (v, w, qdot)
             work += (mass * float(dv[:3] @ (v0[:3] - shift)) + float(dv[3:6] @ (inertia @ v0[3:6]))

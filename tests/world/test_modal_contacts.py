@@ -12,7 +12,7 @@ from modalfem import world as mw
 from modalfem.collision.distance import point_triangle
 from modalfem.effects import Contact, Gravity
 from modalfem.runtime.rotation import quat_from_axis_angle
-from modalfem.world import modal_contacts as MC
+from modalfem.world import _contact_rows as CR
 from modalfem.world.proximity import EdgeProximity
 
 #: coordinates here are below ~0.5 m; a rigid change of frame rounds them by ~1e-16 relative, so two codes computing
@@ -57,13 +57,13 @@ def test_vertex_contacts_are_the_brute_force_closest_triangles(bar_model, seed):
     margin = 3e-3
     x = {n: w.surface(s, n)[0] for n in ("a", "b")}
     tri = w._modal["a"]["body"].triangles
-    kind = data["keys"] // MC._FEATURES % 3
+    kind = data["keys"] // CR.FEATURES % 3
     found = 0
     for p, q, ip in (("a", "b", 0), ("b", "a", 1)):
         X, Y = x[p], x[q]
         A, B, C = Y[tri[:, 0]], Y[tri[:, 1]], Y[tri[:, 2]]
         sel = np.flatnonzero((kind == 0) & (data["body"] == ip))
-        verts = data["keys"][sel] % MC._FEATURES
+        verts = data["keys"][sel] % CR.FEATURES
         ref = []
         for v in range(len(X)):
             d, _ = point_triangle(np.repeat(X[v:v + 1], len(tri), axis=0), A, B, C)
@@ -97,9 +97,9 @@ def test_edge_contacts_are_the_python_searchs(bar_model, seed):
     ep = EdgeProximity(w._modal["b"]["body"].triangles, w._modal["b"]["body"].rest)
     ea = ep.edges
     h = ep.query(xa[ea[:, 0]], xa[ea[:, 1]], xb, 3e-3)
-    kind = data["keys"] // MC._FEATURES % 3
+    kind = data["keys"] // CR.FEATURES % 3
     sel = np.flatnonzero(kind == 1)
-    mine = data["keys"][sel] % MC._FEATURES // len(ea)  # the key's feature: mine * (b's edge count) + b's edge
+    mine = data["keys"][sel] % CR.FEATURES // len(ea)  # the key's feature: mine * (b's edge count) + b's edge
     assert len(h.mine) > 0
     ref = sorted(zip(h.mine.tolist(), np.round(h.gap / ROUND).astype(np.int64).tolist()))
     got = sorted(zip(mine.tolist(), np.round(data["gap"][sel] / ROUND).astype(np.int64).tolist()))
@@ -136,6 +136,16 @@ def test_rows_give_the_contact_points_relative_velocity(bar_model):
         if body_b[c] >= 0:
             ref = ref - vel(body_b[c], verts_b[c], w_b[c], data["point"][c])
         assert np.allclose(u[c], ref, rtol=1e-12, atol=1e-12 * np.abs(V).max())
+    # the effective inverse masses the solve takes with the entries: the contact velocities a unit impulse gives
+    k = len(u)
+    for d in range(3):
+        for c in range(0, k, max(1, k // 20)):
+            dV = np.zeros_like(V)
+            lam = np.zeros((k, 3))
+            lam[c, d] = 1.0
+            _kernels.apply_impulses(dV, data["ptr"], data["off"], data["nd"], data["jptr"], data["WJt"], lam)
+            col = _kernels.contact_velocities(dV, data["ptr"], data["off"], data["nd"], data["jptr"], data["J"])[c]
+            assert np.allclose(data["K"][c, :, d], col, rtol=1e-12, atol=1e-12 * np.abs(col).max())
 
 
 def _momenta(w, s):
