@@ -16,6 +16,8 @@ import scipy.sparse as sp
 pytest.importorskip("petsc4py")
 pytest.importorskip("slepc4py")
 
+from _eigen_bounds import dense_bounds, residual_bounds
+
 from modalfem.errors import InputError, SolverError
 
 pytestmark = pytest.mark.fenicsx
@@ -56,19 +58,21 @@ def _clamped_beam(assemble_km, make_box, steel):
     return K[free][:, free].tocsr(), M[free][:, free].tocsr()
 
 
-def _check_against_dense(K, M, raw, nev, rtol=1e-9):
+def _check_against_dense(K, M, raw, nev):
     Kd, Md = K.toarray(), M.toarray()
     w = sla.eigh(Kd, Md, eigvals_only=True)
     lam = raw.eigenvalues
     m = len(lam)
     assert m > nev and np.all(np.diff(lam) >= 0)
-    scale = max(abs(w[nev]), 1e-300)
     # the certified claim: the pairs below the inertia shift are exactly the lowest ones (pairs above
-    # it may skip members of a cluster, which is why the count is taken there)
+    # it may skip members of a cluster, which is why the count is taken there); each pair agrees with
+    # the dense one within the two results' own error bounds (the dense solve's rounding depends on
+    # the CPU's code path: a fixed 1e-9 failed under OPENBLAS_CORETYPE=Zen, see tests/eigen/_eigen_bounds.py)
     c = int(np.sum(lam < raw.inertia_shift))
     assert c >= nev and c == raw.inertia_count
-    np.testing.assert_allclose(lam[:c], w[:c], rtol=rtol, atol=rtol * scale)
     X = raw.vectors
+    bound = residual_bounds(K, M, X[:, :c], lam[:c]) + dense_bounds(K, M, w[:c])
+    assert np.all(np.abs(lam[:c] - w[:c]) <= bound), (lam[:c] - w[:c], bound)
     assert X.shape == (K.shape[0], m)
     G = X.T @ (M @ X)
     assert np.max(np.abs(G - np.eye(m))) < 1e-10
@@ -124,7 +128,7 @@ def test_free_cube_has_six_zero_eigenvalues(assemble_km, make_box, steel):
     assert np.all(np.abs(lam[:6]) < 1e-8 * lam[6])
     assert lam[6] > 1e6
     assert np.all(raw.residuals[:6] < 1e-12)  # rigid pairs: ||K x|| / (||K||_inf ||x||)
-    _check_against_dense(K, M, raw, 12, rtol=1e-9)
+    _check_against_dense(K, M, raw, 12)
 
 
 def test_petsc_input_with_rows_returns_canonical_order():
