@@ -34,9 +34,11 @@ import numpy as np
 
 __all__ = [
     "CASES",
+    "CODE_PATHS",
     "K_MODES",
     "SIZE",
     "Rung",
+    "code_path_here",
     "euler_bernoulli_cantilever_hz",
     "ladder",
     "run_case",
@@ -64,6 +66,17 @@ CASES = {
 NEEDS_FENICSX = {"ours-fenicsx", "ours-slepc", "peer-A"}
 #: ours: case -> (backend, solver)
 OURS = {"ours-fenicsx": ("fenicsx", "auto"), "ours-slepc": ("fenicsx", "slepc"), "ours-skfem": ("skfem", "auto")}
+
+#: forced code paths, name -> environment of the child process. MKL picks its kernels per CPU (its AVX-512 ones
+#: on Intel CPUs); OpenBLAS (MUMPS in the peer, NumPy/SciPy in both) runs Zen kernels on AMD CPUs. Forcing both
+#: on an Intel machine is a PROXY for an AMD CPU (same instruction sets, not the same cores, caches or memory):
+#: ``avx2`` stands for an AMD CPU on which MKL runs its AVX2 kernels, ``sse4_2`` for one on which it falls back
+#: further (a pessimistic bound). ``default`` leaves both libraries to detect the CPU.
+CODE_PATHS = {
+    "default": {},
+    "avx2": {"MKL_ENABLE_INSTRUCTIONS": "AVX2", "OPENBLAS_CORETYPE": "Zen"},
+    "sse4_2": {"MKL_ENABLE_INSTRUCTIONS": "SSE4_2", "OPENBLAS_CORETYPE": "Zen"},
+}
 
 
 @dataclass(frozen=True)
@@ -191,9 +204,9 @@ def run_case_here(case: str, degree: int, cells, k: int = K_MODES) -> dict:
         # and slepc4py, loading PETSc, MUMPS and OpenBLAS, before their t0): every module modes() imports
         # lazily, and MKL (libmkl_rt and the kernels it loads on first use, by one 1 x 1 product), the
         # counterpart of the peers' PETSc libraries. The 'process' column keeps the whole cost.
-        import scipy.linalg  # noqa: F401
-        import scipy.ndimage  # noqa: F401
-        import scipy.sparse.linalg  # noqa: F401
+        import scipy.linalg
+        import scipy.ndimage
+        import scipy.sparse.linalg
         import scipy.spatial  # noqa: F401
         import skfem  # noqa: F401
 
@@ -251,6 +264,7 @@ def run_case_here(case: str, degree: int, cells, k: int = K_MODES) -> dict:
     else:
         raise ValueError(f"unknown case {case!r}; choose one of {', '.join(CASES)}")
     out["peak_rss_mb"] = _peak_rss_mb()
+    out["code_path"] = code_path_here()  # after the clock: MKL is already loaded when the case used it
     return out
 
 
@@ -296,6 +310,7 @@ def _versions() -> dict:
         pass
     v["BLAS (libblas.so.3)"] = blas
     v["MKL"] = _mkl_version()
+    v["OpenBLAS core"] = code_path_here()["openblas"]
     # Debian 12's OpenBLAS misdetects recent Intel cores as "Prescott" (SSE3); setup pins the type
     v["OPENBLAS_CORETYPE"] = os.environ.get("OPENBLAS_CORETYPE", "autodetected")
     threads = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS") if k in os.environ}
@@ -326,11 +341,37 @@ def _mkl_version() -> str:
         lib.MKL_Get_Version_String(buf, 512)
         text = buf.value.decode(errors="replace")
         version = text.split("Version", 1)[1].split("-", 1)[0].strip() if "Version" in text else text
-        lib.mkl_cbwr_get_auto_branch.restype = ctypes.c_int
-        branch = int(lib.mkl_cbwr_get_auto_branch())
     except (AttributeError, IndexError, OSError):
         return "loaded (version unknown)"
-    return f"{version}, code path {_MKL_BRANCHES.get(branch, str(branch))}"
+    return f"{version}, code path {_mkl_branch(lib)}"
+
+
+def _mkl_branch(lib) -> str:
+    """The instruction set of the kernels MKL runs in this process (``mkl_cbwr_get_auto_branch``: the CPU's
+    best, lowered by ``MKL_ENABLE_INSTRUCTIONS``), e.g. ``"AVX-512 E1"``, ``"AVX2"``, ``"SSE4.2"``."""
+    import ctypes
+
+    try:
+        lib.mkl_cbwr_get_auto_branch.restype = ctypes.c_int
+        branch = int(lib.mkl_cbwr_get_auto_branch())
+    except (AttributeError, OSError):
+        return "unknown"
+    return _MKL_BRANCHES.get(branch, str(branch))
+
+
+def code_path_here() -> dict:
+    """The kernels this process runs: ``{"mkl": ..., "openblas": ...}``.
+
+    ``mkl``: MKL's code path (see ``_mkl_branch``) if this process has loaded MKL, else ``"not loaded"`` (the
+    peers never load it; it is not loaded here to ask). ``openblas``: the core type of the OpenBLAS this
+    process has mapped (``openblas_get_corename``; ``OPENBLAS_CORETYPE`` overrides the detected one), or
+    ``"not loaded"``.
+    """
+    from modalfem.bench.tet_bench import openblas_core
+
+    pardiso = sys.modules.get("modalfem.eigen.pardiso")
+    lib = getattr(pardiso, "_LIB", None)  # loaded by this process's solve, never loaded here
+    return {"mkl": "not loaded" if lib is None else _mkl_branch(lib), "openblas": openblas_core() or "not loaded"}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -356,12 +397,14 @@ def main(argv: list[str] | None = None) -> int:
 
 
 # ---------------------------------------------------------------------------------- parent side
-def run_case(case: str, rung: Rung | None, *, timeout: float, k: int = K_MODES, log=None) -> dict:
+def run_case(case: str, rung: Rung | None, *, timeout: float, k: int = K_MODES, log=None,
+             env: dict | None = None) -> dict:
     """Run ``case`` on ``rung`` in a fresh ``python -m modalfem.bench.modes_bench`` process.
 
     The child is killed (its whole process group) after ``timeout`` seconds. Returns the child's
     measurements plus ``process`` (child wall seconds, interpreter start and imports included) and
-    ``load_1min`` (the 1-minute load average when it started);
+    ``load_1min`` (the 1-minute load average when it started); ``env`` adds to or overrides the child's
+    environment (e.g. one of ``CODE_PATHS``);
     on timeout ``{"timeout": timeout, "rss_seen_mb": ...}`` (RSS sampled by the parent), on failure
     ``{"error": ...}``. ``rung=None`` runs ``--case info`` (versions).
     """
@@ -373,7 +416,7 @@ def run_case(case: str, rung: Rung | None, *, timeout: float, k: int = K_MODES, 
                "--k", str(k), "--json-out", out_path]
         if rung is not None:
             cmd += ["--degree", str(rung.degree), "--cells", *map(str, rung.cells)]
-        env = dict(os.environ)
+        env = {**os.environ, **(env or {})}
         env.setdefault("PYTHONUNBUFFERED", "1")
         load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
         t0 = time.perf_counter()
