@@ -14,6 +14,7 @@ from modalfem.collision.obstacles import Plane
 from modalfem.collision.repulsion import (
     apply_pair_impulses,
     contact_frames,
+    pair_order,
     repulsion_pairs,
     sequential_pair_impulses,
 )
@@ -244,11 +245,14 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             sec["broad_phase"] += time.perf_counter() - t1
             t0 += time.perf_counter() - t1
             # boxes grown by h / 2 overlap: the primitives' boxes are within h (distance < h is tested next)
-            cache["near"] = repulsion_pairs(X0, cand.vf, cand.ee, thickness=cfg.thickness, dt=dt)
-        quads, w, nrm, tv = cache["near"]
+            near = repulsion_pairs(X0, cand.vf, cand.ee, thickness=cfg.thickness, dt=dt)
+            # the sweeps' parallel order (groups sharing no cloth vertex): every cloth vertex counts as movable, so
+            # the order holds for any masses of a later call
+            cache["near"] = near + (pair_order(X0, np.arange(len(X0)) < n, near[0]),)
+        quads, w, nrm, tv, order = cache["near"]
         dA, acount = _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n)
         if len(quads):
-            V, _, _ = sequential_pair_impulses(V, invm, quads, w, nrm, tv, friction=cfg.friction,
+            V, _, _ = sequential_pair_impulses(V, invm, quads, w, nrm, tv, friction=cfg.friction, order=order,
                                                sweeps=cfg.repulsion_iterations)
         V = V + dA
         stats.proximities = len(quads) + acount

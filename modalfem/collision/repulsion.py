@@ -12,10 +12,12 @@ small weight dilutes the others only by that weight.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["SWEEPS", "apply_pair_impulses", "contact_frames", "repulsion_impulses", "repulsion_pairs",
-           "sequential_pair_impulses"]
+__all__ = ["SWEEPS", "PairOrder", "apply_pair_impulses", "contact_frames", "pair_order", "repulsion_impulses",
+           "repulsion_pairs", "sequential_pair_impulses"]
 
 #: default number of sweeps of stage (a)'s pair-by-pair impulses (``CollisionConfig.repulsion_iterations``)
 SWEEPS = 10
@@ -105,6 +107,60 @@ def repulsion_pairs(
     return tuple(np.concatenate(a) for a in (quads, ws, ns, ts))
 
 
+@dataclass(frozen=True)
+class PairOrder:
+    """The order of :func:`sequential_pair_impulses`' sweeps over a list of pairs: groups of pairs, the groups of one
+    colour sharing no vertex an impulse may move, so that they run in parallel (:func:`pair_order`).
+
+    Attributes:
+        perm: (k,) the pairs in sweep order (by colour, group, index).
+        cptr: (colours + 1,) the groups of each colour.
+        tptr: (groups + 1,) each group's span of ``perm``.
+        writable: (N,) bool, the vertices the order lets impulses move (at least those with ``invm > 0``).
+    """
+
+    perm: np.ndarray
+    cptr: np.ndarray
+    tptr: np.ndarray
+    writable: np.ndarray
+
+    @property
+    def colour_count(self) -> int:
+        """Number of colours (parallel loops per sweep)."""
+        return len(self.cptr) - 1
+
+    @classmethod
+    def serial(cls, k: int, N: int) -> PairOrder:
+        """The given order, one group: ``k`` pairs over ``N`` vertices."""
+        return cls(np.arange(k, dtype=np.int64), np.array([0, 1], np.int64), np.array([0, k], np.int64),
+                   np.ones(N, dtype=bool))
+
+
+def pair_order(X: np.ndarray, writable: np.ndarray, quads: np.ndarray) -> PairOrder:
+    """The parallel sweep order of the pairs ``quads`` at positions ``X``.
+
+    The pairs are cut into slabs of about equal count along the widest axis of their first vertices
+    (:func:`modalfem.collision._impulse_kernels.sweep_groups`: ``GROUP_PAIRS`` pairs or more per group, at most
+    ``MAX_GROUPS`` groups), the groups' conflicts (a writable vertex in pairs of both) coloured greedily. The order
+    depends on the pairs and positions only, never on the thread count.
+
+    Args:
+        X: (N, 3) positions [m] (the step start).
+        writable: (N,) bool, the vertices impulses may move (every vertex with ``invm > 0`` in the sweeps).
+        quads: (k, 4) vertex indices of the pairs.
+
+    Returns:
+        The :class:`PairOrder`.
+    """
+    from modalfem.collision._impulse_kernels import GROUP_PAIRS, MAX_GROUPS, sweep_groups
+
+    quads = np.ascontiguousarray(quads, dtype=np.int64)
+    writable = np.ascontiguousarray(writable, dtype=bool)
+    groups = max(1, min(MAX_GROUPS, len(quads) // GROUP_PAIRS))
+    perm, cptr, tptr = sweep_groups(np.ascontiguousarray(X, dtype=float), writable, quads, groups)
+    return PairOrder(perm, cptr, tptr, writable)
+
+
 def sequential_pair_impulses(
     V: np.ndarray,
     invm: np.ndarray,
@@ -115,6 +171,7 @@ def sequential_pair_impulses(
     *,
     friction: float = 0.0,
     sweeps: int = SWEEPS,
+    order: PairOrder | None = None,
 ) -> tuple[np.ndarray, int, int]:
     """Raise the relative normal velocity of pairs to at least ``target_vn``, pair by pair (Gauss-Seidel).
 
@@ -134,17 +191,27 @@ def sequential_pair_impulses(
         friction: Coulomb coefficient [-]: each impulse lowers the tangential relative velocity by at most
             ``friction`` times its normal change.
         sweeps: largest number of sweeps (>= 1).
+        order: the sweep order (:func:`pair_order`: groups of pairs in parallel; the sweeps are then the
+            sequential sweeps over ``quads[order.perm]``); None: the given order, serial.
 
     Returns:
         ``(V_new, done, active)``: (N, 3) velocities [m/s], the sweeps run, and the pairs that acted in the
         last sweep (0: all at or above their targets).
+
+    Raises:
+        ValueError: ``order`` is for another number of pairs or vertices, or leaves a movable vertex unmarked.
     """
     from modalfem.collision._impulse_kernels import sequential_impulses
 
-    return sequential_impulses(np.ascontiguousarray(V, dtype=float), np.ascontiguousarray(invm, dtype=float),
+    invm = np.ascontiguousarray(invm, dtype=float)
+    if order is None:
+        order = PairOrder.serial(len(quads), len(invm))
+    elif len(order.perm) != len(quads) or len(order.writable) != len(invm) or (~order.writable & (invm > 0)).any():
+        raise ValueError("pair order made for other pairs, or leaving a movable vertex unmarked")
+    return sequential_impulses(np.ascontiguousarray(V, dtype=float), invm,
                                np.ascontiguousarray(quads, dtype=np.int64), np.ascontiguousarray(w, dtype=float),
                                np.ascontiguousarray(n, dtype=float), np.ascontiguousarray(target_vn, dtype=float),
-                               float(friction), int(sweeps))
+                               float(friction), int(sweeps), order.perm, order.cptr, order.tptr)
 
 
 def repulsion_impulses(

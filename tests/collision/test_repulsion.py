@@ -140,3 +140,61 @@ def test_repulsion_impulses_stop_pressed_layers_approaching():
     vn = np.einsum("kj,kji,ki->k", w, (V + dV)[quads], n)
     assert np.max(target - vn) < 1e-6  # m/s
     assert np.allclose((V + dV).sum(axis=0), V.sum(axis=0), atol=1e-9)
+
+
+def _spread_pairs(seed, N=3000, k=6000):
+    """Pairs of nearby vertices along a 1 m strip (each pair within 30 consecutive vertices in x), many per
+    vertex, some vertices kinematic: enough pairs for several groups of the parallel sweeps."""
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(0.0, 1.0, (N, 3)) * np.array([1.0, 0.05, 0.05])
+    X = X[np.argsort(X[:, 0])]
+    V = rng.standard_normal((N, 3))
+    invm = rng.uniform(0.5, 2.0, N)
+    invm[rng.choice(N, 50, replace=False)] = 0.0
+    start = rng.integers(0, N - 30, k)
+    quads = np.array([s + rng.choice(30, 4, replace=False) for s in start])
+    w = rng.standard_normal((k, 4))
+    n = rng.standard_normal((k, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    return X, V, invm, quads, w, n, rng.uniform(-0.5, 1.0, k)
+
+
+def test_grouped_sweeps_are_the_sequential_sweeps_in_the_groups_order_on_any_thread_count():
+    """The parallel order: a permutation of the pairs into groups, no two groups of one colour sharing a movable
+    vertex; the sweeps are then the sequential sweeps over the permuted pairs, to the last bit on 1 and 2 threads."""
+    import numba
+    import pytest
+
+    from modalfem._threads import thread_count
+    from modalfem.collision.repulsion import PairOrder, pair_order
+
+    X, V, invm, quads, w, n, target = _spread_pairs(7)
+    order = pair_order(X, invm > 0, quads)
+    assert np.array_equal(np.sort(order.perm), np.arange(len(quads)))
+    assert order.colour_count >= 2 and np.diff(order.cptr).max() >= 2  # some colour runs groups in parallel
+    for c in range(order.colour_count):
+        seen = np.zeros(len(X), dtype=int)
+        for g in range(order.cptr[c], order.cptr[c + 1]):
+            verts = np.unique(quads[order.perm[order.tptr[g]:order.tptr[g + 1]]])
+            seen[verts[invm[verts] > 0]] += 1
+        assert seen.max() <= 1  # groups of one colour never write the same vertex
+    p = order.perm
+    for friction in (0.0, 0.4):
+        got, done, active = sequential_pair_impulses(V, invm, quads, w, n, target, friction=friction, sweeps=3,
+                                                     order=order)
+        ref, ref_done, ref_active = _sequential_reference(V, invm, quads[p], w[p], n[p], target[p], friction, 3)
+        assert (done, active) == (ref_done, ref_active) and active > 0
+        assert np.allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+    if numba.config.NUMBA_NUM_THREADS >= 2:
+        runs = []
+        for threads in (1, 2):
+            with thread_count(threads):
+                runs.append(sequential_pair_impulses(V, invm, quads, w, n, target, friction=0.3, sweeps=10,
+                                                     order=order))
+        np.testing.assert_array_equal(runs[0][0], runs[1][0])
+        assert runs[0][1:] == runs[1][1:]
+    with pytest.raises(ValueError, match="pair order"):
+        sequential_pair_impulses(V, invm, quads[:-1], w[:-1], n[:-1], target[:-1], order=order)
+    with pytest.raises(ValueError, match="pair order"):  # a movable vertex the order lets no impulse write
+        sequential_pair_impulses(V, invm, quads, w, n, target, order=PairOrder(p, order.cptr, order.tptr,
+                                                                                 invm == 0))
