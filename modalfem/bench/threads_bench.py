@@ -66,10 +66,11 @@ def _tet(cells, steps: int, threads: int, timeout: float) -> dict:
 
 
 #: kernels whose work runs in parallel chunks although they are not ``parallel=True`` themselves (they call
-#: the parallel passes; the cloth ``pcg``'s coarse-level solve, O(192^2) per iteration, and
-#: ``select_indexed``'s marking through the vertex index are serial)
-_PARALLEL_CALLERS = {("modalfem.cloth._kernels", "pcg"), ("modalfem.tet._kernels", "pcg_twolevel"),
-                     ("modalfem.collision._pair_kernels", "select_indexed")}
+#: the parallel passes; the cloth ``pcg``'s coarse-level solve, O(192^2) per iteration, the SGS CG's few O(n)
+#: copies per solve outside its sweeps (``pcg_sgs_ordered``) and ``select_indexed``'s marking through the vertex
+#: index are serial)
+_PARALLEL_CALLERS = {("modalfem.cloth._kernels", "pcg"), ("modalfem.cloth._sgs_kernels", "pcg_sgs_ordered"),
+                     ("modalfem.tet._kernels", "pcg_twolevel"), ("modalfem.collision._pair_kernels", "select_indexed")}
 
 
 def _is_parallel(filename: str, name: str) -> bool:

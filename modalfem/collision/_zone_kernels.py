@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["compress", "free_zone_velocities", "union_pairs", "union_quads"]
+__all__ = ["compress", "free_zone_velocities", "union_pairs", "union_quads", "zone_members"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -110,3 +110,65 @@ def free_zone_velocities(X0: np.ndarray, V: np.ndarray, invm: np.ndarray, idx: n
         V[i, 0] = vc[z, 0] + (o1 * r2 - o2 * r1)
         V[i, 1] = vc[z, 1] + (o2 * r0 - o0 * r2)
         V[i, 2] = vc[z, 2] + (o0 * r1 - o1 * r0)
+
+
+@numba.njit(cache=True)
+def zone_members(roots: np.ndarray, invm: np.ndarray, N: int):
+    """The zones of ``roots`` ((N + A,) the zone root of every vertex and analytic obstacle node) in one pass.
+
+    A zone (two or more nodes) is kinematic when it holds a vertex with ``invm == 0`` or an obstacle node, else
+    free. Returns ``(idx, zone, Z, kroots, kptr, kmembers)``: the free zones' vertices ``idx`` (increasing) and
+    their zone numbers ``zone`` (0..Z-1, in increasing root order, as ``numpy.unique``'s inverse), and the kinematic
+    zones' roots ``kroots`` (increasing), each one's vertices ``kmembers[kptr[z]:kptr[z + 1]]`` (increasing)."""
+    M = len(roots)
+    size = np.zeros(M, np.int64)
+    for i in range(M):
+        size[roots[i]] += 1
+    kin = np.zeros(M, np.bool_)
+    for i in range(N):
+        if invm[i] == 0.0 and size[roots[i]] > 1:
+            kin[roots[i]] = True
+    for a in range(N, M):
+        kin[roots[a]] = True
+    zid = np.full(M, -1, np.int64)
+    Z = 0
+    K = 0
+    for r in range(M):
+        if size[r] > 1 and roots[r] == r:
+            if kin[r]:
+                zid[r] = K
+                K += 1
+            else:
+                zid[r] = Z
+                Z += 1
+    count = 0
+    kptr = np.zeros(K + 1, np.int64)
+    for i in range(N):
+        r = roots[i]
+        if size[r] > 1:
+            if kin[r]:
+                kptr[zid[r] + 1] += 1
+            else:
+                count += 1
+    for z in range(K):
+        kptr[z + 1] += kptr[z]
+    idx = np.empty(count, np.int64)
+    zone = np.empty(count, np.int64)
+    kmembers = np.empty(kptr[K], np.int64)
+    kroots = np.empty(K, np.int64)
+    fill = kptr[:-1].copy()
+    c = 0
+    for i in range(N):
+        r = roots[i]
+        if size[r] > 1:
+            if kin[r]:
+                kmembers[fill[zid[r]]] = i
+                fill[zid[r]] += 1
+            else:
+                idx[c] = i
+                zone[c] = zid[r]
+                c += 1
+    for r in range(M):
+        if size[r] > 1 and roots[r] == r and kin[r]:
+            kroots[zid[r]] = r
+    return idx, zone, Z, kroots, kptr, kmembers

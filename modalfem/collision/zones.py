@@ -92,26 +92,19 @@ def rigid_zone_velocities(
         of zones whose kinematic members do not move rigidly together (neither as a rigid velocity field
         nor by one finite rigid motion over the step).
     """
+    from modalfem.collision._zone_kernels import free_zone_velocities, zone_members
+
     N = len(X0)
     V = np.array(V, dtype=float, order="C")
-    size = np.bincount(roots, minlength=len(roots))
-    vz = roots[:N]
-    in_zone = size[vz] > 1
-    kin_root = np.zeros(len(roots), dtype=bool)
-    kin_root[vz[in_zone & (invm == 0)]] = True
-    kin_root[roots[N:]] = True
-    dyn = in_zone & (invm > 0) & ~kin_root[vz]
+    invm = np.ascontiguousarray(invm, dtype=float)
+    # the zones' members in one compiled pass: free zones (numbered in root order) and kinematic ones
+    idx, zone, Z, kroots, kptr, kmembers = zone_members(np.ascontiguousarray(roots, dtype=np.int64), invm, N)
     # free zones: momentum-preserving rigid motion (compiled, one pass over the members per quantity)
-    if dyn.any():
-        from modalfem.collision._zone_kernels import free_zone_velocities
-
-        idx = np.nonzero(dyn)[0]
-        zr, zi = np.unique(vz[idx], return_inverse=True)
-        free_zone_velocities(np.ascontiguousarray(X0, dtype=float), V, np.ascontiguousarray(invm, dtype=float), idx,
-                             zi.astype(np.int64), len(zr))
+    if len(idx):
+        free_zone_velocities(np.ascontiguousarray(X0, dtype=float), V, invm, idx, zone, Z)
     inconsistent = []
-    for root in np.nonzero(kin_root & (size > 1))[0]:
-        members = np.nonzero(vz == root)[0]
+    for z, root in enumerate(kroots):
+        members = kmembers[kptr[z]:kptr[z + 1]]
         obs = [analytic[k] for k in np.nonzero(roots[N:] == root)[0]]
         if not obs:
             vel = follow_finite_motion(X0[members], V[members], invm[members])

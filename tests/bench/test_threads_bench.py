@@ -43,6 +43,10 @@ def test_parallel_kernels_are_recognised_in_a_profile():
 
     assert _is_parallel(_kernels.__file__, "hessians_upper") and _is_parallel(_bvh_kernels.__file__, "traverse")
     assert _is_parallel(_kernels.__file__.replace("tet", "cloth"), "pcg")  # calls the parallel CG passes
+    from modalfem.cloth import _sgs_kernels
+
+    assert _is_parallel(_sgs_kernels.__file__, "pcg_sgs_ordered")  # calls the parallel sweeps
+    assert not _is_parallel(_sgs_kernels.__file__, "greedy_colours")  # compiled, serial
     assert not _is_parallel(_bvh_kernels.__file__, "refit_triangles")  # compiled, serial
     assert not _is_parallel(_kernels.__file__, "unsigned")  # plain Python
     assert not _is_parallel("/usr/lib/python3/dist-packages/numpy/core/numeric.py", "array_equal")
