@@ -5,7 +5,7 @@ OpenBLAS runs Zen kernels there, so each case also runs with ``MKL_ENABLE_INSTRU
 ``OPENBLAS_CORETYPE`` forced (``modes_bench.CODE_PATHS``). The same instruction sets, not the same cores,
 caches or memory: it shows what the code paths cost, not what an AMD machine measures.
 
-``modalfem bench codepath [--paths default avx2] [--max-dofs N] [--repeat N] [--out BENCHMARKS.md]``
+``modalfem bench codepath [--paths default avx2] [--max-dofs N] [--repeat N] [--repeat-small N] [--out FILE]``
 
 Every case (ours = ``modalfem.modes(backend='fenicsx')``, peer A = the dolfinx + SLEPc recipe) runs in a fresh
 process (``modes_bench.run_case``) with the path's environment; ours and the peer run under the same settings.
@@ -31,6 +31,8 @@ SECTION = "## Modes on AVX2 code paths (proxy for AMD)"
 #: the ladder's P2 rungs (the issue's 3k, 20k, 61k and 140k DOFs)
 RUNGS = [mb.Rung(2, (20, 2, 2)), mb.Rung(2, (40, 4, 4)), mb.Rung(2, (60, 6, 6)), mb.Rung(2, (80, 8, 8))]
 CASES = ("ours-fenicsx", "peer-A")
+#: rungs up to this size run ``--repeat-small`` times
+SMALL_DOFS = 25_000
 #: our phases shown in the profile table: label -> keys of ``ModalResult.timings`` [s]
 PHASES = {
     "mesh + assembly": ("setup",),
@@ -96,9 +98,10 @@ def render(runs: dict, rungs, paths, *, command: str, date: str, machine: str, v
                        for r in rs if "code_path" in r})
         L.append(f"  - `{p}`: " + (" ".join(f"{k}={v}" for k, v in env.items()) or "nothing forced")
                  + f" -> {'; '.join(seen) or 'n/a'}")
-    n_rep = max((len(rs) for rs in runs.values()), default=0)
+    n_rep = sorted({len(rs) for rs in runs.values()})
     L.append("")
-    L.append(f"Totals (mesh to certified eigenpairs, imports excluded) [s], median of {n_rep} interleaved runs "
+    L.append(f"Totals (mesh to certified eigenpairs, imports excluded) [s], median of {' or '.join(map(str, n_rep))} "
+             "interleaved runs (repeat, then path, then case) "
              "(fastest-slowest); ratio = peer A / ours (above 1: ours ahead); 'vs default' = this path's ratio "
              "over the default path's ratio in this run.")
     L.append("")
@@ -152,6 +155,8 @@ def command(argv: list[str]) -> int:
                     help="code paths, each against the same peer runs (default: default avx2)")
     ap.add_argument("--max-dofs", type=int, default=150_000, help="skip rungs with more DOFs (150000: all four)")
     ap.add_argument("--repeat", type=int, default=3, help="interleaved runs of every case, path and rung (3)")
+    ap.add_argument("--repeat-small", type=int, default=7,
+                    help=f"runs on rungs up to {SMALL_DOFS} DOFs, where one run is short and load shows most (7)")
     ap.add_argument("--timeout", type=float, default=300.0, help="kill one case after S seconds (300)")
     ap.add_argument("--out", default="BENCHMARKS.md", help="markdown file whose section is replaced")
     ap.add_argument("--save-raw", metavar="JSON", help="also save every run's measurements to JSON")
@@ -163,8 +168,8 @@ def command(argv: list[str]) -> int:
     if not rungs:
         print(f"modalfem: error: no rung has <= {a.max_dofs} DOFs (the smallest has {RUNGS[0].dofs})", file=sys.stderr)
         return 2
-    if a.repeat < 1:
-        print("modalfem: error: --repeat must be at least 1", file=sys.stderr)
+    if min(a.repeat, a.repeat_small) < 1:
+        print("modalfem: error: --repeat and --repeat-small must be at least 1", file=sys.stderr)
         return 2
     if not have_fenicsx():
         print("modalfem: error: bench codepath compares with the dolfinx + SLEPc recipe and needs FEniCSx "
@@ -180,10 +185,13 @@ def command(argv: list[str]) -> int:
         mb.run_case(c, mb.Rung(2, (2, 1, 1)), timeout=300)
     runs: dict = {}
     loads = []
-    total = len(rungs) * a.repeat * len(paths) * len(CASES)
+    def repeats(r):
+        return a.repeat_small if r.dofs <= SMALL_DOFS else a.repeat
+
+    total = sum(repeats(r) for r in rungs) * len(paths) * len(CASES)
     done = 0
     for r in rungs:
-        for rep in range(a.repeat):
+        for rep in range(repeats(r)):
             for p in paths:
                 for c in CASES:
                     done += 1
