@@ -19,7 +19,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["GROUP_PAIRS", "MAX_GROUPS", "ROUNDING", "pair_impulses", "sequential_impulses", "sweep_groups"]
+__all__ = ["GROUP_PAIRS", "MAX_GROUPS", "ROUNDING", "pair_impulses", "arrange_pairs", "sequential_impulses", "sweep_groups"]
 
 #: relative size [-] below which a pair's normal velocity deficit counts as met
 ROUNDING = 1e-12
@@ -189,14 +189,13 @@ def sweep_groups(X: np.ndarray, writable: np.ndarray, quads: np.ndarray, groups:
 
 @numba.njit(cache=True, parallel=True)
 def sequential_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndarray, n: np.ndarray,
-                        target: np.ndarray, friction: float, sweeps: int, perm: np.ndarray, cptr: np.ndarray,
-                        tptr: np.ndarray):
-    """Velocities (N, 3) [m/s] after up to ``sweeps`` sweeps over the pairs in the order ``perm`` (forwards, then
-    backwards, in turn), each pair's whole change applied at once to a copy of ``V``; the sweeps run; and the pairs
-    that acted in the last one (0: every pair at or above its target). A sweep goes colour by colour (``cptr``:
-    the groups of each colour), the groups of a colour (``tptr``: each group's span of ``perm``; no two share a
-    movable vertex, ``sweep_groups``) in parallel, a backward sweep in exactly the reverse order. See
-    :func:`modalfem.collision.repulsion.sequential_pair_impulses`."""
+                        target: np.ndarray, friction: float, sweeps: int, cptr: np.ndarray, tptr: np.ndarray):
+    """Velocities (N, 3) [m/s] after up to ``sweeps`` sweeps over the pairs (forwards, then backwards, in turn),
+    each pair's whole change applied at once to a copy of ``V``; the sweeps run; and the pairs that acted in the
+    last one (0: every pair at or above its target). A sweep goes colour by colour (``cptr``: the groups of each
+    colour), the groups of a colour (``tptr``: each group's span of the pairs, which are in sweep order; no two
+    groups of a colour share a movable vertex, ``sweep_groups``) in parallel, a backward sweep in exactly the
+    reverse order. See :func:`modalfem.collision.repulsion.sequential_pair_impulses`."""
     V = V.copy()
     nc = len(cptr) - 1
     part = np.zeros(len(tptr) - 1, np.int64)
@@ -209,9 +208,9 @@ def sequential_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: n
             c = nc - 1 - cc if back else cc
             for t in numba.prange(cptr[c], cptr[c + 1]):
                 a = 0
-                m = tptr[t + 1] - tptr[t]
-                for r in range(m):
-                    p = perm[tptr[t + 1] - 1 - r] if back else perm[tptr[t] + r]
+                first, last = tptr[t], tptr[t + 1] - 1
+                for r in range(last - first + 1):
+                    p = last - r if back else first + r
                     d0, d1, d2, den = _pair_change(V, invm, quads, w, n, target, friction, p)
                     if den == 0.0:
                         continue
@@ -224,3 +223,21 @@ def sequential_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: n
         if active == 0:
             break
     return V, done, active
+
+
+@numba.njit(cache=True, parallel=True)
+def arrange_pairs(perm: np.ndarray, quads: np.ndarray, w: np.ndarray, n: np.ndarray, target: np.ndarray):
+    """``(quads[perm], w[perm], n[perm], target[perm])`` (chunks in parallel)."""
+    k = len(perm)
+    q2, w2, n2, t2 = np.empty((k, 4), np.int64), np.empty((k, 4)), np.empty((k, 3)), np.empty(k)
+    chunks = max(1, min(64, k // 4096))
+    for ch in numba.prange(chunks):
+        for i in range((ch * k) // chunks, ((ch + 1) * k) // chunks):
+            p = perm[i]
+            for j in range(4):
+                q2[i, j] = quads[p, j]
+                w2[i, j] = w[p, j]
+            for j in range(3):
+                n2[i, j] = n[p, j]
+            t2[i] = target[p]
+    return q2, w2, n2, t2

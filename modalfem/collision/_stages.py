@@ -246,9 +246,9 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             t0 += time.perf_counter() - t1
             # boxes grown by h / 2 overlap: the primitives' boxes are within h (distance < h is tested next)
             near = repulsion_pairs(X0, cand.vf, cand.ee, thickness=cfg.thickness, dt=dt)
-            # the sweeps' parallel order (groups sharing no cloth vertex): every cloth vertex counts as movable, so
-            # the order holds for any masses of a later call
-            cache["near"] = near + (pair_order(X0, np.arange(len(X0)) < n, near[0]),)
+            # the pairs in the sweeps' parallel order (groups sharing no cloth vertex): every cloth vertex counts as
+            # movable, so the order holds for any masses of a later call
+            cache["near"] = pair_order(X0, np.arange(len(X0)) < n, near[0]).arrange(*near)
         quads, w, nrm, tv, order = cache["near"]
         dA, acount = _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n)
         if len(quads):

@@ -113,13 +113,14 @@ class PairOrder:
     colour sharing no vertex an impulse may move, so that they run in parallel (:func:`pair_order`).
 
     Attributes:
-        perm: (k,) the pairs in sweep order (by colour, group, index).
+        perm: (k,) the pairs in sweep order (by colour, group, index); None: the pairs are in that order already
+            (:meth:`arrange`).
         cptr: (colours + 1,) the groups of each colour.
-        tptr: (groups + 1,) each group's span of ``perm``.
+        tptr: (groups + 1,) each group's span of the pairs in sweep order.
         writable: (N,) bool, the vertices the order lets impulses move (at least those with ``invm > 0``).
     """
 
-    perm: np.ndarray
+    perm: np.ndarray | None
     cptr: np.ndarray
     tptr: np.ndarray
     writable: np.ndarray
@@ -132,8 +133,22 @@ class PairOrder:
     @classmethod
     def serial(cls, k: int, N: int) -> PairOrder:
         """The given order, one group: ``k`` pairs over ``N`` vertices."""
-        return cls(np.arange(k, dtype=np.int64), np.array([0, 1], np.int64), np.array([0, k], np.int64),
-                   np.ones(N, dtype=bool))
+        return cls(None, np.array([0, 1], np.int64), np.array([0, k], np.int64), np.ones(N, dtype=bool))
+
+    def arrange(self, quads: np.ndarray, w: np.ndarray, n: np.ndarray, target: np.ndarray) -> tuple:
+        """The pairs' arrays in sweep order and the order for them (``perm`` None): one gather, for arrays swept
+        more than once (the sweeps then read them in memory order).
+
+        Returns:
+            ``(quads, w, n, target, order)``.
+        """
+        from modalfem.collision._impulse_kernels import arrange_pairs
+
+        if self.perm is None:
+            return quads, w, n, target, self
+        arrays = arrange_pairs(self.perm, np.ascontiguousarray(quads, dtype=np.int64), np.ascontiguousarray(w, float),
+                               np.ascontiguousarray(n, float), np.ascontiguousarray(target, float))
+        return (*arrays, PairOrder(None, self.cptr, self.tptr, self.writable))
 
 
 def pair_order(X: np.ndarray, writable: np.ndarray, quads: np.ndarray) -> PairOrder:
@@ -192,7 +207,8 @@ def sequential_pair_impulses(
             ``friction`` times its normal change.
         sweeps: largest number of sweeps (>= 1).
         order: the sweep order (:func:`pair_order`: groups of pairs in parallel; the sweeps are then the
-            sequential sweeps over ``quads[order.perm]``); None: the given order, serial.
+            sequential sweeps over ``quads[order.perm]``; :meth:`PairOrder.arrange` gathers the arrays into it once
+            for repeated calls); None: the given order, serial.
 
     Returns:
         ``(V_new, done, active)``: (N, 3) velocities [m/s], the sweeps run, and the pairs that acted in the
@@ -206,12 +222,13 @@ def sequential_pair_impulses(
     invm = np.ascontiguousarray(invm, dtype=float)
     if order is None:
         order = PairOrder.serial(len(quads), len(invm))
-    elif len(order.perm) != len(quads) or len(order.writable) != len(invm) or (~order.writable & (invm > 0)).any():
+    elif order.tptr[-1] != len(quads) or len(order.writable) != len(invm) or (~order.writable & (invm > 0)).any():
         raise ValueError("pair order made for other pairs, or leaving a movable vertex unmarked")
+    quads, w, n, target_vn, order = order.arrange(quads, w, n, target_vn)
     return sequential_impulses(np.ascontiguousarray(V, dtype=float), invm,
                                np.ascontiguousarray(quads, dtype=np.int64), np.ascontiguousarray(w, dtype=float),
                                np.ascontiguousarray(n, dtype=float), np.ascontiguousarray(target_vn, dtype=float),
-                               float(friction), int(sweeps), order.perm, order.cptr, order.tptr)
+                               float(friction), int(sweeps), order.cptr, order.tptr)
 
 
 def repulsion_impulses(
