@@ -125,6 +125,19 @@ class EdgeProximity:
         e = self.edges
         self.bvh = BroadPhaseBVH(np.column_stack([e[:, 0], e[:, 1], e[:, 1]]), np.asarray(x_ref, dtype=np.float64))
 
+    def sides(self, V: np.ndarray, ei: np.ndarray) -> np.ndarray:
+        """The surface's outward side (k, 3) [-] at its edges ``ei`` (k,) for vertex positions ``V`` (n, 3) [m]: the
+        sum of the adjacent faces' unit normals (length 2 on a flat edge, less on a bent one)."""
+        T = self.triangles
+        side = np.zeros((len(ei), 3))
+        for j in range(2):
+            f = self.adjacent[ei, j]
+            ok = f >= 0
+            tri = T[np.where(ok, f, 0)]
+            nf = np.cross(V[tri[:, 1]] - V[tri[:, 0]], V[tri[:, 2]] - V[tri[:, 0]])
+            side += np.where(ok[:, None], nf / np.maximum(np.linalg.norm(nf, axis=1), 1e-300)[:, None], 0.0)
+        return side
+
     def query(self, a0: np.ndarray, a1: np.ndarray, V: np.ndarray, margin: float) -> EdgeHits:
         """Pairs of my edges ``a0 a1`` (k, 3) [m] with the surface's edges (at vertex positions ``V``) closer than
         ``margin`` [m], their closest points inside both edges and the edges at least ~12 degrees from parallel: the
@@ -150,15 +163,7 @@ class EdgeProximity:
         qi, ei, d, s, t, b0, b1 = qi[keep], ei[keep], d[keep], s[keep], t[keep], b0[keep], b1[keep]
         pa = a0[qi] + s[:, None] * (a1[qi] - a0[qi])
         pb = b0 + t[:, None] * (b1 - b0)
-        # the other surface's outward side at the edge: the sum of its adjacent faces' normals
-        T = self.triangles
-        side = np.zeros((len(ei), 3))
-        for j in range(2):
-            f = self.adjacent[ei, j]
-            ok = f >= 0
-            tri = T[np.where(ok, f, 0)]
-            nf = np.cross(V[tri[:, 1]] - V[tri[:, 0]], V[tri[:, 2]] - V[tri[:, 0]])
-            side += np.where(ok[:, None], nf / np.maximum(np.linalg.norm(nf, axis=1), 1e-300)[:, None], 0.0)
+        side = self.sides(V, ei)
         diff = pa - pb
         n = diff / np.maximum(d, 1e-300)[:, None]
         flip = np.einsum("ij,ij->i", n, side) < 0

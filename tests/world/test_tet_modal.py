@@ -75,19 +75,22 @@ def test_a_heavy_bar_landing_on_a_soft_block_never_crosses_it_nor_gains_energy(b
     assert received[2] > 0.5 * bar_model.mass * G * 0.05  # the block held it up while it landed
 
 
-@pytest.mark.parametrize("dt", [pytest.param(1e-4, marks=pytest.mark.slow), 1e-3, 5e-3, 1e-2, 2e-2, 3e-2])
-def test_the_bar_lands_on_the_foam_at_large_steps(bar_model, foam_model, dt):
-    """The bar's rigid motion is solved with the foam's implicit step (``tetcontact``): it holds from 0.1 ms to 30 ms
+@pytest.mark.parametrize("dt, duration", [pytest.param(1e-4, 0.16, marks=pytest.mark.slow), (1e-3, 0.16),
+                                          (5e-3, 0.3), (1e-2, 0.3), (2e-2, 0.3), (3e-2, 0.3), (5e-2, 0.3)])
+def test_the_bar_lands_on_the_foam_at_large_steps(bar_model, foam_model, dt, duration):
+    """The bar's rigid motion is solved with the foam's implicit step (``tetcontact``): it holds from 0.1 ms to 50 ms
     steps (before, with the bar taking the reaction explicitly and the stiffness capped by its mass / dt^2, it
     crossed the foam from dt = 5 ms on, travelling several skins per step). Over the landing and the deepest
-    compression: no crossing at any step end, the energy (with what the contacts store) never above the start, the
-    bar's momentum = gravity + what the foam gave it."""
+    compression (0.16 s), and at the larger steps the settling after it (0.3 s: the foam's end faces bulge flush
+    with the bar's ends and its top edges fold round the bar's corners, which crossed at 5 and 20 ms while the
+    edge-edge contacts left out closest points near an edge's end): no crossing at any step end, the energy (with
+    what the contacts store) never above the start, the bar's momentum = gravity + what the foam gave it."""
     w = _world(bar_model, foam_model, 0.5)
     s = w.state()
     e0 = _energy(w, s)
     p0 = w.momentum(s, "bar")[0].copy()
     solver = w._tet["block"]["solver"]
-    steps = round(0.16 / dt)
+    steps = round(duration / dt)
     allow = steps * (bar_model.mass + foam_model.masses.sum()) * G * solver.tol * foam_model.size
     received = np.zeros(3)
     stored = 0.0
