@@ -103,10 +103,11 @@ def render(runs: dict, rungs, paths, *, command: str, date: str, machine: str, v
     L.append(f"Totals (mesh to certified eigenpairs, imports excluded) [s], median of {' or '.join(map(str, n_rep))} "
              "interleaved runs (repeat, then path, then case) "
              "(fastest-slowest); ratio = peer A / ours (above 1: ours ahead); 'vs default' = this path's ratio "
-             "over the default path's ratio in this run.")
+             "over the default path's ratio in this run; CPU = median CPU time of the child over the same "
+             "interval, all its threads (less sensitive than wall time to other jobs on a loaded machine).")
     L.append("")
-    hdr = ["P", "cells", "DOFs", "path", "ours s", "peer A s", "peer A / ours", "vs default", "ours certified",
-           "f1 Hz (ours)"]
+    hdr = ["P", "cells", "DOFs", "path", "ours s", "peer A s", "peer A / ours", "vs default", "ours CPU s",
+           "peer A CPU s", "CPU: peer A / ours", "ours certified", "f1 Hz (ours)"]
     L.append("| " + " | ".join(hdr) + " |")
     L.append("|" + "|".join("---" for _ in hdr) + "|")
     ratios = {}
@@ -122,12 +123,17 @@ def render(runs: dict, rungs, paths, *, command: str, date: str, machine: str, v
             rs_o = cell["ours-fenicsx"][2]
             cert = "n/a" if not rs_o else ("yes" if all(x.get("certified") for x in rs_o) else "NO")
             f1 = _median([x["frequencies_hz"][0] for x in rs_o])
+            cpu_o = _median([x.get("cpu") for x in rs_o])
+            cpu_p = _median([x.get("cpu") for x in cell["peer-A"][2]])
 
             base = ratios.get(("default", r))
-            vs = "-" if p == "default" or base is None or ratios[(p, r)] is None else f"{ratios[(p, r)] / base:.2f}"
-            L.append("| " + " | ".join([f"P{r.degree}", r.label, str(r.dofs), f"`{p}`", _total_cell(cell, runs, p, "ours-fenicsx", r),
-                                        _total_cell(cell, runs, p, "peer-A", r), _fmt(ratios[(p, r)], ".2f") + ("x" if ratios[(p, r)] else ""),
-                                        vs, cert, _fmt(f1, ".4f")]) + " |")
+            ratio = ratios[(p, r)]
+            vs = "-" if p == "default" or base is None or ratio is None else f"{ratio / base:.2f}"
+            cpu_ratio = cpu_p / cpu_o if cpu_o and cpu_p else None
+            row = [f"P{r.degree}", r.label, str(r.dofs), f"`{p}`", _total_cell(cell, runs, p, "ours-fenicsx", r),
+                   _total_cell(cell, runs, p, "peer-A", r), _fmt(ratio) + ("x" if ratio else ""), vs,
+                   _fmt(cpu_o), _fmt(cpu_p), _fmt(cpu_ratio) + ("x" if cpu_ratio else ""), cert, _fmt(f1, ".4f")]
+            L.append("| " + " | ".join(row) + " |")
     L.append("")
     L.append("Where the time goes (medians [s]; ours by phase from `ModalResult.timings`, the certificate = "
              "residuals + Sylvester inertia factorisation + checks; peer A: assembly and eigensolve):")
@@ -160,6 +166,7 @@ def command(argv: list[str]) -> int:
     ap.add_argument("--timeout", type=float, default=300.0, help="kill one case after S seconds (300)")
     ap.add_argument("--out", default="BENCHMARKS.md", help="markdown file whose section is replaced")
     ap.add_argument("--save-raw", metavar="JSON", help="also save every run's measurements to JSON")
+    ap.add_argument("--from-raw", metavar="JSON", help=argparse.SUPPRESS)  # re-render saved measurements
     a = ap.parse_args(argv)
     from modalfem.backends import have_fenicsx
     from modalfem.bench.cli import _machine, update_section, write_atomic
@@ -171,6 +178,17 @@ def command(argv: list[str]) -> int:
     if min(a.repeat, a.repeat_small) < 1:
         print("modalfem: error: --repeat and --repeat-small must be at least 1", file=sys.stderr)
         return 2
+    if a.from_raw:
+        with open(a.from_raw) as f:
+            raw = json.load(f)
+        runs = {(d["path"], d["case"], mb.Rung(2, tuple(d["cells"]))): d["runs"] for d in raw["runs"]}
+        rungs = [r for r in RUNGS if any(k[2] == r for k in runs)]
+        paths = list(dict.fromkeys(k[0] for k in runs))
+        section = render(runs, rungs, paths, command=raw["command"], date=raw["date"], machine=raw["machine"],
+                         versions=raw["versions"])
+        update_section(a.out, section)
+        print(section)
+        return 0
     if not have_fenicsx():
         print("modalfem: error: bench codepath compares with the dolfinx + SLEPc recipe and needs FEniCSx "
               "(Debian's python3-dolfinx in a --system-site-packages venv)", file=sys.stderr)

@@ -11,7 +11,8 @@ from modalfem.bench import modes_bench as mb
 def _run(total, *, mkl="AVX-512 E1", certified=True, f1=81.48, setup=0.1):
     tm = {"constraints": 0.01, "shift": 0.02, "eigen.factor": 0.3, "eigen.solve": 0.2, "eigen.certificate": 0.1,
           "certificate": 0.001, "labels": 0.03}
-    return {"total": total, "setup": setup, "eigen": total - setup, "timings": tm, "certified": certified,
+    return {"total": total, "cpu": 1.5 * total, "setup": setup, "eigen": total - setup, "timings": tm,
+            "certified": certified,
             "frequencies_hz": [f1], "code_path": {"mkl": mkl, "openblas": "SkylakeX"}}
 
 
@@ -29,7 +30,8 @@ def test_render_gives_medians_ratios_and_the_path_each_child_reported():
     rows = [ln for ln in text.splitlines() if ln.startswith("| P2")]
     # default: ours median 2.0 (1.0-3.0), peer 5.0 -> 2.50x; avx2: 2.5 vs 5.0 (the error run left out) -> 2.00x,
     # 0.80 of the default path's ratio
-    assert "2.00 (1.00-3.00)" in rows[0] and "5.00 (4.00-6.00)" in rows[0] and "2.50x" in rows[0]
+    assert "2.00 (1.00-3.00)" in rows[0] and "5.00 (4.00-6.00)" in rows[0] and rows[0].count("2.50x") == 2  # wall, CPU
+    assert "| 3.00 | 7.50 |" in rows[0]  # CPU medians
     assert "2.50 (2.50-2.50)" in rows[1] and "2.00x" in rows[1] and "| 0.80 |" in rows[1]
     assert "`avx2`: MKL_ENABLE_INSTRUCTIONS=AVX2 OPENBLAS_CORETYPE=Zen -> MKL AVX2, OpenBLAS SkylakeX" in text
     assert "process" not in text.split("- Versions:")[1].splitlines()[0]
