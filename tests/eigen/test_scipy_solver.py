@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import scipy.linalg as sl
 import scipy.sparse as sp
+from _eigen_bounds import dense_bounds, residual_bounds
 
 from modalfem.constraints import fixed_mask
 from modalfem.eigen.pardiso import have_pardiso
@@ -41,10 +42,12 @@ def test_matches_dense_eigh(case, factor, method, free_beam_km, cantilever_km):
     assert raw.info["inertia_method"] == ("pardiso-ldlt" if factor == "pardiso" else "superlu-ldlt")
     lam = raw.eigenvalues
     assert len(lam) >= nev + 4
-    # dense eigh resolves eigenvalues to ~eps * lambda_max (2e-9 relative at lambda_1 here)
-    np.testing.assert_allclose(lam[r:nev], ref[r:nev], rtol=1e-9, atol=1e-13 * ref[-1])
-    assert np.all(np.abs(lam[:r]) < 1e-6 * ref[r])
+    # dense eigh resolves eigenvalues to ~eps * lambda_max (2e-9 relative at lambda_1 here): each pair within
+    # the two results' own error bounds (tests/eigen/_eigen_bounds.py; the rounding depends on the code path)
     X = raw.vectors
+    bound = residual_bounds(K, M, X[:, r:nev], lam[r:nev]) + dense_bounds(K, M, ref[r:nev])
+    assert np.all(np.abs(lam[r:nev] - ref[r:nev]) <= bound), (lam[r:nev] - ref[r:nev], bound)
+    assert np.all(np.abs(lam[:r]) < 1e-6 * ref[r])
     np.testing.assert_allclose(X.T @ (M @ X), np.eye(len(lam)), atol=1e-10)
     assert raw.orthonormality_error < 1e-10
     # ARPACK runs to machine precision; the block solver stops at the certificate's own bound,
