@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from modalfem.tet.solver import TetSolver
+from modalfem.world import _tet_kernels
 
 __all__ = ["STIFFNESS", "CoupledTetSolver", "PenaltyContacts"]
 
@@ -48,19 +49,11 @@ SMOOTH = 0.25
 
 def _psi(z: np.ndarray, k: np.ndarray, e: np.ndarray):
     """Penalty energy, force and stiffness at depths ``z`` [m]: ``0.5 k z^2`` where ``e == 0``; else C2,
-    ``k z^3 / (6 e)`` below ``e`` [m] and ``k (z^2 / 2 - e z / 2 + e^2 / 6)`` beyond."""
-    z = np.maximum(z, 0.0)
-    kz = k * z
-    psi, f, h = 0.5 * kz * z, kz, np.where(z > 0, k, 0.0)
-    m = np.flatnonzero(e > 0)
-    if len(m):
-        zm, km, em = z[m], k[m], e[m]
-        ramp = zm < em
-        q = km * zm / em  # the onset's stiffness
-        psi[m] = np.where(ramp, q * zm * zm / 6, km * (0.5 * zm * zm - 0.5 * em * zm + em * em / 6))
-        f[m] = np.where(ramp, 0.5 * q * zm, km * (zm - 0.5 * em))
-        h[m] = np.where(ramp, q, km)
-    return psi, f, h
+    ``k z^3 / (6 e)`` below ``e`` [m] and ``k (z^2 / 2 - e z / 2 + e^2 / 6)`` beyond (compiled:
+    ``_tet_kernels.penalty``)."""
+    f64 = np.float64
+    return _tet_kernels.penalty(np.ascontiguousarray(z, f64), np.ascontiguousarray(k, f64),
+                                np.ascontiguousarray(e, f64))
 
 
 class PenaltyContacts:
@@ -197,27 +190,10 @@ class PenaltyContacts:
 
 def _minimise(S: np.ndarray, A: np.ndarray, k: np.ndarray, e: np.ndarray, d: np.ndarray, u: np.ndarray) -> np.ndarray:
     """``argmin_u 0.5 u^T S u + sum psi(d + A u)`` (convex, S SPD; ``psi`` of ``_psi``): Newton with a
-    backtracking line search, from ``u``, until the step is below roundoff of ``u``."""
-
-    def f(u):
-        return 0.5 * float(u @ S @ u) + float(_psi(d + A @ u, k, e)[0].sum())
-
-    scale = 1e-14 * (1.0 + float(np.abs(d).max(initial=0.0)) * float(np.abs(A).max(initial=0.0)))
-    for _ in range(100):
-        pz, fz, hz = _psi(d + A @ u, k, e)
-        H = S + (A.T * hz) @ A
-        g = S @ u + A.T @ fz
-        du = -np.linalg.solve(H, g)
-        slope = float(g @ du)
-        if slope >= 0.0:  # at the minimiser to roundoff
-            return u
-        f0, t = 0.5 * float(u @ S @ u) + float(pz.sum()), 1.0
-        while t > 1e-12 and f(u + t * du) > f0 + 1e-4 * t * slope:
-            t *= 0.5
-        u = u + t * du
-        if float(np.abs(A @ (t * du)).max(initial=0.0)) <= scale:
-            return u
-    return u
+    backtracking line search, from ``u``, until the step is below roundoff of ``u`` (compiled:
+    ``_tet_kernels.minimise``)."""
+    f64 = np.float64
+    return _tet_kernels.minimise(*(np.ascontiguousarray(a, f64) for a in (S, A, k, e, d, u)))
 
 
 class CoupledTetSolver(TetSolver):

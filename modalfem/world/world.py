@@ -47,7 +47,7 @@ from modalfem import effects as fx
 from modalfem.cloth.wind import PressureWind
 from modalfem.errors import InputError, SimulationError
 from modalfem.runtime.effects import windward_pressure
-from modalfem.world import _kernels
+from modalfem.world import _kernels, _tet_kernels
 from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
@@ -1007,34 +1007,31 @@ class World:
         ctx.report.contacts["tet"] = ctx.report.contacts.get("tet", 0) + len(act)
         if mu <= 0:
             return
-        masses = t["masses"]
         n_obstacle, modal = t.get("modal_contacts", (0, []))
-        back = {}  # modal body -> [(ids, w, J)]: the opposite impulses, given once per body below
-        for c in act:
-            used = pen.verts[c] >= 0
-            ids, w = pen.verts[c][used], pen.w[c][used]
-            m = masses[ids]
-            free = np.isfinite(m)
-            if not free.any():
-                continue
-            inv = float((w[free] ** 2 / m[free]).sum())
-            if c >= n_obstacle:  # the modal body's translation takes the opposite impulse
-                inv += 1.0 / self._modal[modal[c - n_obstacle][0]]["body"].mass
-            pt = w @ out.x[ids]
-            vo = np.asarray(obstacles[c].velocity(pt[None], ctx.state_in.time, ctx.dt))[0]
-            rel = w @ out.v[ids] - vo
-            vt = rel - pen.nrm[c] * (rel @ pen.nrm[c])
-            sp = float(np.linalg.norm(vt))
-            if sp > 0:
-                Jt = -min(sp, mu * f[c] * ctx.dt * inv) / sp * vt / inv  # impulse on the tet's point [N s]
-                dv = np.where(free, 1.0, 0.0)[:, None] * (w / np.where(free, m, 1.0))[:, None] * Jt
-                out.v[ids] += dv  # velocities only: moved by dt dv, single vertices stored the shear as strain
-                if c >= n_obstacle:
-                    mb, mids, mw = modal[c - n_obstacle]
-                    back.setdefault(mb, []).append((mids, mw, -Jt))
-        for mb, items in back.items():
-            self._modal_impulses(ctx, mb, np.array([i for i, _, _ in items]), np.array([w for _, w, _ in items]),
-                                 np.array([J for _, _, J in items]), name)
+        # the obstacles' surface velocities at the contacts' points (the positions do not change below), per
+        # obstacle at once; a modal body's point moves as predicted over the step
+        vo = np.zeros((pen.count, 3))
+        extra = np.zeros(pen.count)  # [1/kg]: a modal body's translation takes the opposite impulse
+        pt = np.einsum("cj,cjd->cd", pen.w, out.x[pen.vid])
+        if n_obstacle:
+            ob = act[act < n_obstacle]
+            for o in {id(obstacles[c]): obstacles[c] for c in ob}.values():
+                sel = np.array([c for c in ob if obstacles[c] is o], dtype=np.int64)
+                vo[sel] = np.asarray(o.velocity(pt[sel], ctx.state_in.time, ctx.dt))
+        md = act[act >= n_obstacle]
+        if len(md):
+            vo[md] = np.array([obstacles[c].velocity(None, 0.0, ctx.dt) for c in md]).reshape(-1, 3)
+            inv_mass = {b: 1.0 / self._modal[b]["body"].mass for b in self._tet_modal[name]}
+            extra[md] = [inv_mass[modal[c - n_obstacle][0]] for c in md]
+        # in contact order, each contact seeing the velocities the ones before left (compiled)
+        J = _tet_kernels.friction(act.astype(np.int64), pen.verts, pen.w, t["masses"], extra, out.v, vo,
+                                  pen.nrm, f, float(mu), float(ctx.dt))
+        back = {}  # modal body -> contacts with an impulse: the opposite impulses, given once per body below
+        for c in md[np.any(J[md] != 0.0, axis=1)] if len(md) else ():
+            back.setdefault(modal[c - n_obstacle][0], []).append(c)
+        for mb, cs in back.items():
+            self._modal_impulses(ctx, mb, np.array([modal[c - n_obstacle][1] for c in cs]),
+                                 np.array([modal[c - n_obstacle][2] for c in cs]), -J[cs], name)
 
     def _kick(self, ctx, kind: str, other: str, data, J: np.ndarray) -> None:
         """Impulse ``J`` (3,) [N s] on solid body ``other`` at its contact point, at its step end (see
