@@ -11,7 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["compress", "free_zone_velocities", "union_pairs", "union_quads", "zone_members"]
+__all__ = ["compress", "free_zone_velocities", "kinematic_zone_velocities", "union_pairs", "union_quads",
+           "zone_members"]
 
 
 @numba.njit(cache=True, inline="always")
@@ -172,3 +173,92 @@ def zone_members(roots: np.ndarray, invm: np.ndarray, N: int):
         if size[r] > 1 and roots[r] == r and kin[r]:
             kroots[zid[r]] = r
     return idx, zone, Z, kroots, kptr, kmembers
+
+
+@numba.njit(cache=True)
+def kinematic_zone_velocities(X0: np.ndarray, V: np.ndarray, invm: np.ndarray, zones: np.ndarray, kptr: np.ndarray,
+                              kmembers: np.ndarray, obs_zone: np.ndarray, origin: np.ndarray, lin: np.ndarray,
+                              ang: np.ndarray) -> np.ndarray:
+    """In place: the movable members of each kinematic zone in ``zones`` (indices into ``kptr``, the zones'
+    vertices ``kmembers[kptr[z]:kptr[z + 1]]``) get the rigid velocity field ``v + omega x (x - xc)`` that best fits
+    (least squares, ``omega`` regularised by ``1e-6`` of the zone's extent) the velocities of its kinematic vertices
+    and of its obstacles (``obs_zone`` (A,): each analytic obstacle's zone in ``kptr`` numbering or -1; obstacle
+    ``a`` moves rigidly with velocity ``lin[a]`` [m/s] and angular velocity ``ang[a]`` [rad/s] about ``origin[a]``
+    [m], sampled at the centre ``xc`` of the members and at ``xc`` plus the extent along each axis), all at ``X0``
+    (N, 3) [m]. Returns (len(zones),) bool: the fit is not exact (residual above ``1e-6`` of the fitted speeds): the
+    kinematic members do not move rigidly together."""
+    bad = np.zeros(len(zones), np.bool_)
+    for q in range(len(zones)):
+        z = zones[q]
+        members = kmembers[kptr[z]:kptr[z + 1]]
+        m = len(members)
+        xc = np.zeros(3)
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        nkin = 0
+        for i in members:
+            for c in range(3):
+                xc[c] += X0[i, c]
+                lo[c] = min(lo[c], X0[i, c])
+                hi[c] = max(hi[c], X0[i, c])
+            if invm[i] == 0.0:
+                nkin += 1
+        for c in range(3):
+            xc[c] /= m
+        span = max(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) + 1e-12
+        nobs = 0
+        for a in range(len(obs_zone)):
+            if obs_zone[a] == z:
+                nobs += 1
+        rows = nkin + 4 * nobs
+        A = np.zeros((3 * rows + 3, 6))
+        b = np.zeros(3 * rows + 3)
+        pts = np.empty((rows, 3))
+        vel = np.empty((rows, 3))
+        k = 0
+        for i in members:
+            if invm[i] == 0.0:
+                for c in range(3):
+                    pts[k, c] = X0[i, c]
+                    vel[k, c] = V[i, c]
+                k += 1
+        for a in range(len(obs_zone)):
+            if obs_zone[a] != z:
+                continue
+            for j in range(4):
+                for c in range(3):
+                    pts[k, c] = xc[c] + (span if j == c + 1 else 0.0)
+                r0, r1, r2 = pts[k, 0] - origin[a, 0], pts[k, 1] - origin[a, 1], pts[k, 2] - origin[a, 2]
+                vel[k, 0] = lin[a, 0] + ang[a, 1] * r2 - ang[a, 2] * r1
+                vel[k, 1] = lin[a, 1] + ang[a, 2] * r0 - ang[a, 0] * r2
+                vel[k, 2] = lin[a, 2] + ang[a, 0] * r1 - ang[a, 1] * r0
+                k += 1
+        vmax = 0.0
+        for k in range(rows):
+            r0, r1, r2 = pts[k, 0] - xc[0], pts[k, 1] - xc[1], pts[k, 2] - xc[2]
+            for c in range(3):
+                A[3 * k + c, c] = 1.0
+                b[3 * k + c] = vel[k, c]
+                vmax = max(vmax, abs(vel[k, c]))
+            # v + omega x r: the columns of -skew(r)
+            A[3 * k, 4], A[3 * k, 5] = r2, -r1
+            A[3 * k + 1, 3], A[3 * k + 1, 5] = -r2, r0
+            A[3 * k + 2, 3], A[3 * k + 2, 4] = r1, -r0
+        lam = 1e-6 * span
+        for c in range(3):
+            A[3 * rows + c, 3 + c] = lam
+        sol = np.linalg.lstsq(A, b, rcond=np.finfo(np.float64).eps * len(b))[0]  # numpy's rcond=None
+        res = 0.0
+        for u in range(3 * rows):
+            s = 0.0
+            for c in range(6):
+                s += A[u, c] * sol[c]
+            res = max(res, abs(s - b[u]))
+        bad[q] = res > 1e-6 * (vmax + 1e-9) + 1e-12
+        for i in members:
+            if invm[i] > 0.0:
+                r0, r1, r2 = X0[i, 0] - xc[0], X0[i, 1] - xc[1], X0[i, 2] - xc[2]
+                V[i, 0] = sol[0] + sol[4] * r2 - sol[5] * r1
+                V[i, 1] = sol[1] + sol[5] * r0 - sol[3] * r2
+                V[i, 2] = sol[2] + sol[3] * r1 - sol[4] * r0
+    return bad

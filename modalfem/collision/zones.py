@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from modalfem.collision.distance import cross
-
 __all__ = ["UnionFind", "follow_finite_motion", "rigid_zone_velocities"]
 
 
@@ -62,13 +60,6 @@ class UnionFind:
         union_quads(self.parent, np.ascontiguousarray(quads, dtype=np.int64))
 
 
-def _skew(r: np.ndarray) -> np.ndarray:
-    z = np.zeros(len(r))
-    return np.stack(
-        [np.stack([z, -r[:, 2], r[:, 1]], 1), np.stack([r[:, 2], z, -r[:, 0]], 1), np.stack([-r[:, 1], r[:, 0], z], 1)], 1
-    )
-
-
 def rigid_zone_velocities(
     X0: np.ndarray,
     V: np.ndarray,
@@ -84,7 +75,7 @@ def rigid_zone_velocities(
         V: (N, 3) velocities [m/s].
         invm: (N,) inverse masses [1/kg] (0: kinematic).
         roots: (N + A,) zone root of every vertex and of the A analytic obstacles (nodes N..N+A-1).
-        analytic: the A analytic obstacles (``velocity_at(x, t)``).
+        analytic: the A analytic obstacles (rigidly moving: ``rigid_motion(t)``).
         t: time [s] of the step start.
 
     Returns:
@@ -102,37 +93,35 @@ def rigid_zone_velocities(
     # free zones: momentum-preserving rigid motion (compiled, one pass over the members per quantity)
     if len(idx):
         free_zone_velocities(np.ascontiguousarray(X0, dtype=float), V, invm, idx, zone, Z)
-    inconsistent = []
-    for z, root in enumerate(kroots):
+    # kinematic zones: a zone of pins or scripted vertices alone first tries their finite rigid motion (Python, rare);
+    # the others, and those it cannot follow, get the best-fitting rigid velocity field (compiled, all zones in one
+    # call; analytic obstacles move rigidly: ``rigid_motion``)
+    fit = []
+    no_obstacle = ~np.isin(kroots, roots[N:])
+    for z in range(len(kroots)):
         members = kmembers[kptr[z]:kptr[z + 1]]
-        obs = [analytic[k] for k in np.nonzero(roots[N:] == root)[0]]
-        if not obs:
+        if no_obstacle[z]:
             vel = follow_finite_motion(X0[members], V[members], invm[members])
             if vel is not None:
                 dm = invm[members] > 0
                 V[members[dm]] = vel[dm]
                 continue
-        xc = X0[members].mean(axis=0)
-        span = np.ptp(X0[members], axis=0).max() + 1e-12
-        kin = members[invm[members] == 0]
-        pts, vel = [X0[kin]], [V[kin]]
-        probe = xc + span * np.vstack([np.zeros(3), np.eye(3)])
-        for ob in obs:
-            pts.append(probe)
-            vel.append(ob.velocity_at(probe, t))
-        pts, vel = np.concatenate(pts), np.concatenate(vel)
-        r = pts - xc
-        A = np.concatenate([np.tile(np.eye(3), (len(r), 1, 1)), -_skew(r)], axis=2).reshape(-1, 6)
-        lam = 1e-6 * span
-        A = np.vstack([A, np.hstack([np.zeros((3, 3)), lam * np.eye(3)])])
-        b = np.concatenate([vel.ravel(), np.zeros(3)])
-        sol = np.linalg.lstsq(A, b, rcond=None)[0]
-        res = np.abs(A[:-3] @ sol - b[:-3]).max() if len(b) > 3 else 0.0
-        if res > 1e-6 * (np.abs(vel).max() + 1e-9) + 1e-12:
-            inconsistent.append(root)
-        dm = members[invm[members] > 0]
-        V[dm] = sol[:3] + cross(sol[3:], X0[dm] - xc)
-    return V, np.array(inconsistent, dtype=np.int64)
+        fit.append(z)
+    if not fit:
+        return V, np.zeros(0, dtype=np.int64)
+    from modalfem.collision._zone_kernels import kinematic_zone_velocities
+
+    A = len(analytic)
+    motion = np.zeros((3, A, 3))
+    for k, ob in enumerate(analytic):
+        motion[0, k], motion[1, k], motion[2, k] = ob.rigid_motion(t)
+    where = np.full(N + A, -1, dtype=np.int64)
+    where[kroots] = np.arange(len(kroots))
+    obs_zone = where[roots[N:]] if A else np.zeros(0, dtype=np.int64)
+    fit = np.array(fit, dtype=np.int64)
+    bad = kinematic_zone_velocities(np.ascontiguousarray(X0, dtype=float), V, invm, fit, kptr, kmembers,
+                                    np.ascontiguousarray(obs_zone), motion[0], motion[1], motion[2])
+    return V, kroots[fit[bad]]
 
 
 def follow_finite_motion(X: np.ndarray, V: np.ndarray, invm: np.ndarray) -> np.ndarray | None:
