@@ -21,6 +21,7 @@ __all__ = [
     "edge_edge_closest",
     "edge_edge_lb",
     "edge_edge_lb_batch",
+    "obstacle_vertex_hits",
     "point_triangle_batch",
     "point_triangle_closest",
     "point_triangle_lb",
@@ -316,3 +317,44 @@ def close_frames(vf: bool, X: np.ndarray, quads: np.ndarray, Xref: np.ndarray, t
                 Do[o] = D[q]
                 o += 1
     return qo, Wo, No, Do
+
+
+@numba.njit(cache=True, parallel=True)
+def obstacle_vertex_hits(sphere: bool, X0: np.ndarray, V: np.ndarray, dt: float, a: np.ndarray, b: np.ndarray,
+                         c: float, eta: float) -> tuple:
+    """Vertex trajectories ``X0 + s dt V`` (s in [0, 1]; (n, 3) [m], [m/s]) against a plane or a sphere (in
+    parallel chunks): ``(hit, s)``, (n,) bool and (n,) times of impact in [0, 1].
+
+    Plane (``sphere`` False): ``a`` its unit normal, ``b[0]``, ``b[1]`` its offsets ``p . n`` [m] at the step's
+    start and end; signed distances ``d0``, ``d1`` at the trajectory's ends; a hit ends closer than ``eta``, at
+    ``s = (d0 - eta) / (d0 - d1)`` when approaching (else 0), clipped to [0, 1].
+    Sphere: centre ``a`` [m] at the step start, velocity ``b`` [m/s], radius ``c`` [m]; ``s`` the closest approach
+    of the relative trajectory (clipped to [0, 1]); a hit comes within ``c + eta`` there (s > 0) or at the end,
+    ``s = inf`` elsewhere."""
+    n = len(X0)
+    hit = np.zeros(n, np.bool_)
+    out = np.empty(n)
+    chunks = chunk_count(n, 1024)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            if not sphere:
+                d0 = X0[i, 0] * a[0] + X0[i, 1] * a[1] + X0[i, 2] * a[2] - b[0]
+                d1 = ((X0[i, 0] + dt * V[i, 0]) * a[0] + (X0[i, 1] + dt * V[i, 1]) * a[1]
+                      + (X0[i, 2] + dt * V[i, 2]) * a[2] - b[1])
+                hit[i] = d1 < eta
+                s = (d0 - eta) / (d0 - d1) if d0 > d1 else 0.0
+                out[i] = min(max(s, 0.0), 1.0)
+            else:
+                r0, r1, r2 = X0[i, 0] - a[0], X0[i, 1] - a[1], X0[i, 2] - a[2]
+                e0, e1, e2 = dt * (V[i, 0] - b[0]), dt * (V[i, 1] - b[1]), dt * (V[i, 2] - b[2])
+                dd = e0 * e0 + e1 * e1 + e2 * e2
+                s = -(r0 * e0 + r1 * e1 + r2 * e2) / (dd if dd > 0 else 1.0)
+                s = min(max(s, 0.0), 1.0)
+                m0, m1, m2 = r0 + s * e0, r1 + s * e1, r2 + s * e2
+                f0, f1, f2 = r0 + e0, r1 + e1, r2 + e2
+                near = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2) < c + eta
+                end = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2) < c + eta
+                hit[i] = (near and s > 0) or end
+                out[i] = s if hit[i] else np.inf
+    return hit, out

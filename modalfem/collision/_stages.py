@@ -36,21 +36,15 @@ FRESH_SEARCH = 0.2
 
 
 def _analytic_contacts(ob, X0, V, dt, t, eta):
-    """Vertex trajectories against a plane or sphere: (hit mask, time of impact in [0, 1])."""
+    """Vertex trajectories against a plane or sphere: (hit mask, time of impact in [0, 1]) (one compiled parallel
+    pass, :func:`modalfem.collision._distance_kernels.obstacle_vertex_hits`)."""
+    from modalfem.collision._distance_kernels import obstacle_vertex_hits
+
+    X0, V = np.ascontiguousarray(X0, dtype=float), np.ascontiguousarray(V, dtype=float)
     if isinstance(ob, Plane):
-        d0 = ob.signed_distance(X0, t)
-        d1 = ob.signed_distance(X0 + dt * V, t + dt)
-        hit = d1 < eta
-        s = np.clip(np.where(d0 > d1, (d0 - eta) / np.where(d0 > d1, d0 - d1, 1.0), 0.0), 0.0, 1.0)
-        return hit, s
-    r0 = X0 - ob.center_at(t)
-    dr = dt * (V - ob.velocity)
-    dd = np.einsum("ki,ki->k", dr, dr)
-    s = np.clip(-np.einsum("ki,ki->k", r0, dr) / np.where(dd > 0, dd, 1.0), 0.0, 1.0)
-    near = np.linalg.norm(r0 + s[:, None] * dr, axis=1) < ob.radius + eta
-    end = np.linalg.norm(r0 + dr, axis=1) < ob.radius + eta
-    hit = (near & (s > 0)) | end
-    return hit, np.where(hit, s, np.inf)
+        off = np.array([(ob.point + t * ob.velocity) @ ob.normal, (ob.point + (t + dt) * ob.velocity) @ ob.normal])
+        return obstacle_vertex_hits(False, X0, V, dt, ob.normal, off, 0.0, eta)
+    return obstacle_vertex_hits(True, X0, V, dt, ob.center_at(t), ob.velocity, float(ob.radius), eta)
 
 
 def analytic_hits(system, X0, V, dt, t, eta, n):

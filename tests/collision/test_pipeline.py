@@ -302,3 +302,44 @@ def test_repeated_repulsion_sweeps_stop_stacked_layers_approaching():
 def test_repulsion_iterations_must_be_positive():
     with pytest.raises(InputError, match="repulsion_iterations"):
         CollisionConfig(thickness=0.004, repulsion_iterations=0)
+
+
+def test_vertex_hits_on_planes_and_spheres_match_their_definitions_on_one_and_two_threads():
+    """The compiled vertex-obstacle test (parallel chunks) against the trajectories' definitions in numpy: a
+    moving plane (end distance below eta; time of impact where the distance reaches eta) and a moving sphere
+    (closest approach of the relative trajectory within radius + eta, or the end inside), same hits, same times."""
+    import numba
+
+    from modalfem._threads import thread_count
+    from modalfem.collision._stages import _analytic_contacts
+    from modalfem.collision.obstacles import Plane, Sphere
+
+    rng = np.random.default_rng(11)
+    X0 = rng.uniform(-0.3, 0.3, (5000, 3))
+    V = rng.normal(0.0, 5.0, (5000, 3))
+    dt, t, eta = 0.01, 0.02, 1e-3
+    plane = Plane([0.0, 0.0, -0.1], [0.1, 0.2, 1.0], velocity=[0.0, 0.0, 0.5])
+    ball = Sphere([0.05, 0.0, 0.0], 0.2, velocity=[1.0, 0.0, -2.0])
+    d0 = plane.signed_distance(X0, t)
+    d1 = plane.signed_distance(X0 + dt * V, t + dt)
+    want_plane = d1 < eta
+    s_plane = np.clip(np.where(d0 > d1, (d0 - eta) / np.where(d0 > d1, d0 - d1, 1.0), 0.0), 0.0, 1.0)
+    r0 = X0 - ball.center_at(t)
+    dr = dt * (V - ball.velocity)
+    s = np.clip(-np.einsum("ki,ki->k", r0, dr) / np.einsum("ki,ki->k", dr, dr), 0.0, 1.0)
+    want_ball = ((np.linalg.norm(r0 + s[:, None] * dr, axis=1) < ball.radius + eta) & (s > 0)) | (
+        np.linalg.norm(r0 + dr, axis=1) < ball.radius + eta)
+    assert 100 < want_plane.sum() < 4900 and 100 < want_ball.sum() < 4900  # both kinds of answer, many times
+    runs = []
+    for threads in (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,):
+        with thread_count(threads):
+            runs.append((_analytic_contacts(plane, X0, V, dt, t, eta), _analytic_contacts(ball, X0, V, dt, t, eta)))
+    (hp, sp), (hb, sb) = runs[0]
+    np.testing.assert_array_equal(hp, want_plane)
+    np.testing.assert_allclose(sp, s_plane, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(hb, want_ball)
+    np.testing.assert_allclose(sb[hb], s[hb], rtol=1e-12, atol=1e-12)
+    assert np.isinf(sb[~hb]).all()
+    for (a, b), (c, d) in zip(runs[0], runs[-1]):
+        np.testing.assert_array_equal(a, c)
+        np.testing.assert_array_equal(b, d)
