@@ -15,6 +15,7 @@ import numpy as np
 from modalfem._threads import chunk_bounds, chunk_count
 
 __all__ = [
+    "ccd_frames",
     "close_frames",
     "contact_frames",
     "edge_edge_batch",
@@ -358,3 +359,44 @@ def obstacle_vertex_hits(sphere: bool, X0: np.ndarray, V: np.ndarray, dt: float,
                 hit[i] = (near and s > 0) or end
                 out[i] = s if hit[i] else np.inf
     return hit, out
+
+
+@numba.njit(cache=True, parallel=True)
+def ccd_frames(vf: bool, X0: np.ndarray, V: np.ndarray, quads: np.ndarray, toi: np.ndarray, dt: float,
+               thickness: float, eta: float) -> tuple:
+    """The CCD impulses' frames and targets of colliding pairs ``quads`` (k, 4) with times of impact ``toi`` (k,)
+    (fractions of the step ``dt`` [s]): the weights (k, 4) and unit normals (k, 3) at the positions
+    ``X0 + clip(toi, 0, 1) dt V`` ((N, 3) [m], [m/s]; oriented by the start positions, :func:`contact_frames`),
+    and the relative normal velocities (k,) [m/s] that end the step at ``clip(d0 / 2, 2 eta, thickness)``
+    (``d0`` the start separation along that normal, ``eta`` and ``thickness`` [m]). Parallel chunks of pairs."""
+    k = len(quads)
+    W, N, T = np.empty((k, 4)), np.empty((k, 3)), np.empty(k)
+    chunks = chunk_count(k, FRAME_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        m = stop - start
+        Xl, Xr = np.empty((4 * m, 3)), np.empty((4 * m, 3))
+        ql = np.empty((m, 4), np.int64)
+        for j in range(m):
+            f = min(max(toi[start + j], 0.0), 1.0) * dt
+            for v in range(4):
+                i = quads[start + j, v]
+                ql[j, v] = 4 * j + v
+                for c in range(3):
+                    Xr[4 * j + v, c] = X0[i, c]
+                    Xl[4 * j + v, c] = X0[i, c] + f * V[i, c]
+        Wl, Nl, Dl = np.empty((m, 4)), np.empty((m, 3)), np.empty(m)
+        _frames_range(vf, Xl, ql, Xr, 0, m, Wl, Nl, Dl)
+        for j in range(m):
+            d0 = 0.0
+            for c in range(3):
+                s = 0.0
+                for v in range(4):
+                    s += Wl[j, v] * Xr[4 * j + v, c]
+                d0 += s * Nl[j, c]
+            for v in range(4):
+                W[start + j, v] = Wl[j, v]
+            for c in range(3):
+                N[start + j, c] = Nl[j, c]
+            T[start + j] = (min(max(0.5 * d0, 2.0 * eta), thickness) - d0) / dt
+    return W, N, T

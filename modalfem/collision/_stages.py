@@ -8,12 +8,12 @@ import warnings
 import numpy as np
 
 from modalfem.collision import _pair_kernels
+from modalfem.collision._distance_kernels import ccd_frames
 from modalfem.collision._system import PairStore
 from modalfem.collision.ccd import MAX_INTERVALS
 from modalfem.collision.obstacles import Plane
 from modalfem.collision.repulsion import (
     apply_pair_impulses,
-    contact_frames,
     pair_order,
     repulsion_pairs,
     sequential_pair_impulses,
@@ -95,17 +95,14 @@ def _ccd_impulses(system, X0, V, invm, dt, t, hits, ahits, cfg):
     h, eta = cfg.thickness, cfg.eta
     quads, ws, ns, tv = [], [], [], []
     for kind, q, toi in hits:
-        # positions at each pair's time of impact
-        Pq = X0[q] + (dt * np.clip(toi, 0.0, 1.0))[:, None, None] * V[q]
-        Xl = Pq.reshape(-1, 3)
-        ql = np.arange(len(Xl)).reshape(-1, 4)
-        w, n, _ = contact_frames(Xl, ql, kind, X0[q].reshape(-1, 3))
-        d0 = np.einsum("ki,ki->k", np.einsum("kj,kji->ki", w, X0[q]), n)
-        target_end = np.clip(0.5 * d0, 2 * eta, h)
+        # frames at each pair's time of impact, the velocity that ends the step at clip(d0 / 2, 2 eta, h)
+        # (one compiled parallel pass)
+        w, n, target = ccd_frames(kind == "vf", X0, V, np.ascontiguousarray(q, dtype=np.int64),
+                                  np.ascontiguousarray(toi, dtype=float), dt, h, eta)
         quads.append(q)
         ws.append(w)
         ns.append(n)
-        tv.append((target_end - d0) / dt)
+        tv.append(target)
     dV = np.zeros_like(V)
     if quads:
         dV, _ = apply_pair_impulses(V, invm, np.concatenate(quads), np.concatenate(ws), np.concatenate(ns),

@@ -343,3 +343,36 @@ def test_vertex_hits_on_planes_and_spheres_match_their_definitions_on_one_and_tw
     for (a, b), (c, d) in zip(runs[0], runs[-1]):
         np.testing.assert_array_equal(a, c)
         np.testing.assert_array_equal(b, d)
+
+
+def test_ccd_frames_are_the_contact_frames_at_the_time_of_impact_on_one_and_two_threads():
+    """The CCD impulses' frames and targets in one compiled pass against their definition: contact frames at
+    ``X0 + toi dt V`` oriented by ``X0``, start separation ``d0`` along the normal, target end separation
+    ``clip(d0 / 2, 2 eta, h)``."""
+    import numba
+
+    from modalfem._threads import thread_count
+    from modalfem.collision._distance_kernels import ccd_frames
+    from modalfem.collision.repulsion import contact_frames
+
+    rng = np.random.default_rng(12)
+    X0 = rng.uniform(0.0, 0.05, (400, 3))
+    V = rng.normal(0.0, 1.0, (400, 3))
+    dt, h, eta = 0.01, 0.004, 4e-6
+    for kind in ("vf", "ee"):
+        q = np.array([rng.choice(400, 4, replace=False) for _ in range(1500)])
+        toi = rng.uniform(-0.2, 1.2, len(q))  # clipped to [0, 1]
+        Pq = X0[q] + (dt * np.clip(toi, 0.0, 1.0))[:, None, None] * V[q]
+        w, n, _ = contact_frames(Pq.reshape(-1, 3), np.arange(4 * len(q)).reshape(-1, 4), kind, X0[q].reshape(-1, 3))
+        d0 = np.einsum("ki,ki->k", np.einsum("kj,kji->ki", w, X0[q]), n)
+        target = (np.clip(0.5 * d0, 2 * eta, h) - d0) / dt
+        runs = []
+        for threads in (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,):
+            with thread_count(threads):
+                runs.append(ccd_frames(kind == "vf", X0, V, q, toi, dt, h, eta))
+        W, N, T = runs[0]
+        np.testing.assert_array_equal(W, w)
+        np.testing.assert_array_equal(N, n)
+        np.testing.assert_allclose(T, target, rtol=1e-12, atol=1e-12 * np.abs(target).max())
+        for a, b in zip(runs[0], runs[-1]):
+            np.testing.assert_array_equal(a, b)
