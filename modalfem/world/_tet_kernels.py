@@ -149,3 +149,72 @@ def friction(act, verts, w, masses, extra, v, vo, nrm, f, mu, dt):
                 v[i] += w[c, j] / masses[i] * Jt
         J[c] = Jt
     return J
+
+
+@numba.njit(cache=True)
+def penalty_hessian(stiff, verts, w, nrm):
+    """The active contacts' Hessian ``k (w w^T) (x) (n n^T)`` as DOF entries ``(rows, cols, vals)``
+    (``PenaltyContacts.hessian_entries``): ``stiff`` (c,) [N/m] (0: inactive), ``verts`` (c, 3) (-1: unused)."""
+    total = 0
+    for c in range(len(stiff)):
+        if stiff[c] > 0.0:
+            u = 0
+            for j in range(3):
+                if verts[c, j] >= 0:
+                    u += 1
+            total += 9 * u * u
+    rows = np.empty(total, np.int64)
+    cols = np.empty(total, np.int64)
+    vals = np.empty(total)
+    p = 0
+    for c in range(len(stiff)):
+        if stiff[c] <= 0.0:
+            continue
+        for i in range(3):
+            vi = verts[c, i]
+            if vi < 0:
+                continue
+            for j in range(3):
+                vj = verts[c, j]
+                if vj < 0:
+                    continue
+                kij = stiff[c] * w[c, i] * w[c, j]
+                for a in range(3):
+                    for b in range(3):
+                        rows[p] = 3 * vi + a
+                        cols[p] = 3 * vj + b
+                        vals[p] = kij * nrm[c, a] * nrm[c, b]
+                        p += 1
+    return rows, cols, vals
+
+
+@numba.njit(cache=True)
+def penalty_low_rank(stiff, verts, w, nrm, arms, bodies, inertia, n):
+    """``(V (3 n, 6 B), S (6 B, 6 B), any)`` of ``PenaltyContacts.hessian_low_rank``: the cross derivatives of the
+    active contacts' energy in the tet's positions and each body's displacement (``bodies`` (c,), -1: none), and
+    the bodies' blocks ``inertia`` (B, 6, 6) plus ``k a a^T``; ``any``: V has a non-zero entry."""
+    B = inertia.shape[0]
+    V = np.zeros((3 * n, 6 * B))
+    S = np.zeros((6 * B, 6 * B))
+    for b in range(B):
+        S[6 * b:6 * b + 6, 6 * b:6 * b + 6] = inertia[b]
+    nonzero = False
+    for c in range(len(stiff)):
+        b = bodies[c]
+        if b < 0 or stiff[c] <= 0.0:
+            continue
+        k = stiff[c]
+        for p in range(6):
+            for q in range(6):
+                S[6 * b + p, 6 * b + q] += k * arms[c, p] * arms[c, q]
+        for j in range(3):
+            v = verts[c, j]
+            if v < 0:
+                continue
+            for d in range(3):
+                f = -k * w[c, j] * nrm[c, d]
+                for q in range(6):
+                    x = f * arms[c, q]
+                    V[3 * v + d, 6 * b + q] += x
+                    nonzero = nonzero or x != 0.0
+    return V, S, nonzero

@@ -147,22 +147,7 @@ class PenaltyContacts:
         act = np.flatnonzero(stiff > 0)
         if not len(act):
             return None
-        k, w, n, v = stiff[act], self.w[act], self.nrm[act], self.vid[act]
-        used = self.verts[act] >= 0
-        rows, cols, vals = [], [], []
-        for i in range(3):
-            for j in range(3):
-                sel = used[:, i] & used[:, j]
-                if not sel.any():
-                    continue
-                kij = k[sel] * w[sel, i] * w[sel, j]
-                nn = n[sel][:, :, None] * n[sel][:, None, :]  # (c, 3, 3)
-                r = 3 * v[sel, i][:, None, None] + np.arange(3)[None, :, None] + 0 * np.arange(3)[None, None, :]
-                c = 3 * v[sel, j][:, None, None] + np.arange(3)[None, None, :] + 0 * np.arange(3)[None, :, None]
-                rows.append(r.ravel())
-                cols.append(c.ravel())
-                vals.append((kij[:, None, None] * nn).ravel())
-        return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+        return _tet_kernels.penalty_hessian(stiff, self.verts, self.w, self.nrm)
 
     def hessian_low_rank(self, x: np.ndarray, masses: np.ndarray):
         """What eliminating the bodies' displacements takes off the Hessian: ``(V (3n, 6 B), S (6 B, 6 B))`` with
@@ -171,21 +156,9 @@ class PenaltyContacts:
         if not self.inertia:
             return None
         stiff = _psi(self._solve(x), self.k, self.eps)[2]
-        B = len(self.inertia)
-        V = np.zeros((3 * self.n, 6 * B))
-        S = np.zeros((6 * B, 6 * B))
-        for b, sel in enumerate(self.groups):
-            sel = sel[stiff[sel] > 0]
-            S[6 * b:6 * b + 6, 6 * b:6 * b + 6] = self.inertia[b] + (self.arms[sel].T * stiff[sel]) @ self.arms[sel]
-            for j in range(3):
-                used = self.verts[sel, j] >= 0
-                c = sel[used]
-                blk = -(stiff[c] * self.w[c, j])[:, None, None] * self.nrm[c][:, :, None] * self.arms[c][:, None, :]
-                rows = 3 * self.vid[c, j][:, None] + np.arange(3)
-                np.add.at(V[:, 6 * b:6 * b + 6], rows.ravel(), blk.reshape(-1, 6))
-        if not V.any():
-            return None
-        return V, S
+        V, S, nonzero = _tet_kernels.penalty_low_rank(stiff, self.verts, self.w, self.nrm, self.arms, self.bodies,
+                                                      np.array(self.inertia, dtype=np.float64), self.n)
+        return (V, S) if nonzero else None
 
 
 def _minimise(S: np.ndarray, A: np.ndarray, k: np.ndarray, e: np.ndarray, d: np.ndarray, u: np.ndarray) -> np.ndarray:
