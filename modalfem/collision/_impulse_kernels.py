@@ -106,9 +106,11 @@ def sweep_groups(X: np.ndarray, writable: np.ndarray, quads: np.ndarray, groups:
     """The order of the parallel sweeps over the pairs ``quads`` (k, 4) at positions ``X`` (N, 3) [m]; ``writable``
     (N,) bool marks the vertices an impulse may move (the others are only read, they never conflict).
 
-    The pairs are cut into ``groups`` slabs along the axis of widest extent of their first vertices, at about equal
-    pair counts (a histogram of ``_BINS_PER_GROUP`` bins per group), the groups' conflicts (a writable vertex in
-    pairs of both) coloured greedily in slab order. Returns ``(perm, cptr, tptr)``: (k,) the pairs in sweep order
+    The pairs are cut into at most ``groups`` slabs along the axis of widest extent of their first vertices, each of
+    about ``k / groups`` pairs (a histogram of ``_BINS_PER_GROUP`` bins per group) and wider than a pair's reach (so
+    that only neighbouring slabs can share a vertex), the groups' conflicts (a writable vertex in pairs of both)
+    coloured greedily in slab order: two colours unless the reach rule was broken by rounding (the colouring is of
+    the actual conflicts, so it is always valid). Returns ``(perm, cptr, tptr)``: (k,) the pairs in sweep order
     (colour, group, index), (colours + 1,) each colour's groups, (groups + 1,) each group's pairs in ``perm``."""
     k = len(quads)
     G = max(1, min(groups, MAX_GROUPS))
@@ -123,20 +125,51 @@ def sweep_groups(X: np.ndarray, writable: np.ndarray, quads: np.ndarray, groups:
     for c in range(1, 3):
         if hi[c] - lo[c] > hi[axis] - lo[axis]:
             axis = c
+    # each pair's key: the lowest coordinate of its writable vertices (its first vertex if none); reach: the largest
+    # spread of a pair's writable vertices along the axis
+    key = np.empty(k)
+    reach = 0.0
+    for p in range(k):
+        a = np.inf
+        b = -np.inf
+        for j in range(4):
+            v = quads[p, j]
+            if writable[v]:
+                a = min(a, X[v, axis])
+                b = max(b, X[v, axis])
+        if a == np.inf:
+            a = b = X[quads[p, 0], axis]
+        key[p] = a
+        reach = max(reach, b - a)
+    lo_k = np.inf
+    hi_k = -np.inf
+    for p in range(k):
+        lo_k = min(lo_k, key[p])
+        hi_k = max(hi_k, key[p])
     B = G * _BINS_PER_GROUP
-    width = (hi[axis] - lo[axis]) / B if k else 1.0
+    width = (hi_k - lo_k) / B if k else 1.0
     width = width if width > 0.0 else 1.0
     binof = np.empty(k, np.int64)
     count = np.zeros(B, np.int64)
     for p in range(k):
-        b = min(B - 1, int((X[quads[p, 0], axis] - lo[axis]) / width))
+        b = min(B - 1, max(0, int((key[p] - lo_k) / width)))
         binof[p] = b
         count[b] += 1
-    gbin = np.empty(B, np.int64)  # group of each bin: the pairs before it, in groups of ~k / G
-    before = 0
+    # slabs of consecutive bins, each closed once it holds ~k / G pairs and is wider than the reach (plus two bins
+    # for rounding): two pairs sharing a writable vertex have keys within the reach, so they lie in the same or
+    # neighbouring slabs and the slabs' conflicts form a path (two colours)
+    gbin = np.empty(B, np.int64)
+    g = 0
+    start = 0
+    inside = 0
     for b in range(B):
-        gbin[b] = min(G - 1, (before * G) // max(k, 1))
-        before += count[b]
+        gbin[b] = g
+        inside += count[b]
+        if g < G - 1 and inside * G >= k and (b + 1 - start) * width > reach + 2.0 * width:
+            g += 1
+            start = b + 1
+            inside = 0
+    G = g + 1
     group = np.empty(k, np.int64)
     vmask = np.zeros(len(X), np.uint64)
     for p in range(k):
