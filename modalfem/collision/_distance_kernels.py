@@ -22,6 +22,8 @@ __all__ = [
     "edge_edge_closest",
     "edge_edge_lb",
     "edge_edge_lb_batch",
+    "obstacle_impulses",
+    "obstacle_repulsion",
     "obstacle_vertex_hits",
     "point_triangle_batch",
     "point_triangle_closest",
@@ -400,3 +402,105 @@ def ccd_frames(vf: bool, X0: np.ndarray, V: np.ndarray, quads: np.ndarray, toi: 
                 N[start + j, c] = Nl[j, c]
             T[start + j] = (min(max(0.5 * d0, 2.0 * eta), thickness) - d0) / dt
     return W, N, T
+
+
+@numba.njit(cache=True, inline="always")
+def _obstacle_frame(sphere: bool, x0, x1, x2, a):
+    """Unit normal of a plane (unit normal ``a``) or sphere (centre ``a``) at the point ``x`` (the sphere's normal
+    at its centre: +z, as ``Sphere.normal_at``)."""
+    if not sphere:
+        return a[0], a[1], a[2]
+    r0, r1, r2 = x0 - a[0], x1 - a[1], x2 - a[2]
+    rn = math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    if rn > 0:
+        return r0 / rn, r1 / rn, r2 / rn
+    return 0.0, 0.0, 1.0
+
+
+@numba.njit(cache=True, parallel=True)
+def obstacle_repulsion(sphere: bool, X0: np.ndarray, V: np.ndarray, invm: np.ndarray, a: np.ndarray, off: float,
+                       radius: float, lin: np.ndarray, ang: np.ndarray, thickness: float, friction: float, dt: float,
+                       dV: np.ndarray) -> int:
+    """Stage (a) against a plane or sphere (in parallel chunks): every movable vertex of ``X0`` (n, 3) [m] closer
+    than ``thickness`` [m] gets (added to ``dV`` (n, 3) [m/s]) the normal velocity change raising its normal
+    velocity relative to the obstacle's material to ``0.1 (thickness - d) / dt`` [m/s], with Coulomb ``friction``
+    on the tangential part. Plane: unit normal ``a``, offset ``off = p . n`` [m]; sphere: centre ``a`` [m], radius
+    ``radius`` [m]; the obstacle moves with velocity ``lin`` [m/s] and angular velocity ``ang`` [rad/s] about
+    ``a`` (sphere). Returns the number of such vertices."""
+    n = len(X0)
+    chunks = chunk_count(n, 1024)
+    part = np.zeros(chunks, np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        cnt = 0
+        for i in range(start, stop):
+            x0, x1, x2 = X0[i, 0], X0[i, 1], X0[i, 2]
+            if not sphere:
+                d = x0 * a[0] + x1 * a[1] + x2 * a[2] - off
+            else:
+                d = math.sqrt((x0 - a[0]) ** 2 + (x1 - a[1]) ** 2 + (x2 - a[2]) ** 2) - radius
+            if not (d < thickness and invm[i] > 0):
+                continue
+            cnt += 1
+            n0, n1, n2 = _obstacle_frame(sphere, x0, x1, x2, a)
+            u0, u1, u2 = lin[0], lin[1], lin[2]
+            if sphere:
+                r0, r1, r2 = x0 - a[0], x1 - a[1], x2 - a[2]
+                u0 += ang[1] * r2 - ang[2] * r1
+                u1 += ang[2] * r0 - ang[0] * r2
+                u2 += ang[0] * r1 - ang[1] * r0
+            v0, v1, v2 = V[i, 0] - u0, V[i, 1] - u1, V[i, 2] - u2
+            vn = v0 * n0 + v1 * n1 + v2 * n2
+            dvn = max(0.1 * (thickness - d) / dt - vn, 0.0)
+            t0, t1, t2 = v0 - vn * n0, v1 - vn * n1, v2 - vn * n2
+            tn = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+            kf = min(friction * dvn / (tn if tn > 0 else 1.0), 1.0)
+            dV[i, 0] += dvn * n0 - kf * t0
+            dV[i, 1] += dvn * n1 - kf * t1
+            dV[i, 2] += dvn * n2 - kf * t2
+        part[ch] = cnt
+    total = 0
+    for ch in range(chunks):
+        total += part[ch]
+    return total
+
+
+@numba.njit(cache=True, parallel=True)
+def obstacle_impulses(sphere: bool, X0: np.ndarray, V: np.ndarray, invm: np.ndarray, ids: np.ndarray, toi: np.ndarray,
+                      dt: float, a: np.ndarray, off: float, radius: float, lin: np.ndarray, ang: np.ndarray,
+                      thickness: float, eta: float, dV: np.ndarray) -> None:
+    """The CCD impulses of vertices ``ids`` (distinct) hitting a plane or sphere at times ``toi`` (fractions of the
+    step ``dt`` [s], clipped to [0, 1]), added to ``dV`` (N, 3) [m/s] (in parallel chunks): the normal at the
+    point of impact (the sphere's centre moved on by ``toi dt lin``), the normal velocity relative to the obstacle's
+    material that ends the step at ``clip(d0 / 2, 2 eta, thickness)`` from the start distance ``d0``, applied only
+    where the vertex is slower and movable. Obstacle arguments as :func:`obstacle_repulsion` (at the step start)."""
+    k = len(ids)
+    chunks = chunk_count(k, 256)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        for j in range(start, stop):
+            i = ids[j]
+            s = min(max(toi[j], 0.0), 1.0)
+            x0, x1, x2 = X0[i, 0] + dt * s * V[i, 0], X0[i, 1] + dt * s * V[i, 1], X0[i, 2] + dt * s * V[i, 2]
+            n0, n1, n2 = a[0], a[1], a[2]
+            if sphere:  # from the centre at the time of impact (a vertex at the centre: no normal)
+                f = dt * s
+                r0, r1, r2 = x0 - (a[0] + f * lin[0]), x1 - (a[1] + f * lin[1]), x2 - (a[2] + f * lin[2])
+                rn = max(math.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-300)
+                n0, n1, n2 = r0 / rn, r1 / rn, r2 / rn
+            if not sphere:
+                d0 = X0[i, 0] * a[0] + X0[i, 1] * a[1] + X0[i, 2] * a[2] - off
+            else:
+                d0 = math.sqrt((X0[i, 0] - a[0]) ** 2 + (X0[i, 1] - a[1]) ** 2 + (X0[i, 2] - a[2]) ** 2) - radius
+            u0, u1, u2 = lin[0], lin[1], lin[2]
+            if sphere:  # the material's velocity at the point of impact, about the centre at the step start
+                r0, r1, r2 = x0 - a[0], x1 - a[1], x2 - a[2]
+                u0 += ang[1] * r2 - ang[2] * r1
+                u1 += ang[2] * r0 - ang[0] * r2
+                u2 += ang[0] * r1 - ang[1] * r0
+            vn = (V[i, 0] - u0) * n0 + (V[i, 1] - u1) * n1 + (V[i, 2] - u2) * n2
+            want = (min(max(0.5 * d0, 2.0 * eta), thickness) - d0) / dt
+            dvn = max(want - vn, 0.0) if invm[i] > 0 else 0.0
+            dV[i, 0] += dvn * n0
+            dV[i, 1] += dvn * n1
+            dV[i, 2] += dvn * n2

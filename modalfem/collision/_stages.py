@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 
 from modalfem.collision import _pair_kernels
-from modalfem.collision._distance_kernels import ccd_frames
+from modalfem.collision._distance_kernels import ccd_frames, obstacle_impulses, obstacle_repulsion
 from modalfem.collision._system import PairStore
 from modalfem.collision.ccd import MAX_INTERVALS
 from modalfem.collision.obstacles import Plane
@@ -107,41 +107,28 @@ def _ccd_impulses(system, X0, V, invm, dt, t, hits, ahits, cfg):
     if quads:
         dV, _ = apply_pair_impulses(V, invm, np.concatenate(quads), np.concatenate(ws), np.concatenate(ns),
                                     np.concatenate(tv), friction=0.0)
-    for k, ids, s in ahits:
-        ob = system.analytic[k]
-        s = np.clip(s, 0.0, 1.0)
-        xs = X0[ids] + (dt * s)[:, None] * V[ids]
-        if isinstance(ob, Plane):
-            nrm = ob.normal_at(xs, t)
-        else:
-            r = xs - (ob.center + (t + dt * s)[:, None] * ob.velocity)
-            nrm = r / np.maximum(np.linalg.norm(r, axis=1), 1e-300)[:, None]
-        d0 = ob.signed_distance(X0[ids], t)
-        vn = np.einsum("ki,ki->k", V[ids] - ob.velocity_at(xs, t), nrm)
-        want = (np.clip(0.5 * d0, 2 * eta, h) - d0) / dt
-        dvn = np.maximum(want - vn, 0.0) * (invm[ids] > 0)
-        dV[ids] += dvn[:, None] * nrm
+    for k, ids, s in ahits:  # one compiled parallel pass per obstacle
+        sphere, a, off, radius, lin, ang = _obstacle_args(system.analytic[k], t)
+        obstacle_impulses(sphere, X0, V, invm, np.ascontiguousarray(ids, dtype=np.int64),
+                          np.ascontiguousarray(s, dtype=float), dt, a, off, radius, lin, ang, h, eta, dV)
     return dV
+
+
+def _obstacle_args(ob, t):
+    """A plane's or sphere's arguments of the compiled obstacle kernels at time ``t``: (sphere?, plane normal or
+    sphere centre, plane offset, radius, velocity, angular velocity)."""
+    if isinstance(ob, Plane):
+        return False, ob.normal, float((ob.point + t * ob.velocity) @ ob.normal), 0.0, ob.velocity, np.zeros(3)
+    return True, ob.center_at(t), 0.0, float(ob.radius), ob.velocity, ob.angular_velocity
 
 
 def _analytic_repulsion(system, X0, V, invm, dt, t, cfg, n):
     h, mu = cfg.thickness, cfg.friction
     dV = np.zeros_like(V)
     count = 0
-    for ob in system.analytic:
-        d = ob.signed_distance(X0[:n], t)
-        ids = np.nonzero((d < h) & (invm[:n] > 0))[0]
-        if not len(ids):
-            continue
-        count += len(ids)
-        nrm = ob.normal_at(X0[ids], t)
-        vr = V[ids] - ob.velocity_at(X0[ids], t)
-        vn = np.einsum("ki,ki->k", vr, nrm)
-        dvn = np.maximum(0.1 * (h - d[ids]) / dt - vn, 0.0)
-        vt = vr - vn[:, None] * nrm
-        tn = np.linalg.norm(vt, axis=1)
-        kf = np.minimum(mu * dvn / np.where(tn > 0, tn, 1.0), 1.0)
-        dV[ids] += dvn[:, None] * nrm - kf[:, None] * vt
+    for ob in system.analytic:  # one compiled parallel pass per obstacle over the cloth vertices
+        sphere, a, off, radius, lin, ang = _obstacle_args(ob, t)
+        count += obstacle_repulsion(sphere, X0[:n], V[:n], invm[:n], a, off, radius, lin, ang, h, mu, dt, dV[:n])
     return dV, count
 
 

@@ -312,7 +312,6 @@ def test_vertex_hits_on_planes_and_spheres_match_their_definitions_on_one_and_tw
 
     from modalfem._threads import thread_count
     from modalfem.collision._stages import _analytic_contacts
-    from modalfem.collision.obstacles import Plane, Sphere
 
     rng = np.random.default_rng(11)
     X0 = rng.uniform(-0.3, 0.3, (5000, 3))
@@ -376,3 +375,67 @@ def test_ccd_frames_are_the_contact_frames_at_the_time_of_impact_on_one_and_two_
         np.testing.assert_allclose(T, target, rtol=1e-12, atol=1e-12 * np.abs(target).max())
         for a, b in zip(runs[0], runs[-1]):
             np.testing.assert_array_equal(a, b)
+
+
+def _obstacle_reference(ob, X0, V, invm, dt, t, h, mu, eta, ids, s):
+    """Stage (a)'s and the CCD's vertex-obstacle velocity changes in numpy, from their definitions."""
+    d = ob.signed_distance(X0, t)
+    near = np.nonzero((d < h) & (invm > 0))[0]
+    nrm = ob.normal_at(X0[near], t)
+    vr = V[near] - ob.velocity_at(X0[near], t)
+    vn = np.einsum("ki,ki->k", vr, nrm)
+    dvn = np.maximum(0.1 * (h - d[near]) / dt - vn, 0.0)
+    vt = vr - vn[:, None] * nrm
+    tn = np.linalg.norm(vt, axis=1)
+    kf = np.minimum(mu * dvn / np.where(tn > 0, tn, 1.0), 1.0)
+    rep = np.zeros_like(V)
+    rep[near] = dvn[:, None] * nrm - kf[:, None] * vt
+    s = np.clip(s, 0.0, 1.0)
+    xs = X0[ids] + (dt * s)[:, None] * V[ids]
+    if isinstance(ob, Plane):
+        nrm = ob.normal_at(xs, t)
+    else:
+        r = xs - (ob.center + (t + dt * s)[:, None] * ob.velocity)
+        nrm = r / np.linalg.norm(r, axis=1)[:, None]
+    d0 = ob.signed_distance(X0[ids], t)
+    vn = np.einsum("ki,ki->k", V[ids] - ob.velocity_at(xs, t), nrm)
+    want = (np.clip(0.5 * d0, 2 * eta, h) - d0) / dt
+    imp = np.zeros_like(V)
+    imp[ids] = (np.maximum(want - vn, 0.0) * (invm[ids] > 0))[:, None] * nrm
+    return rep, len(near), imp
+
+
+def test_obstacle_repulsion_and_impulses_match_their_definitions_on_one_and_two_threads():
+    """Stage (a) against a moving plane and a spinning, moving sphere, and the CCD impulses of the vertices that hit
+    them (compiled parallel passes), against the numpy definitions; the same bits on 1 and 2 threads."""
+    from types import SimpleNamespace
+
+    import numba
+
+    from modalfem._threads import thread_count
+    from modalfem.collision import _stages
+
+    rng = np.random.default_rng(13)
+    X0 = rng.uniform(-0.3, 0.3, (5000, 3))
+    V = rng.normal(0.0, 3.0, (5000, 3))
+    invm = np.where(rng.uniform(size=5000) < 0.05, 0.0, 1.0)
+    dt, t = 0.01, 0.02
+    cfg = CollisionConfig(thickness=0.05, friction=0.3)
+    for ob in (Plane([0.0, 0.0, -0.1], [0.1, 0.2, 1.0], velocity=[0.0, 0.0, 0.5]),
+               Sphere([0.05, 0.0, 0.0], 0.2, velocity=[1.0, 0.0, -2.0], angular_velocity=[0.0, 3.0, 1.0])):
+        system = SimpleNamespace(analytic=[ob])
+        ahits = _stages.analytic_hits(system, X0, V, dt, t, cfg.eta, len(X0))
+        rep, count, imp = _obstacle_reference(ob, X0, V, invm, dt, t, cfg.thickness, cfg.friction, cfg.eta,
+                                              ahits[0][1], ahits[0][2])
+        assert count > 100 and len(ahits[0][1]) > 100
+        runs = []
+        for threads in (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,):
+            with thread_count(threads):
+                runs.append((_stages._analytic_repulsion(system, X0, V, invm, dt, t, cfg, len(X0)),
+                             _stages._ccd_impulses(system, X0, V, invm, dt, t, [], ahits, cfg)))
+        (got_rep, got_count), got_imp = runs[0]
+        assert got_count == count
+        np.testing.assert_allclose(got_rep, rep, rtol=1e-12, atol=1e-12 * np.abs(rep).max())
+        np.testing.assert_allclose(got_imp, imp, rtol=1e-12, atol=1e-12 * np.abs(imp).max())
+        np.testing.assert_array_equal(runs[0][0][0], runs[-1][0][0])
+        np.testing.assert_array_equal(runs[0][1], runs[-1][1])
