@@ -77,8 +77,9 @@ def _total_cell(cell: dict, runs: dict, path: str, case: str, rung) -> str:
 def render(runs: dict, rungs, paths, *, command: str, date: str, machine: str, versions: dict) -> str:
     """The markdown section. ``runs[(path, case, rung)]`` = every run's result dict (``run_case``)."""
     L = [SECTION, ""]
-    L.append("A PROXY for AMD CPUs, measured on the Intel machine below, NOT on an AMD one: MKL cannot run its "
-             "AVX-512 kernels on AMD CPUs and OpenBLAS runs Zen kernels there, so every case also ran with "
+    L.append("A PROXY for AMD CPUs, measured on the Intel machine below, NOT on an AMD one: MKL picks its kernels "
+             "per CPU (its AVX-512 ones on Intel CPUs) and OpenBLAS runs Zen kernels on AMD CPUs, so every case also "
+             "ran with "
              "`MKL_ENABLE_INSTRUCTIONS` and `OPENBLAS_CORETYPE` forced. Same instruction sets, not the same "
              "cores, caches or memory. Ours (`ours-fenicsx`: modes(backend='fenicsx'), default solver, certificate "
              "included) and peer A (the dolfinx + SLEPc recipe, MUMPS on OpenBLAS) ran under the same settings, "
@@ -104,7 +105,9 @@ def render(runs: dict, rungs, paths, *, command: str, date: str, machine: str, v
              "interleaved runs (repeat, then path, then case) "
              "(fastest-slowest); ratio = peer A / ours (above 1: ours ahead); 'vs default' = this path's ratio "
              "over the default path's ratio in this run; CPU = median CPU time of the child over the same "
-             "interval, all its threads (less sensitive than wall time to other jobs on a loaded machine).")
+             "interval, all its threads (less sensitive than wall time to other jobs on a loaded machine)."
+             + (" Peer A runs the same code under `avx2` and `sse4_2` (the MKL setting does not reach it): the "
+                "difference between its two rows is this run's noise." if {"avx2", "sse4_2"} <= set(paths) else ""))
     L.append("")
     hdr = ["P", "cells", "DOFs", "path", "ours s", "peer A s", "peer A / ours", "vs default", "ours CPU s",
            "peer A CPU s", "CPU: peer A / ours", "ours certified", "f1 Hz (ours)"]
