@@ -19,7 +19,10 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["GROUP_PAIRS", "MAX_GROUPS", "ROUNDING", "pair_impulses", "arrange_pairs", "sequential_impulses", "sweep_groups"]
+from modalfem._threads import chunk_bounds, chunk_count
+
+__all__ = ["GROUP_PAIRS", "MAX_GROUPS", "ROUNDING", "arrange_pairs", "pair_impulses", "pair_keys",
+           "sequential_impulses", "sweep_groups"]
 
 #: relative size [-] below which a pair's normal velocity deficit counts as met
 ROUNDING = 1e-12
@@ -101,46 +104,71 @@ def pair_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndar
     return dV, active
 
 
-@numba.njit(cache=True)
-def sweep_groups(X: np.ndarray, writable: np.ndarray, quads: np.ndarray, groups: int):
-    """The order of the parallel sweeps over the pairs ``quads`` (k, 4) at positions ``X`` (N, 3) [m]; ``writable``
-    (N,) bool marks the vertices an impulse may move (the others are only read, they never conflict).
-
-    The pairs are cut into at most ``groups`` slabs along the axis of widest extent of their first vertices, each of
-    about ``k / groups`` pairs (a histogram of ``_BINS_PER_GROUP`` bins per group) and wider than a pair's reach (so
-    that only neighbouring slabs can share a vertex), the groups' conflicts (a writable vertex in pairs of both)
-    coloured greedily in slab order: two colours unless the reach rule was broken by rounding (the colouring is of
-    the actual conflicts, so it is always valid). Returns ``(perm, cptr, tptr)``: (k,) the pairs in sweep order
-    (colour, group, index), (colours + 1,) each colour's groups, (groups + 1,) each group's pairs in ``perm``."""
+@numba.njit(cache=True, parallel=True)
+def pair_keys(X: np.ndarray, writable: np.ndarray, quads: np.ndarray):
+    """The slab keys of ``sweep_groups`` (in parallel chunks): the axis of widest extent of the pairs' first
+    vertices, each pair's key (the lowest coordinate of its writable vertices along it; its first vertex's if none)
+    and the reach (the largest spread of a pair's writable vertices along it). Returns ``(key, reach)``."""
     k = len(quads)
-    G = max(1, min(groups, MAX_GROUPS))
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for p in range(k):
-        for c in range(3):
-            x = X[quads[p, 0], c]
-            lo[c] = min(lo[c], x)
-            hi[c] = max(hi[c], x)
+    chunks = chunk_count(k, 4096)
+    lo = np.full((chunks, 3), np.inf)
+    hi = np.full((chunks, 3), -np.inf)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        for p in range(start, stop):
+            for c in range(3):
+                x = X[quads[p, 0], c]
+                lo[ch, c] = min(lo[ch, c], x)
+                hi[ch, c] = max(hi[ch, c], x)
+    span = np.zeros(3)
+    for c in range(3):
+        a, b = np.inf, -np.inf
+        for ch in range(chunks):
+            a = min(a, lo[ch, c])
+            b = max(b, hi[ch, c])
+        span[c] = b - a
     axis = 0
     for c in range(1, 3):
-        if hi[c] - lo[c] > hi[axis] - lo[axis]:
+        if span[c] > span[axis]:
             axis = c
-    # each pair's key: the lowest coordinate of its writable vertices (its first vertex if none); reach: the largest
-    # spread of a pair's writable vertices along the axis
     key = np.empty(k)
+    part = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        r = 0.0
+        for p in range(start, stop):
+            a = np.inf
+            b = -np.inf
+            for j in range(4):
+                v = quads[p, j]
+                if writable[v]:
+                    a = min(a, X[v, axis])
+                    b = max(b, X[v, axis])
+            if a == np.inf:
+                a = b = X[quads[p, 0], axis]
+            key[p] = a
+            r = max(r, b - a)
+        part[ch] = r
     reach = 0.0
-    for p in range(k):
-        a = np.inf
-        b = -np.inf
-        for j in range(4):
-            v = quads[p, j]
-            if writable[v]:
-                a = min(a, X[v, axis])
-                b = max(b, X[v, axis])
-        if a == np.inf:
-            a = b = X[quads[p, 0], axis]
-        key[p] = a
-        reach = max(reach, b - a)
+    for ch in range(chunks):
+        reach = max(reach, part[ch])
+    return key, reach
+
+
+@numba.njit(cache=True)
+def sweep_groups(key: np.ndarray, reach: float, writable: np.ndarray, quads: np.ndarray, groups: int):
+    """The order of the parallel sweeps over the pairs ``quads`` (k, 4) from their slab keys ``key`` (k,) [m] and
+    ``reach`` [m] (``pair_keys``); ``writable`` (N,) bool marks the vertices an impulse may move (the others are
+    only read, they never conflict).
+
+    The pairs are cut into at most ``groups`` slabs along the keys' axis, each of about ``k / groups`` pairs (a
+    histogram of ``_BINS_PER_GROUP`` bins per group) and wider than the reach (so that only neighbouring slabs can
+    share a vertex), the groups' conflicts (a writable vertex in pairs of both) coloured greedily in slab order: two
+    colours unless the reach rule was broken by rounding (the colouring is of the actual conflicts, so it is always
+    valid). Returns ``(perm, cptr, tptr)``: (k,) the pairs in sweep order (colour, group, index), (colours + 1,)
+    each colour's groups, (groups + 1,) each group's pairs in ``perm``."""
+    k = len(quads)
+    G = max(1, min(groups, MAX_GROUPS))
     lo_k = np.inf
     hi_k = -np.inf
     for p in range(k):
@@ -171,7 +199,7 @@ def sweep_groups(X: np.ndarray, writable: np.ndarray, quads: np.ndarray, groups:
             inside = 0
     G = g + 1
     group = np.empty(k, np.int64)
-    vmask = np.zeros(len(X), np.uint64)
+    vmask = np.zeros(len(writable), np.uint64)
     for p in range(k):
         g = gbin[binof[p]]
         group[p] = g

@@ -167,12 +167,13 @@ def pair_order(X: np.ndarray, writable: np.ndarray, quads: np.ndarray) -> PairOr
     Returns:
         The :class:`PairOrder`.
     """
-    from modalfem.collision._impulse_kernels import GROUP_PAIRS, MAX_GROUPS, sweep_groups
+    from modalfem.collision._impulse_kernels import GROUP_PAIRS, MAX_GROUPS, pair_keys, sweep_groups
 
     quads = np.ascontiguousarray(quads, dtype=np.int64)
     writable = np.ascontiguousarray(writable, dtype=bool)
     groups = max(1, min(MAX_GROUPS, len(quads) // GROUP_PAIRS))
-    perm, cptr, tptr = sweep_groups(np.ascontiguousarray(X, dtype=float), writable, quads, groups)
+    key, reach = pair_keys(np.ascontiguousarray(X, dtype=float), writable, quads)
+    perm, cptr, tptr = sweep_groups(key, reach, writable, quads, groups)
     return PairOrder(perm, cptr, tptr, writable)
 
 
