@@ -29,7 +29,7 @@ from modalfem._threads import apply as _apply_threads
 from modalfem.collision._distance_kernels import edge_edge_lb, point_triangle_lb
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["ccd_batch", "ccd_block", "ccd_candidates"]
+__all__ = ["ccd_batch", "ccd_block", "ccd_candidates", "diagonal_gap", "diagonal_intervals"]
 
 _apply_threads()
 
@@ -192,6 +192,61 @@ def ccd_batch(vf: bool, x0: np.ndarray, x1: np.ndarray, eta: float, max_depth: i
 CCD_CHUNK = 256
 
 
+@numba.njit(cache=True, parallel=True)
+def diagonal_intervals(X0: np.ndarray, X1: np.ndarray) -> np.ndarray:
+    """Per vertex, its trajectory ``X0 -> X1`` ((N, 3) [m]) projected on the four box diagonals ``(1, 1, 1)``,
+    ``(1, 1, -1)``, ``(1, -1, 1)``, ``(-1, 1, 1)`` (not normalised): (N, 8) rows ``lo_0..lo_3, hi_0..hi_3`` [m], one
+    cache line a vertex. A straight-line motion projects onto an interval between its ends' projections, and a
+    primitive (convex hull of its vertices) into the union of its vertices' intervals, at every time of the
+    step. Chunks in parallel."""
+    N = len(X0)
+    out = np.empty((N, 8))
+    chunks = chunk_count(N, 1024)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(N, chunks, ch)
+        for i in range(start, stop):
+            a0, a1, a2 = X0[i, 0], X0[i, 1], X0[i, 2]
+            b0, b1, b2 = X1[i, 0], X1[i, 1], X1[i, 2]
+            p, q = a0 + a1 + a2, b0 + b1 + b2
+            out[i, 0], out[i, 4] = min(p, q), max(p, q)
+            p, q = a0 + a1 - a2, b0 + b1 - b2
+            out[i, 1], out[i, 5] = min(p, q), max(p, q)
+            p, q = a0 - a1 + a2, b0 - b1 + b2
+            out[i, 2], out[i, 6] = min(p, q), max(p, q)
+            p, q = a1 + a2 - a0, b1 + b2 - b0
+            out[i, 3], out[i, 7] = min(p, q), max(p, q)
+    return out
+
+
+@numba.njit(cache=True)
+def diagonal_gap(X0: np.ndarray, X1: np.ndarray, eta: float) -> float:
+    """The gap [m] between two primitives' projections on a diagonal of :func:`diagonal_intervals` beyond which
+    they are farther apart than ``eta`` [m] throughout the step: ``eta * sqrt(3)`` (the diagonals' length),
+    plus the rounding of the projections (a sum of three coordinates, a few ulps of the coordinate scale
+    ``max |X0|, |X1|``: bounded here by ``ROUNDING`` times three times it, as in :func:`_prologue`)."""
+    scale = 0.0
+    for i in range(len(X0)):
+        for c in range(3):
+            scale = max(scale, abs(X0[i, c]), abs(X1[i, c]))
+    return eta * math.sqrt(3.0) * (1.0 + 1e-9) + ROUNDING * 3.0 * scale
+
+
+@numba.njit(cache=True, inline="always")
+def _diagonal_apart(vf: bool, diag: np.ndarray, c0: int, c1: int, c2: int, c3: int, gap: float) -> bool:
+    """The two primitives' projections on one of :func:`diagonal_intervals`' diagonals are more than ``gap``
+    apart (then their distance exceeds ``gap / sqrt(3)`` at every time of the step)."""
+    apart = False
+    for d in range(4):
+        alo, ahi = diag[c0, d], diag[c0, 4 + d]
+        blo, bhi = min(diag[c2, d], diag[c3, d]), max(diag[c2, 4 + d], diag[c3, 4 + d])
+        if vf:
+            blo, bhi = min(blo, diag[c1, d]), max(bhi, diag[c1, 4 + d])
+        else:
+            alo, ahi = min(alo, diag[c1, d]), max(ahi, diag[c1, 4 + d])
+        apart = apart | (alo > bhi + gap) | (blo > ahi + gap)
+    return apart
+
+
 @numba.njit(cache=True)
 def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, movable: np.ndarray,
                    roots: np.ndarray, eta: float, max_depth: int, max_intervals: int):
@@ -206,17 +261,26 @@ def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, 
         in [0, 1].
     """
     none = np.zeros(0, dtype=np.bool_)
-    return ccd_block(vf, X0, X1, quads, none, none, movable, roots, eta, max_depth, max_intervals)
+    return ccd_block(vf, X0, X1, quads, none, none, movable, roots, eta, max_depth, max_intervals,
+                     diagonal_intervals(X0, X1), diagonal_gap(X0, X1, eta))
 
 
 @numba.njit(cache=True, parallel=True)
 def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone: np.ndarray, only: np.ndarray,
-              movable: np.ndarray, roots: np.ndarray, eta: float, max_depth: int, max_intervals: int):
+              movable: np.ndarray, roots: np.ndarray, eta: float, max_depth: int, max_intervals: int,
+              diag: np.ndarray, gap: float):
     """:func:`ccd_candidates` of a block of the pipeline's pair store (:class:`modalfem.collision._system.PairStore`),
     its filters in the same parallel pass as the CCD instead of a compacted copy of the selected pairs first:
     only the pairs still in the store (unless ``gone`` ((N,) bool) is empty: without a vertex flagged in it, one
     searched again since the block was found) and, unless ``only`` ((N,) bool) is empty, holding a flagged
-    vertex.
+    vertex. A pair whose trajectory boxes come within ``eta`` is next tested on the box diagonals
+    (``diag``: :func:`diagonal_intervals` of ``X0``, ``X1``; ``gap``: :func:`diagonal_gap`): projections more
+    than ``gap`` apart prove it farther than ``eta`` throughout the step, without the coplanarity test. On the
+    64x64 pile's dense phase (171 calls of steps 50-60) this rejects 63 % of the pairs the boxes pass, and 63 %
+    of those the coplanarity test cannot reject (points crossing a triangle's plane outside it), which then
+    need no subdivision: ``ccd_hits`` of those calls 421-426 -> 377-399 ms (fastest of 5, interleaved runs,
+    one thread, Intel Xeon, shared machine), the same hits; the six face diagonals ``(1, +-1, 0)``... too
+    (rejecting 76 %) cost more than they saved (401-423 ms).
 
     Returns:
         ``(idx, toi)``: (h,) indices into ``quads`` (ascending) and times in [0, 1].
@@ -229,7 +293,7 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
         counts[ch] = _ccd_range(vf, X0, X1, quads, movable, roots, eta, max_depth, max_intervals, start, stop, idx,
-                                tois, gone, only)
+                                tois, gone, only, diag, gap)
     n = 0
     for ch in range(chunks):  # compact the chunks' hits (each written from its chunk's start) in order
         start, _ = chunk_bounds(k, chunks, ch)
@@ -241,7 +305,7 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
 
 @numba.njit(cache=True)
 def _ccd_range(vf: bool, X0, X1, quads, movable, roots, eta: float, max_depth: int, max_intervals: int, start: int,
-               stop: int, idx, tois, gone, only) -> int:
+               stop: int, idx, tois, gone, only, diag, gap: float) -> int:
     """:func:`ccd_block` of the pairs ``start..stop-1``: hits written to
     ``idx``/``tois`` from ``start`` on; returns their count."""
     zones = len(roots) > 0
@@ -275,6 +339,8 @@ def _ccd_range(vf: bool, X0, X1, quads, movable, roots, eta: float, max_depth: i
                 alo, ahi = min(alo, X0[c1, c], X1[c1, c]), max(ahi, X0[c1, c], X1[c1, c])
             near = near & (alo <= bhi + eta) & (blo <= ahi + eta)
         if not near:
+            continue
+        if _diagonal_apart(vf, diag, c0, c1, c2, c3, gap):
             continue
         if _separated(vf, X0, X1, c0, c1, c2, c3, eta):
             continue

@@ -62,8 +62,9 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     """Colliding candidate pairs of ``store`` (a ``PairStore``): [("vf"|"ee", quads (k, 4), toi (k,))],
     skipping all-kinematic pairs, pairs inside one zone (``roots``) and, if ``only`` ((N,) bool) is
     given, pairs without a flagged vertex (their trajectories did not change since they were last found
-    collision-free). The cheap index filters run first, then the trajectory boxes (within ``eta``),
-    then the CCD (one compiled pass per store segment, :func:`modalfem.collision._ccd_kernels.ccd_block`;
+    collision-free). The cheap index filters run first, then the trajectory boxes (within ``eta``) and their
+    projections on the box diagonals, then the CCD (one compiled pass per store segment,
+    :func:`modalfem.collision._ccd_kernels.ccd_block`;
     the hits in the order of the store's pairs)."""
     from modalfem.collision import _ccd_kernels
 
@@ -72,6 +73,7 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     movable = invm > 0
     zones = np.zeros(0, dtype=np.int64) if roots is None else np.ascontiguousarray(roots, dtype=np.int64)
     only = None if only is None else np.ascontiguousarray(only, dtype=bool)
+    diag, gap = _ccd_kernels.diagonal_intervals(X0, X1), _ccd_kernels.diagonal_gap(X0, X1, eta)
     out = []
     for kind in ("vf", "ee"):
         qs, ts = [], []
@@ -82,7 +84,7 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
             if len(q) == 0:
                 continue
             idx, toi = _ccd_kernels.ccd_block(kind == "vf", X0, X1, q, gone, flags, movable, zones, eta,
-                                              PIPELINE_DEPTH, MAX_INTERVALS)
+                                              PIPELINE_DEPTH, MAX_INTERVALS, diag, gap)
             if len(idx):
                 qs.append(q[idx].astype(np.int64))
                 ts.append(toi)
