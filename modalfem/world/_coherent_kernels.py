@@ -53,8 +53,9 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
     """``vertex_face`` over the candidate pairs ``cv``, ``ct`` of ``_vf_candidates`` (a superset of the pairs
     within ``reach``): the same contacts, in the same order. ``lb`` (k,): lower bounds of the pairs' distances [m]
     at the last evaluation, which the bodies' motion since may have lowered by at most ``drop`` [m]: a pair still
-    beyond ``reach`` by them is skipped (``_vf_test`` would reject it) and its bound lowered; the others are
-    tested and their bound set to their distance."""
+    beyond ``reach`` by them, or beyond the distance of its vertex's best triangle so far, is skipped
+    (``_vf_test`` would reject it) and its bound lowered; the others are tested and their bound set to their
+    distance."""
     n = cv.shape[0]
     m = 0
     prev = -1
@@ -79,7 +80,9 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
             prev = cv[k]
             vid[i] = prev
             _to_local(xa[prev], Rb, pb, y)
-        if lb[k] - drop > reach:
+        if lb[k] - drop > reach or lb[k] - drop > dbest[i] * (1.0 + 1e-9):
+            # beyond reach, or farther than the vertex's best so far (``_vf_test`` would not take it: it takes a
+            # triangle nearer than the best, or as near within 1e-12): its bound lowered by the motion since
             lb[k] -= drop
             continue
         lb[k] = _vf_test(y, Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
@@ -110,11 +113,35 @@ def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, n
     return cm[:k].copy(), co[:k].copy()
 
 
+@numba.njit(cache=True, inline="always")
+def _ee_interior(y0, y1, Xb, Eb, f):
+    """False when ``edge_edge_closest`` of edge ``y0 y1`` and b's edge ``f`` certainly puts a closest point at an
+    end of an edge (its lines' closest points outside the segments, or the lines near parallel: the same
+    arithmetic as its first lines, without its square roots), which ``_ee_test`` rejects."""
+    e0, e1 = Eb[f, 0], Eb[f, 1]
+    d10, d11, d12 = y1[0] - y0[0], y1[1] - y0[1], y1[2] - y0[2]
+    d20, d21, d22 = Xb[e1, 0] - Xb[e0, 0], Xb[e1, 1] - Xb[e0, 1], Xb[e1, 2] - Xb[e0, 2]
+    r0, r1, r2 = y0[0] - Xb[e0, 0], y0[1] - Xb[e0, 1], y0[2] - Xb[e0, 2]
+    A = d10 * d10 + d11 * d11 + d12 * d12
+    B = d10 * d20 + d11 * d21 + d12 * d22
+    E = d20 * d20 + d21 * d21 + d22 * d22
+    C = d10 * r0 + d11 * r1 + d12 * r2
+    F = d20 * r0 + d21 * r1 + d22 * r2
+    den = A * E - B * B
+    if not den > 1e-14 * A * E:
+        return False
+    s = (B * F - C * E) / den
+    t = (A * F - B * C) / den
+    return 0 <= s <= 1 and 0 <= t <= 1
+
+
 @numba.njit(cache=True)
 def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co, lb, drop):
     """``edge_edge`` over the candidate pairs ``cm``, ``co`` of ``_ee_candidates`` (a superset of the pairs within
     ``margin``; ``scale``: max(1, largest |coordinate| of ``Xb``) [m]): the same pairs, in the same order. ``lb``,
-    ``drop``: as ``_vf_eval`` (a pair beyond the margin is rejected by ``_ee_test``)."""
+    ``drop``: as ``_vf_eval`` (a pair beyond the margin is rejected by ``_ee_test``, and so is a pair whose
+    closest points ``_ee_interior`` puts at an end: most of the pairs in a pile; its bound is lowered as a
+    skipped pair's)."""
     n = cm.shape[0]
     mine = np.empty(n, dtype=np.int64)
     other = np.empty(n, dtype=np.int64)
@@ -134,8 +161,8 @@ def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co, lb, drop):
             prev = e
             _to_local(xa[Ea[e, 0]], Rb, pb, y0)
             _to_local(xa[Ea[e, 1]], Rb, pb, y1)
-        if lb[p] - drop > margin:
-            lb[p] -= drop
+        if lb[p] - drop > margin or not _ee_interior(y0, y1, Xb, Eb, f):
+            lb[p] -= drop  # a lower bound of its distance still
             continue
         ok = _ee_test(y0, y1, Xb, Eb, adj, Tb, f, margin, scale, x, res)
         lb[p] = res[6]
