@@ -496,7 +496,8 @@ def profile_lines(profiles: dict) -> list[str]:
     need = (1 - 1 / CLOTH_GOAL_RATIO) / (1 - 1 / 2)
     L += ["", (f"A speed-up of {CLOTH_GOAL_RATIO:g}x on 2 cores needs a parallel share of at least {100 * need:.0f} % "
                "(Amdahl); what is not in a parallel kernel (the Python of the pipeline's stages, numpy "
-               "bookkeeping, the sequential impulse sweeps, the pair store's updates) sets the bound.")]
+               "bookkeeping, the pair store's updates, the impact zones' union-find and per-zone solves) sets the "
+               "bound.")]
     return L
 
 
