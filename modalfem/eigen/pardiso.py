@@ -62,7 +62,9 @@ SERIAL_BELOW = 10_000
 #: modes() call): 3,000 rows 0.027-0.031 s with AMD against 0.037-0.058 s with METIS (P1 and P2);
 #: 19,440 rows 0.45 against 0.50-0.53 s (P1) and 0.51-0.56 against 0.55-0.57 s (P2); 60,840 rows (P2)
 #: 3.24 against 3.16 s; 138,720 rows (P2) METIS 11.2 s, AMD 26.7 s (77M against 96M factor entries).
-#: Minimum degree orders small graphs as well as nested dissection does, in a fraction of the time.
+#: Minimum degree orders small graphs as well as nested dissection does, in a fraction of the time. With MKL
+#: forced to its AVX2 kernels (the proxy for AMD CPUs) at 19,683 DOFs (P2) both took the same PARDISO time
+#: in one modes() call (medians 1.93 s AMD, 1.93 s METIS, 5 interleaved runs, load ~8).
 AMD_BELOW = 50_000
 #: order the supervariable quotient graph (see ``PardisoLDLT``) from this many rows on, when it has at
 #: least this many times fewer vertices. Measured at 138,720 DOFs (P2 cantilever, 46,240 nodes, one
