@@ -219,3 +219,29 @@ def modal_energy_change(dV, V0, off, size, mass, R, inertia, shift):
             work += dV[j] * V0[j]
             quad += dV[j] * dV[j]
     return work, quad
+
+
+@numba.njit(cache=True)
+def exchanged(body, other, point, lam, n):
+    """What each body received from each other body through the contacts with ``other[c] >= 0``: per ordered pair
+    ``body * n + other`` that has contacts (increasing), the sums in contact order of the impulses ``lam`` (k, 3)
+    [N s] and of their moments ``point x lam`` about the origin [N m s] (``point`` (k, 3) [m]): ``(keys, J, L)``
+    (dense n * n sums: n is the solve's body count)."""
+    J = np.zeros((n * n, 3))
+    L = np.zeros((n * n, 3))
+    seen = np.zeros(n * n, dtype=np.bool_)
+    for c in range(body.shape[0]):
+        if other[c] < 0:
+            continue
+        s = body[c] * n + other[c]
+        seen[s] = True
+        a0, a1, a2 = point[c, 0], point[c, 1], point[c, 2]
+        b0, b1, b2 = lam[c, 0], lam[c, 1], lam[c, 2]
+        J[s, 0] += b0
+        J[s, 1] += b1
+        J[s, 2] += b2
+        L[s, 0] += a1 * b2 - a2 * b1
+        L[s, 1] += a2 * b0 - a0 * b2
+        L[s, 2] += a0 * b1 - a1 * b0
+    keys = np.flatnonzero(seen)
+    return keys, J[keys], L[keys]

@@ -1237,15 +1237,9 @@ class World:
                 out.v += dv
                 out.x += dt * dv
         # what each body received from each other body (the other received the opposite), per pair
-        sel = np.flatnonzero(data["other"] >= 0)
-        if len(sel):
-            key = data["body"][sel] * len(names) + data["other"][sel]
-            uniq, inv = np.unique(key, return_inverse=True)
-            moment = np.cross(data["point"][sel], lam[sel])
-            # per pair sums in contact order (bincount adds in index order, as np.add.at, and is ~10x faster)
-            J = np.stack([np.bincount(inv, lam[sel, c], minlength=len(uniq)) for c in range(3)], axis=1)
-            L = np.stack([np.bincount(inv, moment[:, c], minlength=len(uniq)) for c in range(3)], axis=1)
-            for i, kk in enumerate(uniq):
+        uniq, J, L = _kernels.exchanged(data["body"], data["other"], data["point"], lam, len(names))
+        if len(uniq):  # per pair sums in contact order
+            for i, kk in enumerate(uniq.tolist()):
                 ctx.report.exchanged.append((names[kk // len(names)], names[kk % len(names)], J[i], L[i]))
         for name in self._sounds:  # what sounding bodies hear: the modal kick of the contacts that bounced
             if name in seg:
