@@ -25,13 +25,14 @@ from modalfem.world._solid_kernels import _edge_queries, _ee_test, _gather, _to_
 def _vf_candidates(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
     """Every (vertex of a, triangle of b) pair closer than ``radius`` [m] (arguments as ``vertex_face``), grouped
     by vertex in increasing order, each vertex's triangles in the tree's order (the order ``vertex_face`` meets
-    them in): ``(vertices, triangles)``, (k,) each."""
+    them in): ``(vertices, triangles, distances [m])``, (k,) each (the distances as ``_vf_test`` finds them)."""
     near, y, qlo, qhi = _vertex_queries(xa, Rb, pb, bound, radius, blo, bhi)
     m = near.shape[0]
     pairs = _query_range(qlo, qhi, 0, m, P, lo, hi, nonempty, slot_tri, slo, shi)
     n = pairs.shape[0]
     cv = np.empty(n, dtype=np.int64)
     ct = np.empty(n, dtype=np.int64)
+    cd = np.empty(n)
     x = np.empty((4, 3))
     w = np.empty(3)
     k = 0
@@ -42,10 +43,11 @@ def _vf_candidates(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonem
             x[1, d] = Xb[Tb[t, 0], d]
             x[2, d] = Xb[Tb[t, 1], d]
             x[3, d] = Xb[Tb[t, 2], d]
-        if point_triangle_closest(x, w) <= radius:
-            cv[k], ct[k] = near[i], t
+        dist = point_triangle_closest(x, w)
+        if dist <= radius:
+            cv[k], ct[k], cd[k] = near[i], t, dist
             k += 1
-    return cv[:k].copy(), ct[:k].copy()
+    return cv[:k].copy(), ct[:k].copy(), cd[:k].copy()
 
 
 @numba.njit(cache=True)
@@ -92,12 +94,14 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
 @numba.njit(cache=True)
 def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
     """Every (edge of a, edge of b) pair closer than ``radius`` [m] (arguments as ``edge_edge``), grouped by a's
-    edge in increasing order, in the order ``edge_edge`` meets them: ``(mine, other)``, (k,) each."""
+    edge in increasing order, in the order ``edge_edge`` meets them: ``(mine, other, distances [m])``, (k,) each
+    (the distances as ``_ee_test`` finds them)."""
     sel, y, qlo, qhi = _edge_queries(xa, Ea, Rb, pb, bound, radius, blo, bhi)
     pairs = _query_range(qlo, qhi, 0, sel.shape[0], P, lo, hi, nonempty, slot_tri, slo, shi)
     n = pairs.shape[0]
     cm = np.empty(n, dtype=np.int64)
     co = np.empty(n, dtype=np.int64)
+    cd = np.empty(n)
     x = np.empty((4, 3))
     k = 0
     for p in range(n):
@@ -107,10 +111,11 @@ def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, n
             x[1, d] = y[q, 1, d]
             x[2, d] = Xb[Eb[f, 0], d]
             x[3, d] = Xb[Eb[f, 1], d]
-        if edge_edge_closest(x)[0] <= radius:
-            cm[k], co[k] = sel[q], f
+        dist = edge_edge_closest(x)[0]
+        if dist <= radius:
+            cm[k], co[k], cd[k] = sel[q], f, dist
             k += 1
-    return cm[:k].copy(), co[:k].copy()
+    return cm[:k].copy(), co[:k].copy(), cd[:k].copy()
 
 
 @numba.njit(cache=True, inline="always")
@@ -297,18 +302,19 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
             qsnap[s, 1, :nm[b]] = q[qoff[b]:qoff[b] + nm[b]]
             for side in range(2):
                 p, o = (a, b) if side == 0 else (b, a)
-                cv, ct = _vf_candidates(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]],
+                cv, ct, cd = _vf_candidates(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]],
                                         tris[toff[o]:toff[o + 1]], bound[o], row[_R_VF], blo[o], bhi[o], tP[o],
                                         tlo[o], thi[o], tne[o], tslot[o], tslo[o], tshi[o])
                 if side == 0:
-                    cva[s], cta[s], cla[s] = cv, ct, np.zeros(cv.shape[0])
+                    cva[s], cta[s], cla[s] = cv, ct, cd
                 else:
-                    cvb[s], ctb[s], clb[s] = cv, ct, np.zeros(cv.shape[0])
-            cm, co = _ee_candidates(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b],
+                    cvb[s], ctb[s], clb[s] = cv, ct, cd
+            cm, co, cd = _ee_candidates(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b],
                                     Xl[voff[b]:voff[b + 1]], edges[eoff[b]:eoff[b + 1]], bound[b], row[_R_EE], blo[b],
                                     bhi[b], eP[b], elo[b], ehi[b], ene[b], eslot[b], eslo[b], eshi[b])
-            cem[s], ceo[s], cle[s] = cm, co, np.zeros(cm.shape[0])
-            # evaluated now: no motion since (the zero bounds make every kept pair tested)
+            cem[s], ceo[s], cle[s] = cm, co, cd
+            # evaluated now: no motion since, and the distances the walk found are the pairs' bounds (the kept pairs
+            # beyond this step's reach or margin, in the slack, are not tested again)
             row[_EVAL:_EVAL + 26] = row[0:26]
             qsnap[s, 2], qsnap[s, 3] = qsnap[s, 0], qsnap[s, 1]
         # how far the pair's distances may have dropped since its last evaluation (as the walk's test above)
