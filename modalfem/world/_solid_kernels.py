@@ -470,7 +470,8 @@ def velocity_blocks(quat, vel, L, qdot, qoff, nm, inertia_inv, g, radius, phi, p
 
     Returns:
         ``(V, speed)``: every body's ``(v + g dt, w, qdot)`` (6 + r) one after another (w = R I^-1 R^T L
-        [rad/s]), and (nb,) ``|v| + |w| radius + |g| dt + max |(Phi qdot)_i|`` [m/s] (the largest component).
+        [rad/s]), and (nb,) ``|v| + |w| radius + |g| dt + max_i |(Phi qdot)_i|`` [m/s] (the largest vertex speed of
+        the deformation, a 3-vector norm per vertex: a bound on every surface point's speed).
     """
     nb = quat.shape[0]
     V = np.empty(6 * nb + qdot.shape[0])
@@ -510,14 +511,16 @@ def velocity_blocks(quat, vel, L, qdot, qoff, nm, inertia_inv, g, radius, phi, p
             if na:
                 base = phi_off[b]
                 for u in range(voff[b + 1] - voff[b]):
+                    s2 = 0.0
                     for c in range(3):
                         p = base + (u * 3 + c) * r
                         s = 0.0
                         for j in range(na):
                             m = act[j]
                             s += phi[p + m] * qdot[qoff[b] + m]
-                        top = max(top, abs(s))
-            sp += top
+                        s2 += s * s
+                    top = max(top, s2)
+            sp += math.sqrt(top)
         speed[b] = sp
         o += 6 + r
     return V, speed

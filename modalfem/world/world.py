@@ -1121,7 +1121,7 @@ class World:
                 speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
                                     + np.linalg.norm(m["g"]) * dt)
                 if body.mode_count:
-                    speed[name] += float(np.abs(body.shapes_t.T @ s.qdot).max())
+                    speed[name] += float(np.sqrt(((s.qdot @ body.shapes_t).reshape(-1, 3) ** 2).sum(1)).max())  # per vertex
                 seg[name] = (n_off, 6 + body.mode_count)
             else:
                 out = ctx.out.bodies[name]

@@ -461,3 +461,23 @@ def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the
     assert len(walks) == 300 and found > 300
     assert sum(walks[1:150]) >= 3 and sum(walks[150:]) >= 3
     assert sum(walks) < 150
+
+
+def test_speed_bound_holds_for_every_surface_point_whatever_its_direction(bar_model):
+    """The speed bound of ``velocity_blocks`` (the reach of the pair search) is at least every surface vertex's
+    deformation speed |(Phi qdot)_i| (a 3-vector norm; a bound from the largest single component undercuts it by up
+    to sqrt(3) when a vertex moves along a diagonal), and the Python path of the solve uses the same bound."""
+    rng = np.random.default_rng(7)
+    w, s = _pair_world(bar_model, rng, overlap=0.0)
+    for n in ("a", "b"):
+        s[n].velocity[:] = 0.0
+        s[n].angular_momentum[:] = 0.0
+    g = {n: np.zeros(3) for n in w._fast.names}
+    _, speed = w._fast.velocity_blocks(s.bodies, g, 1e-3)
+    for i, n in enumerate(w._fast.names):
+        body = w._modal[n]["body"]
+        u = (s[n].qdot @ body.shapes_t).reshape(-1, 3)
+        norms = np.sqrt((u ** 2).sum(1))
+        assert norms.max() > 1.05 * np.abs(u).max()  # the draw moves some vertex off the axes
+        assert speed[i] >= norms.max() * (1 - 1e-12)
+        assert speed[i] <= norms.max() * (1 + 1e-12)  # and no looser than that here (v = w = g = 0)
