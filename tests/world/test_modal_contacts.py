@@ -466,7 +466,7 @@ def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the
 def test_speed_bound_holds_for_every_surface_point_whatever_its_direction(bar_model):
     """The speed bound of ``velocity_blocks`` (the reach of the pair search) is at least every surface vertex's
     deformation speed |(Phi qdot)_i| (a 3-vector norm; a bound from the largest single component undercuts it by up
-    to sqrt(3) when a vertex moves along a diagonal), and the Python path of the solve uses the same bound."""
+    to sqrt(3) when a vertex moves along a diagonal)."""
     rng = np.random.default_rng(7)
     w, s = _pair_world(bar_model, rng, overlap=0.0)
     for n in ("a", "b"):
