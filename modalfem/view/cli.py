@@ -12,6 +12,7 @@ import argparse
 import signal
 import sys
 import threading
+import time
 
 from modalfem.cli import _Parser  # usage errors: one line, exit code 2
 
@@ -41,10 +42,14 @@ def main(argv: list[str] | None = None) -> int:
     model = ModalModel.load(args.model)
     explorer = ModeExplorer(model, mode=args.mode, amplitude=args.amplitude, impulse=args.impulse,
                             host=args.host, port=args.port)
-    stop = threading.Event()
-    previous = None
+    stopping: list[int] = []  # a signal handler only appends: no lock taken there (Event.set in a handler can
+    # deadlock when the signal lands while the main thread holds the event's own lock)
+    previous = {}
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        # Ctrl-C and SIGTERM only mark the stop: a KeyboardInterrupt raised at an arbitrary bytecode (inside a lock's
+        # wait, say) could leave a lock held and the shutdown stuck
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            previous[sig] = signal.signal(sig, lambda *_: stopping.append(1))
     try:
         explorer.start()
         print(f"modalfem view: {explorer.url} ({model.mode_count} modes, {model.vertex_count} vertices; "
@@ -53,14 +58,11 @@ def main(argv: list[str] | None = None) -> int:
             import webbrowser
 
             webbrowser.open(explorer.url)
-        try:
-            while not stop.wait(0.2):
-                pass
-        except KeyboardInterrupt:
-            pass
+        while not stopping:
+            time.sleep(0.1)  # interrupted by a signal: its handler runs, then the loop sees the mark
     finally:
         explorer.close()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     print("modalfem view: stopped", flush=True)
     return 0

@@ -56,7 +56,7 @@ def test_serves_prints_the_url_and_stops_cleanly(view_model_file, sig):
         assert scene["bodies"][0]["mode_count"] == 8
         assert next(c for c in scene["controls"] if c["name"] == "mode")["value"] == 1  # --mode 2, 0-based
         proc.send_signal(sig)
-        out, err = proc.communicate(timeout=15)
+        out, err = proc.communicate(timeout=30)  # a loaded CI machine; a hang never ends
     finally:
         if proc.poll() is None:
             proc.kill()
