@@ -16,6 +16,8 @@ import math
 import numba
 import numpy as np
 
+from modalfem.world._kernels import add_effective_mass
+
 #: contact kinds in the warm-start keys
 VF, EE, PLANE = 0, 1, 2
 #: feature indices (a vertex; an edge pair, mine * (other body's edge count) + other) sit below this in a key
@@ -116,15 +118,7 @@ def _rows(body_a, verts_a, w_a, body_b, verts_b, w_b, point, point_b, R, Iw_inv,
                        mask_off, mask, vel_off, off, nd, jptr, J, WJt, e, jb)
             e += 1
         ptr[c + 1] = e
-        for ee in range(ptr[c], e):
-            n = nd[ee]
-            base = jptr[ee]
-            for a in range(3):
-                for b in range(3):
-                    s = 0.0
-                    for j in range(n):
-                        s += J[base + a * n + j] * WJt[base + j * 3 + b]
-                    K[c, a, b] += s
+        add_effective_mass(K, c, ptr, nd, jptr, J, WJt)
     return ptr, off, nd, jptr, J, WJt, K
 
 

@@ -16,21 +16,27 @@ import numba
 import numpy as np
 
 
+@numba.njit(cache=True, inline="always")
+def add_effective_mass(K, c, ptr, nd, jptr, J, WJt):
+    """Adds contact c's ``sum_e J_e W_e J_e^T`` [1/kg] over its entries ``ptr[c]:ptr[c + 1]`` to ``K[c]`` (3, 3)."""
+    for e in range(ptr[c], ptr[c + 1]):
+        n = nd[e]
+        base = jptr[e]
+        for a in range(3):
+            for b in range(3):
+                s = 0.0
+                for j in range(n):
+                    s += J[base + a * n + j] * WJt[base + j * 3 + b]
+                K[c, a, b] += s
+
+
 @numba.njit(cache=True)
 def effective_masses(ptr, off, nd, jptr, J, WJt):
     """Per contact the 3 x 3 ``K_c = sum_e J_e W_e J_e^T`` [1/kg] (velocity per unit impulse), (k, 3, 3)."""
     k = len(ptr) - 1
     K = np.zeros((k, 3, 3))
     for c in range(k):
-        for e in range(ptr[c], ptr[c + 1]):
-            n = nd[e]
-            base = jptr[e]
-            for a in range(3):
-                for b in range(3):
-                    s = 0.0
-                    for j in range(n):
-                        s += J[base + a * n + j] * WJt[base + j * 3 + b]
-                    K[c, a, b] += s
+        add_effective_mass(K, c, ptr, nd, jptr, J, WJt)
     return K
 
 
