@@ -34,7 +34,11 @@ pytestmark = pytest.mark.skipif(not have_pardiso(), reason="MKL PARDISO not load
 CELLS = (10, 2, 2)  # P2: 1,575 DOFs (1,500 free; the dense counts below stay cheap)
 K_MODES = 10
 #: what MKL and OpenBLAS report under each forced path
-EXPECTED = {"avx2": ("AVX2", "Zen"), "sse4_2": ("SSE4.2", "Zen")}
+#: MKL's branch and the OpenBLAS core names each forced path may report: an OpenBLAS built without a separate Zen
+#: target (the scipy-openblas wheels of the pip-only venv) runs its Haswell kernels for OPENBLAS_CORETYPE=Zen and
+#: names them so; Debian's reports Zen
+ZEN = ("Zen", "Haswell")
+EXPECTED = {"avx2": ("AVX2", ZEN), "sse4_2": ("SSE4.2", ZEN)}
 
 CHILD = """
 import json, sys
@@ -93,7 +97,7 @@ def _check_paths(backend: str, solver: str, assemble, tmp_path):
             mkl, core = EXPECTED[p]
             if mkl == "AVX2" and default_mkl.startswith("SSE"):
                 pytest.skip(f"this CPU has no AVX2 (MKL runs {default_mkl})")
-            assert r["code_path"] == {"mkl": mkl, "openblas": core}, (p, r["code_path"])
+            assert r["code_path"]["mkl"] == mkl and r["code_path"]["openblas"] in core, (p, r["code_path"])
         assert "pardiso" in r["factor"], (p, r["factor"])
         assert r["passed"], f"{p}: certificate did not pass"
         lam, X = r["eigenvalues"], r["shapes"][free]
