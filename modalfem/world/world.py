@@ -1121,7 +1121,8 @@ class World:
                 speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
                                     + np.linalg.norm(m["g"]) * dt)
                 if body.mode_count:
-                    speed[name] += float(np.sqrt(((s.qdot @ body.shapes_t).reshape(-1, 3) ** 2).sum(1)).max())  # per vertex
+                    u = (s.qdot @ body.shapes_t).reshape(-1, 3)  # each vertex's deformation velocity
+                    speed[name] += float(np.sqrt((u * u).sum(1)).max())
                 seg[name] = (n_off, 6 + body.mode_count)
             else:
                 out = ctx.out.bodies[name]
@@ -1600,10 +1601,6 @@ def _vertex(name: str, p, n: int) -> int:
     if isinstance(p, (int, np.integer)) and 0 <= int(p) < n:
         return int(p)
     raise SimulationError(f"control impulse on {name!r}: the point must be a vertex index in [0, {n}), got {p!r}")
-
-
-def _skew(r: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
 
 
 class _ContactBuilder:
