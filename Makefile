@@ -19,7 +19,7 @@ test: setup
 	@$(PY) -m pytest tests -q
 
 bench: setup
-	@for b in modes accuracy runtime tet ccd cloth surface view world scene record; do $(PY) -m modalfem bench $$b --out BENCHMARKS.md || exit 1; done
+	@for b in modes codepath accuracy runtime tet threads ccd cloth surface view world scene record; do $(PY) -m modalfem bench $$b --out BENCHMARKS.md || exit 1; done
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
