@@ -426,13 +426,7 @@ class TetSolver:
         D = None
         if self.damping is not None:
             ta = time.perf_counter()
-            diag = float(self.damping.alpha) * self.mass_dofs
-            He = None
-            if float(self.damping.beta) > 0:
-                He = self._elastic(x0, 2, upper=True)[2]
-                if He is not None:
-                    He *= float(self.damping.beta)
-            D = self.pattern.assemble(He, diag, upper=True)
+            D = self._damping_data(x0)
             info.assembly_s += time.perf_counter() - ta
         lin_tol = self.tol * self.model.size
         if fixed.all():  # every vertex pinned or scripted: the body follows its pins, nothing to solve
@@ -526,11 +520,29 @@ class TetSolver:
         info.total_s = time.perf_counter() - t0
         return info
 
+    def _damping_data(self, x0: np.ndarray) -> np.ndarray:
+        """CSR data of the damping matrix ``D = alpha M + beta K(x0)`` (K projected) [kg/s]."""
+        diag = float(self.damping.alpha) * self.mass_dofs
+        He = None
+        if float(self.damping.beta) > 0:
+            He = self._elastic(x0, 2, upper=True)[2]
+            if He is not None:
+                He *= float(self.damping.beta)
+        return self.pattern.assemble(He, diag, upper=True)
+
+    def _system_matrix(self, data: np.ndarray, free: np.ndarray | None = None):
+        """The Newton system's matrix from its CSR ``data`` on the pattern (``free``: the DOFs not held)."""
+        return self.pattern.matrix(data)
+
+    def _blocked(self, A) -> bool | None:
+        """``A`` is made of full 3x3 vertex blocks (the pattern's matrix), or None: to be checked."""
+        return self.pattern.blocked if A.nnz == self.pattern.nnz else None
+
     def _solve(self, data: np.ndarray, g: np.ndarray, info: StepInfo, guess: np.ndarray | None = None, *,
                x: np.ndarray | None = None, free: np.ndarray | None = None, rtol: float | None = None
                ) -> tuple[np.ndarray, bool]:
         """``(A^-1 g, definite)``; ``definite`` False when CG met a direction of non-positive curvature."""
-        A = self.pattern.matrix(data)
+        A = self._system_matrix(data, free)
         if self.linear_solver == "cg":
             diag = self.pattern.diagonal(data)
             if self.twolevel is not None:
@@ -542,7 +554,7 @@ class TetSolver:
                 prec = Preconditioner(1.0 / diag)
             self._system = (A, prec)
             x, it, definite = _pcg(A, g, prec, self.cg_rtol if rtol is None else rtol, 10 * len(g), guess,
-                                   blocked=self.pattern.blocked)
+                                   blocked=self._blocked(A))
             info.linear_iterations += it
             if self.twolevel is not None:  # (solves since the rebuild, its iterations, the last iterations)
                 self._lag = (0, it, it) if self.twolevel.rebuilt else (self._lag[0] + 1, self._lag[1], it)
@@ -558,7 +570,7 @@ class TetSolver:
         """``_solve`` with the matrix (and preconditioner or factors) of the last ``_solve``."""
         A, prec = self._system
         if self.linear_solver == "cg":
-            x, it, definite = _pcg(A, g, prec, self.cg_rtol, 10 * len(g), blocked=self.pattern.blocked)
+            x, it, definite = _pcg(A, g, prec, self.cg_rtol, 10 * len(g), blocked=self._blocked(A))
             info.linear_iterations += it
             return x, definite
         if self.linear_solver == "splu":

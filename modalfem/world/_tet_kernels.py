@@ -119,12 +119,14 @@ def friction(act, verts, w, masses, extra, v, vo, nrm, f, mu, dt):
     """Coulomb friction over the active contacts ``act`` in order (``World._tet_friction``): the tangential
     velocity of each contact's point ``sum_j w_j v_j`` relative to its obstacle's ``vo`` (c, 3) [m/s] shrinks by
     at most ``mu f dt / m_eff``, ``m_eff = 1 / (sum_j w_j^2 / m_j + extra)`` (``extra`` [1/kg]: the other
-    body's), the change spread over the free vertices by their weights; ``v`` (n, 3) [m/s] updated in place.
+    body's), the change spread over the free vertices by their weights; ``v`` (n, 3) [m/s] updated in place. A
+    contact between two tet bodies stepped together has signed weights summing to zero (``vo`` and ``extra`` 0):
+    its impulses on the two sides are equal and opposite.
     Returns the impulses (c, 3) [N s] on the tet's points (zero where none)."""
     J = np.zeros((len(f), 3))
     for c in act:
         inv = 0.0
-        for j in range(3):
+        for j in range(verts.shape[1]):
             i = verts[c, j]
             if i >= 0 and math.isfinite(masses[i]):
                 inv += w[c, j] * w[c, j] / masses[i]
@@ -132,7 +134,7 @@ def friction(act, verts, w, masses, extra, v, vo, nrm, f, mu, dt):
             continue
         inv += extra[c]
         rel = np.zeros(3)
-        for j in range(3):
+        for j in range(verts.shape[1]):
             i = verts[c, j]
             if i >= 0:
                 rel += w[c, j] * v[i]
@@ -143,7 +145,7 @@ def friction(act, verts, w, masses, extra, v, vo, nrm, f, mu, dt):
         if sp <= 0.0:
             continue
         Jt = -min(sp, mu * f[c] * dt * inv) / sp * vt / inv
-        for j in range(3):
+        for j in range(verts.shape[1]):
             i = verts[c, j]
             if i >= 0 and math.isfinite(masses[i]):
                 v[i] += w[c, j] / masses[i] * Jt
@@ -154,12 +156,12 @@ def friction(act, verts, w, masses, extra, v, vo, nrm, f, mu, dt):
 @numba.njit(cache=True)
 def penalty_hessian(stiff, verts, w, nrm):
     """The active contacts' Hessian ``k (w w^T) (x) (n n^T)`` as DOF entries ``(rows, cols, vals)``
-    (``PenaltyContacts.hessian_entries``): ``stiff`` (c,) [N/m] (0: inactive), ``verts`` (c, 3) (-1: unused)."""
+    (``PenaltyContacts.hessian_entries``): ``stiff`` (c,) [N/m] (0: inactive), ``verts`` (c, k) (-1: unused)."""
     total = 0
     for c in range(len(stiff)):
         if stiff[c] > 0.0:
             u = 0
-            for j in range(3):
+            for j in range(verts.shape[1]):
                 if verts[c, j] >= 0:
                     u += 1
             total += 9 * u * u
@@ -170,11 +172,11 @@ def penalty_hessian(stiff, verts, w, nrm):
     for c in range(len(stiff)):
         if stiff[c] <= 0.0:
             continue
-        for i in range(3):
+        for i in range(verts.shape[1]):
             vi = verts[c, i]
             if vi < 0:
                 continue
-            for j in range(3):
+            for j in range(verts.shape[1]):
                 vj = verts[c, j]
                 if vj < 0:
                     continue
@@ -207,7 +209,7 @@ def penalty_low_rank(stiff, verts, w, nrm, arms, bodies, inertia, n):
         for p in range(6):
             for q in range(6):
                 S[6 * b + p, 6 * b + q] += k * arms[c, p] * arms[c, q]
-        for j in range(3):
+        for j in range(verts.shape[1]):
             v = verts[c, j]
             if v < 0:
                 continue

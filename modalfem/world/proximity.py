@@ -49,9 +49,10 @@ class SurfaceProximity:
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
         self.bvh = BroadPhaseBVH(self.triangles, np.asarray(x_ref, dtype=np.float64))
 
-    def query(self, points: np.ndarray, V: np.ndarray, margin: float) -> Hits:
+    def query(self, points: np.ndarray, V: np.ndarray, margin: float, *, every: bool = False) -> Hits:
         """The closest triangle within ``margin`` [m] (either side) of each of ``points`` (k, 3) [m], for the
-        surface at vertex positions ``V`` (n, 3) [m]."""
+        surface at vertex positions ``V`` (n, 3) [m]; ``every``: each triangle within ``margin`` of a point (a point
+        over an edge or corner of the surface meets each face there), a point then possibly more than once."""
         points = np.ascontiguousarray(points, dtype=np.float64)
         V = np.ascontiguousarray(V, dtype=np.float64)
         self.bvh.refit(V, margin=0.0)
@@ -74,6 +75,8 @@ class SurfaceProximity:
         # the closest triangle of each point (ties: the one the point is most in front of)
         order = np.lexsort((-gap, d, qi))
         qi, tri, w, gap, nrm = qi[order], tri[order], w[order], gap[order], nrm[order]
+        if every:
+            return Hits(qi, tri, w, gap, nrm)
         first = np.ones(len(qi), dtype=bool)
         first[1:] = qi[1:] != qi[:-1]
         return Hits(qi[first], tri[first], w[first], gap[first], nrm[first])

@@ -27,8 +27,10 @@ on 1 g foam vertices does not take their reaction explicitly (which capped the s
 sink through the skin at dt >= 5 ms). A contact with a moving body stiffens over its first ``SMOOTH dhat`` of
 depth (C2 energy), and its stiffness is the World's to choose (``World._tet_contacts``: the body's weight and
 approach held in a quarter of the skin, stiffened and redone when deeper). The body's modes are not in ``u``
-(they take their part of the reaction after the step). Tet bodies meet each other in the World's solid contact
-solve.
+(they take their part of the reaction after the step). Tet bodies that may touch are stepped as one system
+(``tetgroup``): a contact between two of them is a row of up to four stacked vertices with signed weights summing to
+zero and its plane at 0 (the two points' relative position), and their friction a lagged potential of the step
+(``set_friction``).
 """
 
 from __future__ import annotations
@@ -67,7 +69,7 @@ class PenaltyContacts:
 
     def set(self, verts: np.ndarray, w: np.ndarray, p: np.ndarray, n: np.ndarray, k: np.ndarray, dhat: float, *,
             bodies: np.ndarray | None = None, arms: np.ndarray | None = None, inertia: list | None = None) -> None:
-        """Contacts: tet vertex ids (c, 3) (-1: unused, weight 0), weights (c, 3), plane points (c, 3) [m],
+        """Contacts: tet vertex ids (c, k) (-1: unused, weight 0; k <= 4), weights (c, k), plane points (c, 3) [m],
         unit normals (c, 3), stiffnesses (c,) [N/m], skin ``dhat`` [m]; optionally the moving body of each
         contact, ``bodies`` (c,) (-1: an obstacle, else an index into ``inertia``), its ``arms`` ``a_c`` (c, 6)
         [-, m] and each body's ``S_b`` (6, 6) [kg/s^2, kg m^2/s^2]."""
@@ -82,6 +84,45 @@ class PenaltyContacts:
         self.eps = np.where(self.bodies >= 0, SMOOTH * self.dhat, 0.0)
         self.u = [np.zeros(6) for _ in self.inertia]
         self._cache = None
+        self.fric = None
+
+    def set_friction(self, rows: np.ndarray, bound: np.ndarray, x0: np.ndarray, eps: float) -> None:
+        """Coulomb friction of contacts ``rows`` inside the step, as a lagged dissipative potential (IPC's, Li et
+        al. 2020): ``bound`` (k,) [N] the largest friction force ``mu lambda`` (lambda the normal force at the step
+        start), ``x0`` (n, 3) [m] the start positions and ``eps`` [m] the tangential displacement below which the
+        contact sticks elastically (``f0``: ``y^2 / eps - y^3 / (3 eps^2) + eps / 3`` below ``eps``, ``y`` beyond, of
+        the tangential displacement ``y`` of the contact's point over the step)."""
+        rows = np.asarray(rows, np.int64)
+        keep = bound > 0
+        rows, bound = rows[keep], np.asarray(bound, float)[keep]
+        if not len(rows):
+            self.fric = None
+            return
+        n = self.nrm[rows]
+        P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]  # tangent projectors (k, 3, 3)
+        start = np.einsum("cj,cjd->cd", self.w[rows], x0[self.vid[rows]])
+        self.fric = (rows, bound, P, start, float(eps))
+
+    def _slip(self, x: np.ndarray):
+        rows, _, P, start, _ = self.fric
+        u = np.einsum("cab,cb->ca", P, np.einsum("cj,cjd->cd", self.w[rows], x[self.vid[rows]]) - start)
+        return u, np.sqrt(np.einsum("ca,ca->c", u, u))
+
+    def friction_energy(self, x: np.ndarray) -> float:
+        """The friction potential [J] at ``x`` (zero without ``set_friction``)."""
+        if self.fric is None:
+            return 0.0
+        bound, eps = self.fric[1], self.fric[4]
+        _, y = self._slip(x)
+        f0 = np.where(y < eps, y * y / eps - y**3 / (3 * eps * eps) + eps / 3, y)
+        return float(bound @ f0)
+
+    def friction_forces(self, x: np.ndarray):
+        """``(rows, F (k, 3) [N])``: the friction force on each friction contact's point at ``x`` (against its slip)."""
+        rows, bound, _, _, eps = self.fric
+        u, y = self._slip(x)
+        f1y = np.where(y < eps, 2.0 / eps - y / (eps * eps), 1.0 / np.maximum(y, 1e-300))  # f1(y) / y
+        return rows, -(bound * f1y)[:, None] * u
 
     @property
     def count(self) -> int:
@@ -120,7 +161,7 @@ class PenaltyContacts:
         """The penalty energy [J] plus the moving bodies' inertia terms ``0.5 u^T S u``."""
         if not self.count:
             return 0.0
-        e = float(_psi(self._solve(x), self.k, self.eps)[0].sum())
+        e = float(_psi(self._solve(x), self.k, self.eps)[0].sum()) + self.friction_energy(x)
         return e + sum(0.5 * float(u @ S @ u) for u, S in zip(self.u, self.inertia))
 
     def penalty_energy(self, x: np.ndarray) -> float:
@@ -130,10 +171,16 @@ class PenaltyContacts:
     def gradient(self, x: np.ndarray, masses: np.ndarray) -> np.ndarray:
         if not self.count:
             return np.zeros((self.n, 3))
-        fw = -self.forces(x)[:, None] * self.w  # (c, 3): the force along +n on the point, by vertex weight
+        fw = -self.forces(x)[:, None] * self.w  # (c, k): the force along +n on the point, by vertex weight
         idx = self.vid.ravel()  # (bincount adds in index order, as np.add.at, and is ~10x faster)
-        return np.column_stack([np.bincount(idx, weights=(fw * self.nrm[:, d:d + 1]).ravel(), minlength=self.n)
-                                for d in range(3)])
+        g = np.column_stack([np.bincount(idx, weights=(fw * self.nrm[:, d:d + 1]).ravel(), minlength=self.n)
+                             for d in range(3)])
+        if self.fric is not None:
+            rows, F = self.friction_forces(x)
+            gw = -self.w[rows][:, :, None] * F[:, None, :]  # (k, K, 3)
+            ids = self.vid[rows].ravel()
+            g += np.column_stack([np.bincount(ids, weights=gw[:, :, d].ravel(), minlength=self.n) for d in range(3)])
+        return g
 
     def hessian_diagonal(self, x: np.ndarray, masses: np.ndarray) -> np.ndarray | None:
         return None  # all of it in ``hessian_entries``
@@ -145,9 +192,25 @@ class PenaltyContacts:
             return None
         stiff = _psi(self._solve(x), self.k, self.eps)[2]
         act = np.flatnonzero(stiff > 0)
-        if not len(act):
-            return None
-        return _tet_kernels.penalty_hessian(stiff, self.verts, self.w, self.nrm)
+        out = _tet_kernels.penalty_hessian(stiff, self.verts, self.w, self.nrm) if len(act) else None
+        if self.fric is None:
+            return out
+        # friction: ``bound f1(y) / y`` times the tangent projector (positive semi-definite; IPC's Hessian without its
+        # negative part), by vertex weights
+        rows, bound, P, _, eps = self.fric
+        _, y = self._slip(x)
+        c = bound * np.where(y < eps, 2.0 / eps - y / (eps * eps), 1.0 / np.maximum(y, 1e-300))
+        V, W = self.verts[rows], self.w[rows]
+        blk = c[:, None, None, None, None] * (W[:, :, None, None, None] * W[:, None, :, None, None]) * P[:, None, None]
+        ok = (V[:, :, None] >= 0) & (V[:, None, :] >= 0)  # (k, K, K)
+        r = 3 * V[:, :, None, None, None] + np.arange(3)[None, None, None, :, None]
+        cc = 3 * V[:, None, :, None, None] + np.arange(3)[None, None, None, None, :]
+        r, cc = np.broadcast_to(r, blk.shape), np.broadcast_to(cc, blk.shape)
+        m = np.broadcast_to(ok[:, :, :, None, None], blk.shape)
+        fr, fc, fv = r[m].astype(np.int64), cc[m].astype(np.int64), blk[m]
+        if out is None:
+            return fr, fc, fv
+        return np.concatenate([out[0], fr]), np.concatenate([out[1], fc]), np.concatenate([out[2], fv])
 
     def hessian_low_rank(self, x: np.ndarray, masses: np.ndarray):
         """What eliminating the bodies' displacements takes off the Hessian: ``(V (3n, 6 B), S (6 B, 6 B))`` with
@@ -229,7 +292,7 @@ class CoupledTetSolver(TetSolver):
             # A is then caught by the Newton loop's descent test, as with linear_solver="splu")
             import scipy.sparse.linalg as spla
 
-            A = self.pattern.matrix(data)
+            A = self._system_matrix(data, free)
             self._system = (A, None)
             self._lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A")
             y, definite = self._lu.solve(g), True

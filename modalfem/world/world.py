@@ -12,7 +12,10 @@ for is never called. In order:
    reaction is solved in the same step (``tetcontact``: 6 unknowns per touched body, eliminated exactly), so the
    tet's elasticity, these contacts and the modal bodies' rigid motion are solved together at any dt; the modal
    bodies take the reaction (equal and opposite impulses at the contact points, given at their step start), and
-   restitution between the pair as a Poisson impulse at the end of compression (``_tet_restitution``);
+   restitution between the pair as a Poisson impulse at the end of compression (``_tet_restitution``). Tet
+   bodies that may touch in the step (boxes within reach) take one implicit step together (``tetgroup``): their
+   contacts with each other are penalty terms over both bodies' vertices with weights summing to zero, and their
+   friction a lagged potential of that step;
 2. ``cloth step``: each cloth's implicit step (gravity, wind, damping, handles, constraint filtering on
    static planes, spheres, boxes and triangle meshes) to predicted velocities;
 3. ``modal contacts``: one compiled sequential-impulse solve (``modalfem.world._kernels``) over the contacts
@@ -77,6 +80,9 @@ TET_RETRIES = 6
 #: end are kept: a foam edge folding round the bar's corner, 0.6 mm from the end of the bar's 50 mm edge, crossed
 #: it at 5 and 20 ms when the pairs within 5 % of an end were left out
 EDGE_ALIGN = 0.5
+#: the slip speed [m/s] below which a contact between two tet bodies stepped together sticks (their friction in the
+#: implicit step, ``PenaltyContacts.set_friction``: a slip below ``FRICTION_SLIP dt`` per step is elastic)
+FRICTION_SLIP = 1e-4
 
 
 def _contacts_of(modal: list, body: str) -> np.ndarray:
@@ -280,10 +286,11 @@ class World:
             if obs:
                 self._world_obstacles[n] = obs
         # a tet body meets the modal bodies inside its implicit step (moving penalty obstacles, ``_tet_contacts``),
-        # so those pairs are not in the solid solve
+        # and the tet bodies it may touch in one implicit step with them (``_tet_groups``), so only modal pairs are in
+        # the solid solve
         self._tet_modal = {n: [m for m in self._modal_contact] for n in self._solid if n in self._tet}
-        self._pairs = [(a, b) for i, a in enumerate(self._solid) for b in self._solid[i + 1:]
-                       if (a in self._tet) == (b in self._tet)]
+        self._groups = {}  # tet bodies stepped together (``_tet_group``), made when first needed
+        self._pairs = [(a, b) for i, a in enumerate(self._modal_contact) for b in self._modal_contact[i + 1:]]
         # the modal bodies' contacts with each other and with static planes: compiled search and entries
         self._fast = None
         self._fast_planes = set()
@@ -525,7 +532,7 @@ class World:
         if self._tet:
             plan.append((Stage("tet step", tuple(self._tet), effects(self._tet)), self._stage_tet_step))
         if self._pairs or self._world_obstacles:
-            plan.append((Stage("solid contacts", tuple(self._solid), ("contact",)), self._stage_contacts))
+            plan.append((Stage("solid contacts", tuple(self._modal_contact), ("contact",)), self._stage_contacts))
         if self._modal:
             plan.append((Stage("modal step", tuple(self._modal), effects(self._modal)), self._stage_modal_step))
         selfc = tuple(n for n, t in self._tet.items() if t["pipeline"] is not None)
@@ -678,11 +685,12 @@ class World:
         return ctl
 
     def _stage_tet_step(self, ctx) -> None:
-        from modalfem.tet import TetControl
+        from modalfem.tet import TetControl, TetState
 
         dt = ctx.dt
         for key in [k for k in ctx.contacts if k[0] == _REACTION_KEY]:  # this step's are set below
             del ctx.contacts[key]
+        starts = {}
         for name, t in self._tet.items():
             s = ctx.state_in.bodies[name].copy()
             for p, J in self._strikes(ctx, name):
@@ -691,8 +699,22 @@ class World:
                     s.v[i] += J / t["masses"][i]
             if t["wind"] is not None:
                 t["wind"].update(s.x, s.v, ctx.state_in.time)
-            ctl = TetControl(*ctx.control.scripted[name]) if name in ctx.control.scripted else None
-            obstacles = self._tet_contacts(ctx, name, s) if t["penalty"] is not None else None
+            starts[name] = s
+        for names in self._tet_groups(ctx, starts):
+            if len(names) == 1:
+                name = names[0]
+                t, s = self._tet[name], starts[name]
+                ctl = TetControl(*ctx.control.scripted[name]) if name in ctx.control.scripted else None
+            else:  # tet bodies that may touch in this step: one implicit step over their stacked vertices
+                name, t = self._tet_group(names)
+                s = TetState(np.concatenate([starts[n].x for n in names]), np.concatenate([starts[n].v for n in names]),
+                             starts[names[0]].t)
+                ctl = None
+                if any(n in ctx.control.scripted for n in names):
+                    cv, cp = zip(*[(np.asarray(ctx.control.scripted[n][0]) + o, np.asarray(ctx.control.scripted[n][1]))
+                                   for n, o in t["members"] if n in ctx.control.scripted])
+                    ctl = TetControl(np.concatenate(cv), np.concatenate(cp))
+            obstacles = self._tet_contacts(ctx, name, s, t) if t["penalty"] is not None else None
             out = s.copy()
             for attempt in range(TET_RETRIES + 1):
                 try:
@@ -703,18 +725,110 @@ class World:
                     break
                 out = s.copy()
             if obstacles is not None:
-                self._tet_reaction(ctx, name, out)
-                self._tet_friction(ctx, name, out, obstacles)
-                self._tet_restitution(ctx, name, s, out)
-                pen = t["penalty"]
-                ctx.contacts[(_REACTION_KEY, name)] = pen.penalty_energy(out.x)
-                n_obstacle = t["modal_contacts"][0]
-                force = np.bincount(pen.verts[:n_obstacle, 0], weights=pen.forces(out.x)[:n_obstacle],
-                                    minlength=len(out.x))
-                ctx.contacts[(_REACTION_KEY, name, "obstacle force")] = force
-            ctx.out.bodies[name] = out
-            ctx.start[name] = s  # the start the step used (strikes applied)
-            ctx.done.add(name)
+                group = (t,) if "members" in t else ()  # (a body alone: looked up by name)
+                self._tet_reaction(ctx, name, out, *group)
+                self._tet_friction(ctx, name, out, obstacles, *group)
+                if "members" not in t:
+                    self._tet_restitution(ctx, name, s, out)
+                self._tet_record(ctx, name, t, out)
+            if len(names) == 1:
+                ctx.out.bodies[name] = out
+                ctx.start[name] = s  # the start the step used (strikes applied)
+                ctx.done.add(name)
+                continue
+            for (n, o), a, b in zip(t["members"], t["solver"].offsets[:-1], t["solver"].offsets[1:]):
+                ctx.out.bodies[n] = TetState(out.x[a:b].copy(), out.v[a:b].copy(), out.t)
+                ctx.start[n] = starts[n]
+                ctx.done.add(n)
+
+    def _tet_groups(self, ctx, starts: dict) -> list:
+        """The tet bodies in groups stepped together (``tetgroup.touching``): those with contact whose surfaces'
+        boxes, each grown by what it may travel in the step plus its margins, overlap; every other body alone."""
+        from modalfem.world.tetgroup import touching
+
+        boxes = {}
+        for n, t in self._tet.items():
+            if t["penalty"] is None:
+                continue
+            s = starts[n]
+            xs = s.x[t["surface"]]
+            vmax = float(np.sqrt(np.einsum("ij,ij->i", s.v, s.v)).max()) if len(s.v) else 0.0
+            r = 2.0 * t["contact"].margin + 2.0 * vmax * ctx.dt + 9.81 * ctx.dt**2
+            boxes[n] = (xs.min(0) - r, xs.max(0) + r)
+        return touching(list(self._tet), boxes)
+
+    def _tet_group(self, names: list) -> tuple:
+        """``(key, entry)`` of the tet bodies ``names`` stepped as one (made once per set of bodies): an entry like
+        a tet body's (stacked vertices, surfaces, masses; one ``JointTetSolver`` and ``PenaltyContacts``) with
+        ``members``: (name, first stacked vertex) each. Its contact takes the largest margin and the smallest
+        friction and restitution of its members'."""
+        key = "+".join(names)
+        g = self._groups.get(key)
+        if g is not None:
+            return key, g
+        import dataclasses
+
+        from modalfem.world.tetgroup import JointTetSolver
+
+        ts = [self._tet[n] for n in names]
+        n_total = sum(self.by_name[n].model.point_count for n in names)
+        pen = PenaltyContacts(n_total)
+        solver = JointTetSolver([t["solver"] for t in ts], pen)
+        offs = solver.offsets[:-1]
+        surface = np.concatenate([t["surface"] + o for t, o in zip(ts, offs)])
+        s_off = np.concatenate([[0], np.cumsum([len(t["surface"]) for t in ts])])
+        tris = np.concatenate([t["triangles"] + o for t, o in zip(ts, s_off[:-1])])
+        rest = np.concatenate([self.by_name[n].model.rest_points[t["surface"]] for n, t in zip(names, ts)])
+        cs = [t["contact"] for t in ts]
+        contact = dataclasses.replace(cs[0], margin=max(c.margin for c in cs), friction=min(c.friction for c in cs),
+                                      restitution=min(c.restitution for c in cs))
+        g = {"solver": solver, "penalty": pen, "masses": np.concatenate([t["masses"] for t in ts]), "surface": surface,
+             "triangles": tris, "contact": contact, "wind": None, "pipeline": None,
+             "proximity": SurfaceProximity(tris, rest), "edges": EdgeProximity(tris, rest),
+             "members": [(n, int(o)) for n, o in zip(names, offs)]}
+        self._groups[key] = g
+        self._tet_modal[key] = list(self._modal_contact)
+        return key, g
+
+    def _tet_pair_contacts(self, t: dict, s, r: float) -> tuple:
+        """The contacts of a group's tet bodies with each other within ``r`` [m] at the start ``s`` (stacked):
+        ``tetgroup.pair_contacts``, edges on edges as ``EDGE_ALIGN``."""
+        from modalfem.world.tetgroup import pair_contacts
+
+        return pair_contacts([(self._tet[n], o) for n, o in t["members"]], s.x, r, EDGE_ALIGN)
+
+    def _last_force(self, ctx, name: str, t: dict, kind: str):
+        """The last step's contact force [N] by vertex of ``kind`` (``"obstacle force"``, ``"pair force"``), for a
+        group stacked from its members' (zero where a member has none); None without any."""
+        if "members" not in t:
+            return ctx.state_in.contacts.get((_REACTION_KEY, name, kind))
+        parts = [ctx.state_in.contacts.get((_REACTION_KEY, n, kind)) for n, _ in t["members"]]
+        if all(p is None for p in parts):
+            return None
+        return np.concatenate([np.zeros(self.by_name[n].model.point_count) if p is None else p
+                               for p, (n, _) in zip(parts, t["members"])])
+
+    def _tet_record(self, ctx, name: str, t: dict, out) -> None:
+        """Keep what the next step and ``energy`` read: the energy stored in the penalty contacts, the forces by
+        vertex of the obstacles' and of the group's bodies on each other (per member body in a group; a
+        contact's energy counts for the body of its first vertex)."""
+        pen = t["penalty"]
+        n_obstacle, modal = t["modal_contacts"]
+        f = pen.forces(out.x)
+        n = len(out.x)
+        start = n_obstacle + len(modal)
+        obstacle = np.bincount(pen.verts[:n_obstacle, 0], weights=f[:n_obstacle], minlength=n)
+        pair = np.bincount(pen.verts[start:, 0], weights=f[start:], minlength=n)
+        if "members" not in t:
+            ctx.contacts[(_REACTION_KEY, name)] = pen.penalty_energy(out.x)
+            ctx.contacts[(_REACTION_KEY, name, "obstacle force")] = obstacle
+            return
+        psi = _tet_kernels.penalty(pen.depths(out.x), pen.k, pen.eps)[0]
+        first = np.bincount(t["solver"].owner[pen.vid[:, 0]], weights=psi, minlength=len(t["members"]))
+        for i, ((m, _), a, b) in enumerate(zip(t["members"], t["solver"].offsets[:-1], t["solver"].offsets[1:])):
+            ctx.contacts[(_REACTION_KEY, m)] = float(first[i])
+            ctx.contacts[(_REACTION_KEY, m, "obstacle force")] = obstacle[a:b]
+            ctx.contacts[(_REACTION_KEY, m, "pair force")] = pair[a:b]
 
     def _surface_now(self, ctx, name: str) -> np.ndarray:
         """World surface vertices of a body: at the step end if it has stepped, else at the start."""
@@ -740,13 +854,15 @@ class World:
             raise SimulationError(f"modal body {name!r}: {exc}") from None
         return x0, np.array(body.positions(p, precise=True), dtype=np.float64), p
 
-    def _tet_contacts(self, ctx, name: str, s) -> list:
+    def _tet_contacts(self, ctx, name: str, s, t: dict | None = None) -> list:
         """Set this step's penalty contacts of tet body ``name`` (start state ``s``) with the obstacles and with
         the modal bodies' surfaces, the latter as moving obstacles at their predicted step end (tet vertices on
         modal faces, modal vertices on tet faces), so the tet's elasticity and these contacts are solved together
         in its implicit step; the modal bodies take the reaction (``_tet_reaction``). Returns the obstacle of
-        each contact (for its friction, ``_tet_friction``). Tet bodies meet each other in the solid solve."""
-        t = self._tet[name]
+        each contact (for its friction, ``_tet_friction``; None: a contact between two tet bodies). ``t``: a group
+        of tet bodies stepped together (``_tet_group``; ``s`` their stacked state), whose contacts with each other
+        follow the obstacles' and the modal bodies' (``_tet_pair_contacts``)."""
+        t = self._tet[name] if t is None else t
         c = t["contact"]
         dt, t1 = ctx.dt, ctx.state_in.time + ctx.dt
         dhat = c.margin
@@ -756,10 +872,10 @@ class World:
         reach = dhat + c.margin + 2.0 * vmax * dt + 9.81 * dt * dt
         verts, ws, ps, ns, p0s, touched = [], [], [], [], [], []
 
-        def add(ids, w, p, n, p0, o):
-            verts.append(np.column_stack([ids, -np.ones((len(ids), 3 - ids.shape[1]), np.int64)]) if ids.ndim == 2
-                         else np.column_stack([ids, -np.ones((len(ids), 2), np.int64)]))
-            ws.append(np.column_stack([w, np.zeros((len(w), 3 - w.shape[1]))]))
+        def add(ids, w, p, n, p0, o):  # (up to 4 vertices per contact: two tet bodies' in a group)
+            verts.append(np.column_stack([ids, -np.ones((len(ids), 4 - ids.shape[1]), np.int64)]) if ids.ndim == 2
+                         else np.column_stack([ids, -np.ones((len(ids), 3), np.int64)]))
+            ws.append(np.column_stack([w, np.zeros((len(w), 4 - w.shape[1]))]))
             ps.append(p)
             ns.append(n)
             p0s.append(p if p0 is None else p0)
@@ -821,10 +937,19 @@ class World:
                 add(sv[e[h.mine]], np.column_stack([1.0 - h.s, h.s]), np.einsum("kj,kjd->kd", wm, x1[ids]),
                     h.normal, np.einsum("kj,kjd->kd", wm, x0[ids]), _ModalSurface(m, x0, x1, ids, wm))
                 modal.extend((m, ids[i], wm[i]) for i in range(len(ids)))
+        if "members" in t:  # the group's bodies with each other: relative positions (signed weights), plane at 0
+            pv, pw, pn = self._tet_pair_contacts(t, s, reach + c.margin)
+            if len(pv):
+                verts.append(pv)
+                ws.append(pw)
+                ps.append(np.zeros((len(pv), 3)))
+                ns.append(pn)
+                p0s.append(ps[-1])
+                touched.extend([None] * len(pv))
         t["modal_contacts"] = (n_obstacle, modal)
         pen = t["penalty"]
         if not verts:
-            pen.set(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), dhat)
+            pen.set(np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), dhat)
             return []
         V, W = np.concatenate(verts), np.concatenate(ws)
         vid = np.where(V >= 0, V, 0)
@@ -833,25 +958,33 @@ class World:
         # the skin would throw a body placed on the ground. Not with a modal body: its weight on a few vertices
         # would sink it by its force / stiffness every step (~0.1 mm per step for a 8 kg bar on a soft block)
         g0 = np.einsum("cd,cd->c", np.einsum("cj,cjd->cd", W, s.x[vid]) - P0, N)
-        hold = np.arange(len(g0)) < n_obstacle
-        # a modal contact whose point is more than a skin behind the modal surface at the step start is the wrong
-        # feature (a tet vertex under a thin bell's rim closest to its inner wall: 2.8 mm "behind" it; pushed out
-        # of it in one step, that was +9.6 mJ in the landing step of tutorials/world.py), not a crossing: the
-        # surfaces are intersection-free at every step end
-        keep = hold | (g0 >= -dhat)
+        rows = np.arange(len(g0))
+        # two tet bodies of a group: never held inside the skin (a resting pair crept through the surface, which
+        # with a tet body is a crossing): their penalty is the same potential at every step, ``dhat`` off the surface
+        pair = rows >= n_obstacle + len(modal)
+        hold = rows < n_obstacle
+        # a modal (or tet-tet) contact whose point is more than a skin behind the other surface at the step start is
+        # the wrong feature (a tet vertex under a thin bell's rim closest to its inner wall: 2.8 mm "behind" it;
+        # pushed out of it in one step, that was +9.6 mJ in the landing step of tutorials/world.py), not a
+        # crossing: the surfaces are intersection-free at every step end
+        keep = (rows < n_obstacle) | (g0 >= -dhat)
         if not keep.all():
-            sel = np.flatnonzero(keep[n_obstacle:])
+            sel = np.flatnonzero(keep[n_obstacle:n_obstacle + len(modal)])
             modal = [modal[i] for i in sel]
             t["modal_contacts"] = (n_obstacle, modal)
             touched = [o for o, kk in zip(touched, keep) if kk]
-            V, W, vid, P, N, g0, hold = V[keep], W[keep], vid[keep], P[keep], N[keep], g0[keep], hold[keep]
+            V, W, vid, P, N, g0, hold, pair = (V[keep], W[keep], vid[keep], P[keep], N[keep], g0[keep], hold[keep],
+                                               pair[keep])
         P = P - np.where(hold, dhat - np.clip(g0, 0.0, dhat), 0.0)[:, None] * N
         m = t["masses"][vid]
         inv = np.where((V >= 0) & np.isfinite(m), W**2 / np.where(np.isfinite(m), m, 1.0), 0.0).sum(1)
         k = np.where(inv > 0, STIFFNESS / np.where(inv > 0, inv, 1.0) / dt**2, 0.0)
-        last = ctx.state_in.contacts.get((_REACTION_KEY, name, "obstacle force"))  # [N] by vertex, last step
+        last = self._last_force(ctx, name, t, "obstacle force")  # [N] by vertex, last step
         if last is not None and n_obstacle:  # (a soft body's vertices bear the weight of what rests on it too)
             k[:n_obstacle] = np.maximum(k[:n_obstacle], DEPTH_SHARE * last[V[:n_obstacle, 0]] / dhat)
+        last = self._last_force(ctx, name, t, "pair force") if pair.any() else None
+        if last is not None:  # the same for the group's bodies resting on each other (by the contact's first vertex)
+            k[pair] = np.maximum(k[pair], DEPTH_SHARE * last[V[pair, 0]] / dhat)
         # each modal body's rigid displacement by the reaction is solved with the tet (``tetcontact``): no explicit
         # limit on the stiffness; its contacts share the body's weight and hold its approach (the tet's too) in a
         # part of the skin: at least DEPTH_SHARE (approach + |g| dt^2) / dhat times its mass / dt^2, summed
@@ -874,6 +1007,14 @@ class World:
             bodies[sel] = len(inertia)
             inertia.append(S / dt**2)
         pen.set(V, W, P, N, k, dhat, bodies=bodies, arms=arms, inertia=inertia)
+        if pair.any() and c.friction > 0:
+            # the group's bodies rub on each other inside the step (a lagged potential: the normal forces at the start),
+            # so a body resting on another on a slope sticks: friction applied to the end velocities alone let the
+            # step's tangential push move it every step (a cube on a cube on foam crept ~1 mm/s at 10 ms steps).
+            # Below a slip of eps per step a contact sticks elastically
+            rows = np.flatnonzero(pair)
+            eps = max(FRICTION_SLIP * dt, 10.0 * t["solver"].tol * t["solver"].model.size)
+            pen.set_friction(rows, c.friction * pen.forces(s.x)[rows], s.x, eps)
         return touched
 
     def _tet_restitution(self, ctx, name: str, s, out) -> None:
@@ -952,12 +1093,13 @@ class World:
         pen.stiffen(np.where(over, depth / (0.25 * pen.dhat), 1.0))
         return True
 
-    def _tet_reaction(self, ctx, name: str, out) -> None:
+    def _tet_reaction(self, ctx, name: str, out, t: dict | None = None) -> None:
         """The modal bodies take the opposite of the impulses the tet body's penalty contacts with them gave it in
         its implicit step (``f dt`` along the normal at each contact's modal point): generalised velocity changes
         at the step start (``ctx.dV``, merged with the solid solve's), reported in ``StepReport.exchanged``. Their
-        rigid part is the body's displacement solved in the step (``tetcontact``) over dt."""
-        t = self._tet[name]
+        rigid part is the body's displacement solved in the step (``tetcontact``) over dt. ``t``: a group's entry
+        (``_tet_group``; the impulses reported as from the member body each contact's vertices belong to)."""
+        t = self._tet[name] if t is None else t
         n_obstacle, modal = t.get("modal_contacts", (0, []))
         if not modal:
             return
@@ -969,11 +1111,21 @@ class World:
         for b in self._tet_modal[name]:
             sel = _contacts_of(modal, b)
             sel = sel[f[sel] > 0]
-            if not len(sel):
-                continue
-            ids = np.array([modal[i][1] for i in sel])
-            w = np.array([modal[i][2] for i in sel])
-            self._modal_impulses(ctx, b, ids, w, J[sel], name)
+            for src, part in self._by_member(t, name, n_obstacle + sel):
+                part = part - n_obstacle
+                ids = np.array([modal[i][1] for i in part])
+                w = np.array([modal[i][2] for i in part])
+                self._modal_impulses(ctx, b, ids, w, J[part], src)
+
+    def _by_member(self, t: dict, name: str, rows: np.ndarray) -> list:
+        """``(body, rows)``: the contact ``rows`` (penalty indices) by the tet body of their first vertex (a group's
+        members; else ``name``), bodies without rows left out."""
+        if not len(rows):
+            return []
+        if "members" not in t:
+            return [(name, rows)]
+        owner = t["solver"].owner[t["penalty"].vid[rows, 0]]
+        return [(n, rows[owner == i]) for i, (n, _) in enumerate(t["members"]) if np.any(owner == i)]
 
     def _modal_impulses(self, ctx, b: str, ids: np.ndarray, w: np.ndarray, J: np.ndarray, src: str) -> np.ndarray:
         """Impulses ``J`` (k, 3) [N s] on modal body ``b`` at its surface points ``sum_j w_j vertex_j`` (ids, w
@@ -993,15 +1145,17 @@ class World:
         ctx.report.exchanged.append((b, src, Jsum, np.cross(r + s.position, J).sum(0)))
         return dV
 
-    def _tet_friction(self, ctx, name: str, out, obstacles: list) -> None:
+    def _tet_friction(self, ctx, name: str, out, obstacles: list, t: dict | None = None) -> None:
         """Coulomb friction of the tet's penalty contacts: the tangential velocity of a contact's point relative to
         the obstacle's (or modal body's) surface shrinks by at most ``mu f dt / m_eff`` (f the penalty force at the
         step end), the change spread over the point's vertices by their weights; a modal body takes the opposite
         impulse. The end velocities change, not the end positions: friction moving single vertices by ``dt dv``
         stored the shear against their neighbours as elastic energy (a steel bar landing on a soft block with
         friction 0.5 gained ~5 mJ per 1 ms step, 2.4 % of the scene's energy); the tet's next implicit step takes
-        the slowed vertices with its elasticity."""
-        t = self._tet[name]
+        the slowed vertices with its elasticity. A group's bodies (``t``, ``_tet_group``) rub on each other alike,
+        each contact's impulses equal and opposite on the two (signed weights); what each received from the other,
+        with the penalty's impulses, is reported in ``StepReport.exchanged``."""
+        t = self._tet[name] if t is None else t
         pen = t["penalty"]
         mu = t["contact"].friction
         if not pen.count:
@@ -1009,8 +1163,46 @@ class World:
         f = pen.forces(out.x)
         act = np.flatnonzero(f > 0)
         ctx.report.contacts["tet"] = ctx.report.contacts.get("tet", 0) + len(act)
-        if mu <= 0:
+        n_obstacle, modal = t.get("modal_contacts", (0, []))
+        start = n_obstacle + len(modal)  # the group's bodies with each other from here
+        J = np.zeros((pen.count, 3))
+        if pen.fric is not None:  # rubbing inside the step: not again here; its impulses for the report
+            rows, F = pen.friction_forces(out.x)
+            J[rows] = F * ctx.dt
+            act = np.setdiff1d(act, rows)
+        if mu > 0:
+            J = J + self._tet_friction_pass(ctx, name, out, obstacles, t, f, act, mu)
+        if "members" in t and start < pen.count:
+            self._pair_exchange(ctx, t, out, f, J, start)
+
+    def _pair_exchange(self, ctx, t: dict, out, f: np.ndarray, J: np.ndarray, start: int) -> None:
+        """Report what each body of a group received from each other (the penalty's ``f dt n`` and the friction
+        impulse ``J`` of the contacts from ``start``, spread by their signed weights): one entry per ordered pair
+        of members in contact, each side summed on its own vertices."""
+        pen = t["penalty"]
+        rows = np.arange(start, pen.count)
+        rows = rows[(f[rows] > 0) | np.any(J[rows] != 0.0, axis=1)]
+        if not len(rows):
             return
+        imp = (f[rows] * ctx.dt)[:, None] * pen.nrm[rows] + J[rows]  # on the point (sum_j w_j x_j)
+        owner = np.where(pen.verts[rows] >= 0, t["solver"].owner[pen.vid[rows]], -1)  # (k, 4)
+        first = owner[:, 0]
+        other = np.where(owner != first[:, None], owner, -1).max(1)
+        names = [n for n, _ in t["members"]]
+        for a in range(len(names)):
+            for b in range(len(names)):
+                sel = np.flatnonzero(((first == a) & (other == b)) | ((first == b) & (other == a)))
+                if a == b or not len(sel):
+                    continue
+                on_a = np.where(owner[sel] == a, pen.w[rows[sel]], 0.0)  # (k, 4): the weights of a's vertices
+                Jv = on_a[:, :, None] * imp[sel][:, None, :]  # (k, 4, 3) on each of a's vertices
+                x = out.x[pen.vid[rows[sel]]]
+                ctx.report.exchanged.append((names[a], names[b], Jv.sum((0, 1)), np.cross(x, Jv).sum((0, 1))))
+
+    def _tet_friction_pass(self, ctx, name: str, out, obstacles: list, t: dict, f: np.ndarray, act: np.ndarray,
+                           mu: float) -> np.ndarray:
+        """The friction of ``_tet_friction`` (``mu`` > 0): end velocities changed in place; the impulses (c, 3)."""
+        pen = t["penalty"]
         n_obstacle, modal = t.get("modal_contacts", (0, []))
         # the obstacles' surface velocities at the contacts' points (the positions do not change below), per
         # obstacle at once; a modal body's point moves as predicted over the step
@@ -1022,7 +1214,7 @@ class World:
             for o in {id(obstacles[c]): obstacles[c] for c in ob}.values():
                 sel = np.array([c for c in ob if obstacles[c] is o], dtype=np.int64)
                 vo[sel] = np.asarray(o.velocity(pt[sel], ctx.state_in.time, ctx.dt))
-        md = act[act >= n_obstacle]
+        md = act[(act >= n_obstacle) & (act < n_obstacle + len(modal))]
         if len(md):
             vo[md] = np.array([obstacles[c].velocity(None, 0.0, ctx.dt) for c in md]).reshape(-1, 3)
             inv_mass = {b: 1.0 / self._modal[b]["body"].mass for b in self._tet_modal[name]}
@@ -1034,8 +1226,10 @@ class World:
         for c in md[np.any(J[md] != 0.0, axis=1)] if len(md) else ():
             back.setdefault(modal[c - n_obstacle][0], []).append(c)
         for mb, cs in back.items():
-            self._modal_impulses(ctx, mb, np.array([modal[c - n_obstacle][1] for c in cs]),
-                                 np.array([modal[c - n_obstacle][2] for c in cs]), -J[cs], name)
+            for src, part in self._by_member(t, name, np.array(cs, dtype=np.int64)):
+                self._modal_impulses(ctx, mb, np.array([modal[c - n_obstacle][1] for c in part]),
+                                     np.array([modal[c - n_obstacle][2] for c in part]), -J[part], src)
+        return J
 
     def _kick(self, ctx, kind: str, other: str, data, J: np.ndarray) -> None:
         """Impulse ``J`` (3,) [N s] on solid body ``other`` at its contact point, at its step end (see
@@ -1086,13 +1280,13 @@ class World:
             ctx.done.add(name)
 
     def _stage_contacts(self, ctx) -> None:
-        """Solid bodies against each other (modal-modal, tet-tet; a tet meets modal bodies in its implicit step) and
-        modal bodies against moving and mesh obstacles: one
-        compiled sequential-impulse solve (see the module docstring). Modal bodies against each other and static
-        planes are found and written by ``modal_contacts.ModalContacts`` (compiled); the rest by ``_ContactBuilder``."""
+        """Modal bodies against each other and against moving and mesh obstacles (a tet body meets modal bodies and
+        other tet bodies in its implicit step): one compiled sequential-impulse solve (see the module docstring).
+        Modal bodies against each other and static planes are found and written by ``modal_contacts.ModalContacts``
+        (compiled); the rest by ``_ContactBuilder``."""
         dt = ctx.dt
         t0 = ctx.state_in.time
-        names = self._solid
+        names = self._modal_contact
         seg, V_parts, pos, speed = {}, [], {}, {}
         n_off = 0
         fast = self._fast
@@ -1167,8 +1361,8 @@ class World:
             for b in names[i + 1:]:
                 if fast is not None and a in self._modal and b in self._modal:
                     continue  # compiled below
-                if (a in self._tet) != (b in self._tet):
-                    continue  # in the tet's implicit step (``_tet_contacts``)
+                if a in self._tet or b in self._tet:
+                    continue  # in the tet's implicit step (``_tet_contacts``; never here today: names are modal)
                 ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
                 reach = max(ca.margin, cb.margin) + (speed[a] + speed[b]) * dt
                 xa, xb = where(a), where(b)

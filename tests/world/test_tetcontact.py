@@ -60,3 +60,48 @@ def test_the_bodies_displacements_minimise_the_energy(contacts):
 
         other = float(_psi(z, pen.k, pen.eps)[0].sum()) + sum(0.5 * a @ S @ a for a, S in zip(pen.u, pen.inertia))
         assert other >= E
+
+
+def test_two_sided_contacts_and_friction_match_finite_differences():
+    """Contacts between two tet bodies (four vertices, signed weights summing to zero, plane at 0) with the lagged
+    friction potential: the gradient is the energy's, equal and opposite on the two sides (it sums to zero over
+    the vertices), and the Hessian the penalty's plus the friction's positive semi-definite part."""
+    rng = np.random.default_rng(1)
+    n = 8
+    verts = np.array([[0, 4, 5, 6], [1, 5, 6, 7], [2, 3, 6, 7], [0, 1, 7, -1]])
+    b = rng.uniform(0.1, 1.0, (4, 3))
+    b /= b.sum(1, keepdims=True)
+    w = np.column_stack([np.ones(4), -b])
+    w[2] = [0.3, 0.7, -0.6, -0.4]  # an edge on an edge
+    w[3] = [0.5, 0.5, -1.0, 0.0]  # (a padded column)
+    nrm = rng.normal(size=(4, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    x0 = rng.normal(size=(n, 3)) * 0.004
+    pen = PenaltyContacts(n)
+    pen.set(verts, w, np.zeros((4, 3)), nrm, rng.uniform(1e3, 2e3, 4), 0.004)
+    eps = 1e-4
+    pen.set_friction(np.arange(4), np.array([2.0, 1.0, 3.0, 0.5]), x0, eps)
+    # slips of both kinds: below eps (sticking) and beyond
+    x = x0 + rng.normal(size=(n, 3)) * np.array([[3e-5], [3e-5], [3e-5], [3e-5], [2e-3], [2e-3], [2e-3], [3e-5]])
+    assert np.count_nonzero(pen.depths(x)) >= 2
+    y = pen._slip(x)[1]
+    assert (y < eps).any() and (y > eps).any()
+    h = 1e-8
+    E = [pen.energy((x.ravel() + h * e).reshape(-1, 3)) - pen.energy((x.ravel() - h * e).reshape(-1, 3))
+         for e in np.eye(x.size)]
+    g = pen.gradient(x, None)
+    assert np.allclose(np.array(E) / (2 * h), g.ravel(), rtol=0, atol=1e-6 * np.abs(g).max())
+    assert np.abs(g.sum(0)).max() <= 1e-12 * np.abs(g).max()  # equal and opposite on the two sides
+    r, c, v = pen.hessian_entries(x, None)
+    H = np.zeros((x.size, x.size))
+    np.add.at(H, (r, c), v)
+    assert np.allclose(H, H.T) and np.linalg.eigvalsh(H).min() >= -1e-9 * np.abs(H).max()
+    fric, pen.fric = pen.fric, None  # the penalty's part alone is its exact Hessian
+    r, c, v = pen.hessian_entries(x, None)
+    Hp = np.zeros((x.size, x.size))
+    np.add.at(Hp, (r, c), v)
+    Hfd = np.array([pen.gradient((x.ravel() + 1e-9 * e).reshape(-1, 3), None).ravel()
+                    - pen.gradient((x.ravel() - 1e-9 * e).reshape(-1, 3), None).ravel() for e in np.eye(x.size)]) / 2e-9
+    assert np.allclose(Hp, Hfd, rtol=0, atol=1e-6 * np.abs(Hp).max())
+    pen.fric = fric
+    assert np.any(H - Hp)  # the friction's part is in the entries
