@@ -251,6 +251,22 @@ def sweep_groups(key: np.ndarray, reach: float, writable: np.ndarray, quads: np.
     return perm, cptr, tptr
 
 
+@numba.njit(cache=True, inline="always")
+def _group_pass(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndarray, n: np.ndarray,
+                target: np.ndarray, friction: float, first: int, stop: int, back: bool) -> int:
+    """One pass over the pairs ``first..stop-1`` (backwards with ``back``), each pair's change applied at once;
+    returns the pairs that acted."""
+    a = 0
+    for r in range(stop - first):
+        p = stop - 1 - r if back else first + r
+        d0, d1, d2, den = _pair_change(V, invm, quads, w, n, target, friction, p)
+        if den == 0.0:
+            continue
+        a += 1
+        _scatter(V, invm, quads, w, p, d0, d1, d2, den)
+    return a
+
+
 @numba.njit(cache=True, parallel=True)
 def sequential_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: np.ndarray, n: np.ndarray,
                         target: np.ndarray, friction: float, sweeps: int, cptr: np.ndarray, tptr: np.ndarray):
@@ -259,34 +275,42 @@ def sequential_impulses(V: np.ndarray, invm: np.ndarray, quads: np.ndarray, w: n
     last one (0: every pair at or above its target). A sweep goes colour by colour (``cptr``: the groups of each
     colour), the groups of a colour (``tptr``: each group's span of the pairs, which are in sweep order; no two
     groups of a colour share a movable vertex, ``sweep_groups``) in parallel, a backward sweep in exactly the
-    reverse order. See :func:`modalfem.collision.repulsion.sequential_pair_impulses`."""
+    reverse order. See :func:`modalfem.collision.repulsion.sequential_pair_impulses`.
+
+    A sweep's last colour is the next sweep's first (the order reverses), so one parallel loop does both: each
+    group its pairs of the ending sweep, then the same pairs backwards for the next (the groups of a colour share
+    no movable vertex, so this is the order of the two colour loops one after the other): ``sweeps + 1`` parallel
+    loops with two colours instead of ``2 sweeps``, the same bits. When the ending sweep turns out to have had no
+    acting pair the next one's part changed nothing (the same pairs against the same velocities act again only if
+    they acted before), so stopping there is the serial stopping rule."""
     V = V.copy()
     nc = len(cptr) - 1
-    part = np.zeros(len(tptr) - 1, np.int64)
-    active = 0
-    done = 0
-    for s in range(sweeps):
-        done = s + 1
+    if nc == 0 or sweeps < 1:
+        return V, min(sweeps, 1), 0
+    part = np.zeros((len(tptr) - 1, 2), np.int64)
+    counts = np.zeros(sweeps, np.int64)  # the pairs that acted in each sweep
+    total = sweeps * nc  # colour loops of all sweeps, the merged ones counted twice
+    ph = 0
+    while ph < total:
+        s = ph // nc
+        j = ph - s * nc
         back = s % 2 == 1
-        for cc in range(nc):
-            c = nc - 1 - cc if back else cc
-            for t in numba.prange(cptr[c], cptr[c + 1]):
-                a = 0
-                first, last = tptr[t], tptr[t + 1] - 1
-                for r in range(last - first + 1):
-                    p = last - r if back else first + r
-                    d0, d1, d2, den = _pair_change(V, invm, quads, w, n, target, friction, p)
-                    if den == 0.0:
-                        continue
-                    a += 1
-                    _scatter(V, invm, quads, w, p, d0, d1, d2, den)
-                part[t] = a
-        active = 0
-        for t in range(len(part)):
-            active += part[t]
-        if active == 0:
-            break
-    return V, done, active
+        c = nc - 1 - j if back else j
+        two = j == nc - 1 and ph + 1 < total  # the next sweep's first colour is this one: in the same loop
+        for t in numba.prange(cptr[c], cptr[c + 1]):
+            part[t, 0] = _group_pass(V, invm, quads, w, n, target, friction, tptr[t], tptr[t + 1], back)
+            if two:
+                part[t, 1] = _group_pass(V, invm, quads, w, n, target, friction, tptr[t], tptr[t + 1], not back)
+        for t in range(cptr[c], cptr[c + 1]):
+            counts[s] += part[t, 0]
+            if two:
+                counts[s + 1] += part[t, 1]
+        ph += 2 if two else 1
+        # the sweeps this loop completed (with one colour, the next sweep's too)
+        for q in range(s, min((ph - 1) // nc + 1, sweeps)):
+            if (q + 1) * nc <= ph and counts[q] == 0:
+                return V, q + 1, 0
+    return V, sweeps, counts[sweeps - 1]
 
 
 @numba.njit(cache=True, parallel=True)

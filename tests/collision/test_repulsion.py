@@ -159,6 +159,40 @@ def _spread_pairs(seed, N=3000, k=6000):
     return X, V, invm, quads, w, n, rng.uniform(-0.5, 1.0, k)
 
 
+def test_grouped_sweeps_stop_where_the_sequential_sweeps_stop():
+    """The parallel sweeps run a sweep's last colour and the next sweep's first in one loop; the sweeps they report
+    and the velocities are still those of the sequential sweeps that stop after the first sweep in which no pair
+    acts: every pair already at its target (no pair acts in sweep 1), or vertex-disjoint pairs below it (each
+    acts once in sweep 1, none in sweep 2), on 1 and 2 threads."""
+    from modalfem._threads import thread_count
+    from modalfem.collision.repulsion import pair_order
+
+    X, V, invm, quads, w, n, _ = _spread_pairs(8)
+    order = pair_order(X, invm > 0, quads)
+    p = order.perm
+    vn = np.einsum("kj,kji,ki->k", w, V[quads], n)
+    used = np.zeros(len(X), dtype=bool)
+    low = []
+    for k in range(0, len(quads), 7):  # vertex-disjoint pairs with a movable vertex
+        if not used[quads[k]].any() and (invm[quads[k]] > 0).any():
+            used[quads[k]] = True
+            low.append(k)
+    assert len(low) > 100
+    for lifted, want in ((False, 1), (True, 2)):
+        target = vn - 1.0  # m/s below what every pair has
+        if lifted:
+            target[low] = vn[low] + 0.01
+        for sweeps in (1, 2, 5):
+            ref, ref_done, ref_active = _sequential_reference(V, invm, quads[p], w[p], n[p], target[p], 0.0, sweeps)
+            assert ref_done == min(want, sweeps) and ref_active == (len(low) if ref_done == 1 and lifted else 0)
+            for threads in (1, 2):
+                with thread_count(threads):
+                    got, done, active = sequential_pair_impulses(V, invm, quads, w, n, target, sweeps=sweeps,
+                                                                 order=order)
+                assert (done, active) == (ref_done, ref_active)
+                assert np.allclose(got, ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+
+
 def test_grouped_sweeps_are_the_sequential_sweeps_in_the_groups_order_on_any_thread_count():
     """The parallel order: a permutation of the pairs into groups, no two groups of one colour sharing a movable
     vertex; the sweeps are then the sequential sweeps over the permuted pairs, to the last bit on 1 and 2 threads."""
