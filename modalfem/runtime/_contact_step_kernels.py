@@ -6,7 +6,7 @@ in one call: a body in sustained contact (resting or sliding) whose contact resp
 faster than the step, ``contact._rigid_response``), under a constant load force through the centre of mass
 (gravity), with no impact predicted within the step and no friction stop inside it (contacts touching and
 approaching now get the Python impact solve first: ``after_impact``). Then the Python event loop does exactly
-this: the impact prediction, a free half step, the mid-step gaps, the rigid sustained solve
+this: the impact prediction, a free half step, the mid-step gaps (of the rest shape), the rigid sustained solve
 (``_contact_body_kernels.resolve_rigid``), the stop test, a free half step, the push-out with its energy
 payment, and the energy check. The kernel does the same arithmetic in the same order (the state is the Python
 path's bit for bit; tests/runtime/test_contact_fast.py) and returns 0 (2: touching contacts, an impact solve
@@ -358,10 +358,10 @@ def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, v
     p1, qt1, v1, L1, q1, qd1 = pos.copy(), qt.copy(), v.copy(), L.copy(), q.copy(), qdot.copy()
     _advance_free(p1, qt1, v1, L1, q1, qd1, force, torque, fmodal, mass, axes, moments, co_half, 0.5 * h)
     Rm = _matrix(qt1)
-    skip_m, _ = modal_terms(q1, row_scale, radius)
-    gm, nmid = gaps_at(vertex, obstacle, kinds, params, rest, vm, q1, skip_m, Rm, p1)
+    rigid = np.ones(nm, dtype=np.bool_)  # the solve sees the rest shape: the modes it leaves out swing about it
+    gm, nmid = gaps_at(vertex, obstacle, kinds, params, rest, vm, q1, rigid, Rm, p1)
     jt = np.empty((k, 3))
-    resolve_rigid(vertex, rest, vm, q1, skip_m, Rm, inertia, inertia_inv, mass, v1, L1, nmid, gm, mu, accel, h,
+    resolve_rigid(vertex, rest, vm, q1, rigid, Rm, inertia, inertia_inv, mass, v1, L1, nmid, gm, mu, accel, h,
                   iters, lam_n, jt)
     if not math.isnan(stop_share(mass, nmid, lam_n, mu, v, v1, accel, h)):
         return 0

@@ -30,8 +30,12 @@ distance v0^2 / (2 mu g)):
 * the sustained solve leaves out the modes faster than its sub-step (``omega span > 1``): their
   mid-step velocity says nothing of the velocity at the end, and kicking them every step made a resting
   steel bar gain ~1e-9 J per step (which the energy guard then halved away, ~15 sub-steps per step);
-  impacts still act on every mode. It starts from one common normal impulse at all its contacts (the value
-  meeting their mean target, found matrix-free), so a body resting on a face converges in a few sweeps.
+  impacts still act on every mode. When it leaves out every mode (rigid response), its gaps and lever arms are
+  those of the rest shape: the left-out modes swing the vertices about it, and a vertex their swing leaves inside
+  is the push-out's, which shrinks the swing (with the deformed gaps a resting body sank while a mode held a
+  vertex up, and lifting it back later had nothing left to pay with). It starts from one common normal
+  impulse at all its contacts (the value meeting their mean target, found matrix-free), so a body resting on a
+  face converges in a few sweeps.
   When no mode takes part (all faster than the sub-step, or ``modal=False``) it is the compiled rigid-body
   solve ``_contact_body_kernels.resolve_rigid`` (the body's six velocities in registers; it stops on a
   velocity tolerance, 1e-12 of the problem's velocity scale, and skips smaller updates: a body resting on a
@@ -363,14 +367,35 @@ def _rotation(state) -> np.ndarray:
     return _ROTATION[1]
 
 
-def _gaps(effects, contacts: Contacts, body, state):
+def _gaps(effects, contacts: Contacts, body, state, skip=None):
     """Gaps (k,) [m] and normals (k, 3) of the contact vertices at ``state`` against the obstacle each
-    contact belongs to."""
+    contact belongs to (the modes ``skip`` (r,) bool left out; default: those of negligible contribution)."""
     from modalfem.runtime import _contact_body_kernels as KB
     plan = _plan(effects)
     q = state.q
     return KB.gaps_at(contacts.vertex, plan.first[contacts.effect] + contacts.obstacle, plan.kinds, plan.params,
-                      body.rest, vertex_modes(body), q, _skip(body, q), _rotation(state), state.position)
+                      body.rest, vertex_modes(body), q, _skip(body, q) if skip is None else skip, _rotation(state),
+                      state.position)
+
+
+def _seen(body, plan, contacts: Contacts, span: float):
+    """The modes a sustained sub-step of span [s] leaves out of its gaps (r,) bool, or None (only the negligible
+    ones): all of them when its solve is rigid (``_rigid_response``). The solve leaves out the modes faster than
+    the sub-step; they swing the vertices about the rest shape, and gaps holding their deformation let the body
+    sink while they hold a vertex up (a plate resting on a box's corner vertex sank ~10 nm below its rest shape,
+    which the push-out then had to lift with no energy left to pay: the energy guard ran out of halvings and
+    accepted rises of ~6e-7 J). The swing a vertex is left inside with is the push-out's (it shrinks the
+    vibration)."""
+    if not _rigid_response(body, plan, contacts, span):
+        return None
+    r = body.mode_count
+    s = _RIGID_SKIP.get(r)
+    if s is None:
+        s = _RIGID_SKIP[r] = np.ones(r, dtype=bool)
+    return s
+
+
+_RIGID_SKIP: dict = {}
 
 
 def _system(solver, state, contacts: Contacts, slow: float | None = None):
@@ -525,8 +550,9 @@ def _resolve_rigid(body, state, contacts: Contacts, plan, n, mu, dt: float, acce
     q = state.q
     lam_n = np.empty(k)
     jt = np.empty((k, 3))
-    KB.resolve_rigid(contacts.vertex, body.rest, vertex_modes(body), q, _skip(body, q), _rotation(state), body.inertia,
-                     body.inertia_inv, float(body.mass), state.velocity, state.angular_momentum, n,
+    KB.resolve_rigid(contacts.vertex, body.rest, vertex_modes(body), q, _seen(body, plan, contacts, dt),
+                     _rotation(state), body.inertia, body.inertia_inv, float(body.mass), state.velocity,
+                     state.angular_momentum, n,
                      np.ascontiguousarray(contacts.gap, dtype=np.float64), mu,
                      _ZERO3 if accel is None else np.asarray(accel, dtype=np.float64), float(dt), int(plan.iterations),
                      lam_n, jt)
@@ -627,7 +653,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         saved = snapshot(state)
         v_start = state.velocity.copy()
         solver.advance_free(state, loads, 0.5 * span)
-        gap_mid, n_mid = _gaps(effects, c, body, state)
+        gap_mid, n_mid = _gaps(effects, c, body, state, _seen(body, plan, c, span))
         mid = Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, obstacle=c.obstacle)
         resolve_contacts(solver, state, mid, span, accel=accel, sustained=True)
         stop = _stop_fraction(body, mid, v_start, state.velocity, accel, span)

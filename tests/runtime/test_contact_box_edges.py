@@ -22,11 +22,12 @@ G = 9.81  # [m/s^2]
 SETTLE = 0.5  # [s] the landing from 0.1 mm and its rocking
 
 
-def _across_box(body, dt, monkeypatch):
-    """Step the block lying across the box for 2 s; per step: the guard's energy [J] and the number of Python
-    contact sub-steps (``step_with_contacts`` calls: 0 when the fused step did it, 1 on the Python path, more
-    when the energy guard split the step)."""
-    box = rt.Box((0.0, 0.0, -0.05), (0.05, 0.03, 0.05))
+def _across_box(body, dt, monkeypatch, *, half=(0.05, 0.03), duration=2.0, exhausted=None):
+    """Step the body lying across a box (top at z = 0, half extents ``half`` [m] in x and y) for ``duration`` [s];
+    per step: the guard's energy [J] and the number of Python contact sub-steps (``step_with_contacts`` calls: 0
+    when the fused step did it, 1 on the Python path, more when the energy guard split the step). With
+    ``exhausted`` (a list), the rises [J] the energy guard accepted because it had no halving left are appended."""
+    box = rt.Box((0.0, 0.0, -0.05), (*half, 0.05))
     solver = rt.ModalSolver(body, effects=[rt.Gravity((0, 0, -G)), rt.Obstacles([box], friction=0.5)])
     st = solver.state(orientation=quat_from_axis_angle((0.0, 0.0, 1.0), 1e-5))  # not exactly square to the edges
     st.position[:] = (3e-7, 2e-7, 0.0)
@@ -39,8 +40,24 @@ def _across_box(body, dt, monkeypatch):
         return real(*a, **kw)
 
     monkeypatch.setattr(C, "step_with_contacts", counted)
+    if exhausted is not None:  # the guard's last level: a step it must accept whatever its energy
+        guarded = rt.ModalSolver._contact_step_without_gain
+
+        def last_level(self, s, contacts, loads, h, depth):
+            if depth > 0:
+                return guarded(self, s, contacts, loads, h, depth)
+            own0, e0 = C.guard_energy(self, s, loads)
+            p0 = s.position.copy()
+            guarded(self, s, contacts, loads, h, depth)
+            own1, e1 = C.guard_energy(self, s, loads)  # the guard's own test (ModalSolver._contact_step_without_gain)
+            scale = own0 + own1 + float(np.linalg.norm(loads.force)) * (float(np.linalg.norm(s.position - p0))
+                                                                          + self.body.radius)
+            if e1 > e0 + ENERGY_RTOL * scale:
+                exhausted.append(e1 - e0)
+
+        monkeypatch.setattr(rt.ModalSolver, "_contact_step_without_gain", last_level)
     energy, sub, lowest = [], [], []
-    for _ in range(int(round(2.0 / dt))):
+    for _ in range(int(round(duration / dt))):
         before = calls[0]
         solver.step(st, st, None, solver.collide(st, dt), dt)
         sub.append(calls[0] - before)
@@ -60,6 +77,41 @@ def test_a_body_across_box_edges_takes_no_split_steps_and_never_gains_energy(sma
     assert gains.max() <= tol, f"energy rose by {gains.max():.3g} J in one step"
     assert lowest.min() >= -1e-12, f"a vertex ended {-lowest.min():.3g} m inside the box"
     assert abs(st.position[0]) < 0.01 and st.position[2] > 0.0  # still lying across the box
+
+
+@pytest.fixture(scope="module")
+def plate_body():
+    """A steel plate 0.2 x 0.2 x 0.025 m (P1, 4 x 4 x 1 hexahedra, 8 modes from ~5.9 kHz), float64."""
+    import modalfem
+    from modalfem.mesh import box
+    from modalfem.model import ModalModel
+
+    mesh = box(size=(0.2, 0.2, 0.025), cells=(4, 4, 1))
+    res = modalfem.modes(mesh, modalfem.STEEL, k=8, degree=1, backend="skfem", solver="scipy")
+    return rt.ModalBody(ModalModel.from_modes(res, mesh, modalfem.STEEL, damping=(0.0, 0.0)), dtype=np.float64)
+
+
+@pytest.mark.parametrize("dt", [1e-4, 1e-3, 1e-2, 0.1])
+def test_a_plate_on_a_smaller_box_never_exhausts_the_energy_guard_nor_gains_energy(plate_body, monkeypatch, dt):
+    """The plate lies on a box 0.1 x 0.1 m: its bottom vertices at x, y in {-0.05, 0, 0.05} carry it, the outer ones
+    right above the box's edges and corners (some a few tenths of a micrometre outside). Its fast modes (faster
+    than every step here) swing the contact vertices about the rest shape. The sustained solve, which leaves
+    them out, held the deformed vertices out of the box: while a mode held the centre vertex up, the body sank
+    (~10 nm below its rest shape), and when the swing turned the push-out had to lift the whole body with no
+    energy left to pay (the vibration that had held it was gone): at dt = 1 ms the guard halved steps to its last
+    level and accepted rises of ~6e-7 J (of 0.97 J). Now the solve holds the rest shape out (the modes it leaves
+    out swing about it) and the push-out's lift is paid by shrinking the swing."""
+    exhausted: list = []
+    energy, sub, lowest, st = _across_box(plate_body, dt, monkeypatch, half=(0.05, 0.05), duration=1.0,
+                                          exhausted=exhausted)
+    assert not exhausted, f"the energy guard accepted {len(exhausted)} rises up to {max(exhausted):.3g} J"
+    tol = ENERGY_RTOL * plate_body.mass * G * (2.0 * plate_body.radius)  # as above
+    gains = np.diff(energy)
+    assert gains.max() <= tol, f"energy rose by {gains.max():.3g} J in one step"
+    settled = int(round(SETTLE / dt))
+    assert sub[settled:].max() <= 1, f"energy guard split {np.count_nonzero(sub[settled:] > 1)} steps after settling"
+    assert lowest.min() >= -1e-12, f"a vertex ended {-lowest.min():.3g} m inside the box"
+    assert np.hypot(*st.position[:2]) < 0.01 and st.position[2] > 0.0  # still on the box
 
 
 def test_the_push_out_of_a_vibrating_body_at_rest_shrinks_the_vibration_instead_of_adding_energy(small_body):
