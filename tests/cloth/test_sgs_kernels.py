@@ -161,7 +161,7 @@ def test_sgs_and_multilevel_cg_agree_within_their_residuals(pre):
 def test_sgs_takes_fewer_iterations_than_multilevel_in_a_pile():
     # the sheets resting on each other and the ground (contact constraints, stiffness-dominated systems): measured
     # 18.8 against 30.7 implicit iterations per step (24 x 24, 40 steps) and 38.0 against 53.3 on the 64 x 64 pile
-    # (the smoothing solve keeps the multilevel preconditioner: ``solver.SMOOTH_PRECONDITIONER``).
+    # (the smoothing solve, ``solver.SMOOTH_PRECONDITIONER``, is the same in both runs).
     # (Not everywhere: a free-floating stiff sheet with a random right-hand side takes more with SGS, whose sweeps
     # do not reach the global modes the aggregation levels solve; e.g. 49 against 35 at M + 1e-4 K, 24 x 24.)
     from modalfem.cloth import scenes
