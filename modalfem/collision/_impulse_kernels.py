@@ -9,8 +9,9 @@ impulse may move is in pairs of both) is coloured greedily, and a sweep goes col
 colour in parallel, each group's pairs in their given order. Groups of one colour share no movable vertex, so a
 sweep is the sequential sweep over the pairs in the order (colour, group, index): the same bits on any number of
 threads. Every slab is wider than a pair's reach (the spread of its movable vertices along the axis), so a slab
-conflicts with its neighbours only: two colours, two parallel loops per sweep (64x64 pile, steps 61-63: 25-29k
-pairs in 17-18 groups). The order changes the Gauss-Seidel order, not what a sweep does: on that pile the pairs
+conflicts with its neighbours only: two colours, about one parallel loop per sweep (a sweep's last colour is the
+next one's first: one loop does both, ``sequential_impulses``; 64x64 pile, steps 61-63: 25-29k pairs in 17-18
+groups). The order changes the Gauss-Seidel order, not what a sweep does: on that pile the pairs
 still approaching after the 10 sweeps are as many as in pair order (1112-1230 against 1138-1277) and the largest
 remaining approach as large (0.069 against 0.068 m/s at step 61); over the whole pile 0 intersections either way.
 """

@@ -127,7 +127,8 @@ class PairOrder:
 
     @property
     def colour_count(self) -> int:
-        """Number of colours (parallel loops per sweep)."""
+        """Number of colours (a sweep goes colour by colour; the last colour of one and the first of the next in one
+        parallel loop)."""
         return len(self.cptr) - 1
 
     @classmethod
