@@ -176,3 +176,41 @@ def test_bodies_stepped_together_keep_their_own_effects(cube_model, foam_model):
     assert np.array_equal(s["block"].x[base], foam_model.rest_points[base])
     v = s["cube"].v
     assert 0.5 * float(cube_model.masses @ (v * v).sum(1)) < 1e-6 * cube_model.masses.sum() * G * 0.06
+
+
+@pytest.mark.parametrize("dt", [2e-3, 5e-3])
+def test_a_modal_bar_landing_beside_a_tet_cube_on_foam(bar_model, cube_model, foam_model, dt):
+    """The cube and the foam it rests on step together while the steel bar lands on the foam beside the cube: the
+    group meets the bar inside its step as a single tet body does (the bar's rigid motion solved with it). No
+    crossing, no energy gain, and the bar's momentum changes by gravity and what the tet bodies gave it."""
+    bodies = [mw.Modal(bar_model, name="bar", position=(0.08, 0.12, 0.09)),
+              mw.Tet(cube_model, name="cube", position=(0.005, 0.005, 0.0512)), mw.Tet(foam_model, name="block")]
+    w = mw.World(bodies=bodies, obstacles=[mw.Ground(0.0)], effects=[Gravity(), Contact(restitution=0.2, friction=0.5)])
+    s = w.state()
+    names = ("bar", "cube", "block")
+
+    def energy():
+        return sum(w.energy(s, n)["total"] for n in names)
+
+    e0 = energy()
+    p0 = w.momentum(s, "bar")[0].copy()
+    steps = round(0.12 / dt)  # the bar lands at ~55 ms and sinks into the foam (not to the ground)
+    solver = w._tet["block"]["solver"]
+    weight = (bar_model.mass + cube_model.masses.sum() + foam_model.masses.sum()) * G
+    allow = steps * weight * solver.tol * max(foam_model.size, cube_model.size)
+    received, touched, peak = np.zeros(3), 0, -np.inf
+    for i in range(steps):
+        r = w.step(s, s, None, dt)
+        assert w.intersections(s) == [], f"surfaces cross at step {i}"
+        peak = max(peak, energy() - e0)
+        for a, b, J, _ in r.exchanged:
+            assert a != b and {a, b} <= set(names)
+            if "bar" in (a, b):
+                received += J if a == "bar" else -J
+                touched += 1
+    assert touched > 0 and w._groups  # the bar landed while the cube and the foam stepped together
+    assert peak <= allow, (peak, allow)
+    dp = w.momentum(s, "bar")[0] - p0  # (exact only if the ground never touched it: it rests on the foam)
+    expected = bar_model.mass * np.array([0.0, 0.0, -G]) * steps * dt + received
+    assert np.allclose(dp, expected, rtol=0, atol=1e-9 * bar_model.mass * G * steps * dt)
+    assert received[2] > 0.5 * bar_model.mass * G * 0.05
