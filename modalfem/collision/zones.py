@@ -97,7 +97,9 @@ def rigid_zone_velocities(
     # the others, and those it cannot follow, get the best-fitting rigid velocity field (compiled, all zones in one
     # call; analytic obstacles move rigidly: ``rigid_motion``)
     fit = []
-    no_obstacle = ~np.isin(kroots, roots[N:])
+    obstacle_root = np.zeros(len(roots), dtype=bool)  # the zones holding an analytic obstacle
+    obstacle_root[roots[N:]] = True
+    no_obstacle = ~obstacle_root[kroots]
     for z in range(len(kroots)):
         members = kmembers[kptr[z]:kptr[z + 1]]
         if no_obstacle[z]:
