@@ -343,6 +343,35 @@ def _to_order(perm, src, data, kind, normal, b, y, pdata, pkind, pnormal, pb, py
 
 
 @numba.njit(cache=True, parallel=True)
+def _shifted_to_order(perm, src, pdiag, K, scale, d, kind, normal, b, y, pdata, pkind, pnormal, pb, py):
+    """``_to_order`` of the matrix ``scale K + diag(d)`` (``K`` (nnzb, 3, 3) in the pattern's order, ``d`` (n, 3) in
+    vertex order, ``pdiag`` the diagonal blocks in the new order) formed on the way: the operations of
+    ``_kernels.scale_plus_diagonal`` (product, then the diagonal added), so the same bits, in one pass."""
+    m = len(src)
+    chunks = chunk_count(m, 8 * CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        for p in range(start, stop):
+            q = src[p]
+            for a in range(3):
+                for c in range(3):
+                    pdata[p, a, c] = K[q, a, c] * scale
+    n = len(perm)
+    chunks = chunk_count(n, CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(n, chunks, ch)
+        for i in range(start, stop):
+            j = perm[i]
+            for c in range(3):
+                pdata[pdiag[i], c, c] += d[j, c]
+            pkind[i] = kind[j]
+            for a in range(3):
+                pnormal[i, a] = normal[j, a]
+                pb[i, a] = b[j, a]
+                py[i, a] = y[j, a]
+
+
+@numba.njit(cache=True, parallel=True)
 def _from_order(perm, py, y):
     """``y[perm] = py``."""
     n = len(perm)
@@ -435,6 +464,25 @@ class SweepOrder:
         pdata, pkind, pnormal = np.empty_like(data), np.empty_like(kind), np.empty_like(normal)
         pb, py = np.empty_like(b), np.empty_like(y)
         _to_order(self.perm, self.src, data, kind, normal, b, y, pdata, pkind, pnormal, pb, py)
+        out = pcg_sgs_ordered(self.indptr, self.indices, pdata, self.diag, pkind, pnormal, pb, py, rtol, maxiter,
+                              self.cptr, self.tptr)
+        _from_order(self.perm, py, y)
+        return out
+
+    def solve_shifted(self, K, scale: float, d, kind, normal, b, y, rtol: float, maxiter: int):
+        """``solve`` with the matrix ``scale K + diag(d)`` (``K`` (nnzb, 3, 3) on the pattern, ``d`` (n, 3) in vertex
+        order): in a multicolour order formed directly in it (one pass instead of forming it, then gathering it;
+        the same bits as ``solve`` on ``_kernels.scale_plus_diagonal``'s matrix)."""
+        if self.perm is None:
+            from modalfem.cloth._kernels import scale_plus_diagonal
+
+            data = np.empty_like(K)
+            scale_plus_diagonal(K, self.indptr, self.diag, float(scale), d, data)
+            return self.solve(data, kind, normal, b, y, rtol, maxiter)
+        pdata, pkind, pnormal = np.empty_like(K), np.empty_like(kind), np.empty_like(normal)
+        pb, py = np.empty_like(b), np.empty_like(y)
+        _shifted_to_order(self.perm, self.src, self.diag, K, float(scale), d, kind, normal, b, y, pdata, pkind,
+                          pnormal, pb, py)
         out = pcg_sgs_ordered(self.indptr, self.indices, pdata, self.diag, pkind, pnormal, pb, py, rtol, maxiter,
                               self.cptr, self.tptr)
         _from_order(self.perm, py, y)

@@ -236,14 +236,34 @@ class _Levels:
         return Dinv, np.linalg.inv(C)
 
 
+class _Shifted:
+    """The block matrix ``scale K + diag(d)`` (``K`` (nnzb, 3, 3) on a pattern, ``d`` (n, 3)), formed where a solve
+    takes it: a block multicolour SGS solve forms it directly in its order (``SweepOrder.solve_shifted``)."""
+
+    def __init__(self, K: np.ndarray, indptr: np.ndarray, diag: np.ndarray, scale: float, d: np.ndarray):
+        self.K, self.indptr, self.diag, self.scale, self.d = K, indptr, diag, float(scale), d
+
+    def data(self) -> np.ndarray:
+        from modalfem.cloth import _kernels
+
+        out = np.empty_like(self.K)
+        _kernels.scale_plus_diagonal(self.K, self.indptr, self.diag, self.scale, self.d, out)
+        return out
+
+
 def _solve_cg(indptr, indices, data, diag, b, kind, normal, z, guess, rtol: float, maxiter: int,
               levels):
     """Filtered PCG: the multilevel preconditioner on ``levels`` (``_Levels``), or symmetric block Gauss-Seidel in
-    vertex order (None) or in a ``_sgs_kernels.SweepOrder``."""
+    vertex order (None) or in a ``_sgs_kernels.SweepOrder``; ``data`` the block matrix or a ``_Shifted`` one."""
     from modalfem.cloth import _kernels, _sgs_kernels
 
     y = z + (_project(kind, normal, guess) if guess is not None else 0.0)
-    if isinstance(levels, _sgs_kernels.SweepOrder):
+    shifted = isinstance(data, _Shifted)
+    if shifted and not isinstance(levels, _sgs_kernels.SweepOrder):
+        data, shifted = data.data(), False
+    if shifted:
+        it, res = levels.solve_shifted(data.K, data.scale, data.d, kind, normal, b, y, float(rtol), int(maxiter))
+    elif isinstance(levels, _sgs_kernels.SweepOrder):
         it, res = levels.solve(data, kind, normal, b, y, float(rtol), int(maxiter))
     elif levels is None:
         it, res = _sgs_kernels.pcg_sgs(indptr, indices, data, diag, kind, normal, b, y, float(rtol), int(maxiter))
@@ -433,7 +453,7 @@ class ImplicitEuler:
         pat = self._pattern
         t0 = time.perf_counter()
         if self.linear_solver == "splu":
-            A = pat.csr(data)
+            A = pat.csr(data.data() if isinstance(data, _Shifted) else data)
             S = np.tile(np.eye(3), (pat.n, 1, 1))
             S[kind == 2] = 0.0
             c = kind == 1
@@ -576,7 +596,7 @@ class ImplicitEuler:
         if strength <= 0 or self._Kdata is None or not np.any(dv):
             return dv
         pat = self._pattern
-        data = self._scale_plus_diagonal(self._Kdata, dt * strength, self._m3)
+        data = _Shifted(self._Kdata, pat.indptr, pat.diag, dt * strength, self._m3.reshape(-1, 3))
         fixed = np.zeros(0, np.int64) if fixed is None else np.asarray(fixed, dtype=np.int64)
         kind, normal, z = _constraints(pat.n, fixed, np.zeros((fixed.size, 3)), None)
         m = self.model.masses

@@ -204,3 +204,36 @@ def test_a_start_worse_than_none_is_dropped():
     it, res = _sgs_kernels.pcg_sgs(pat.indptr, pat.indices, data, pat.diag, kind, normal, b, y, 0.1, 200)
     A = sp.bsr_matrix((data, pat.indices, pat.indptr), shape=(3 * n, 3 * n)).tocsr()
     assert 0 < it < 200 and np.linalg.norm(b.reshape(-1) - A @ y.reshape(-1)) <= 0.1 * np.linalg.norm(b)
+
+
+@pytest.mark.parametrize("order", _sgs_kernels.ORDERS)
+def test_shifted_solve_forms_the_matrix_in_the_sweep_order_to_the_last_bit(order):
+    """``SweepOrder.solve_shifted`` (the smoothing solve: ``scale K + diag(d)`` formed directly in the sweep order)
+    gives the bits of ``solve`` on the matrix formed first (``_kernels.scale_plus_diagonal``), with handles and
+    contacts, on 1 and 2 threads."""
+    from modalfem._threads import thread_count
+
+    m = grid((0.4, 0.4), (40, 40))  # 1600 vertices: several groups and colour chunks
+    model = ClothModel(m, SOFT)
+    rng = np.random.default_rng(5)
+    s = ImplicitEuler(model)
+    s.stiffness(m.points * np.array([1.1, 0.95, 1.0]) + 0.005 * rng.standard_normal(m.points.shape))
+    pat, K = s._pattern, s._Kdata
+    d = np.repeat(model.masses, 3).reshape(-1, 3) * rng.uniform(0.5, 2.0, (pat.n, 3))
+    scale = 3e-4
+    data = np.empty_like(K)
+    _kernels.scale_plus_diagonal(K, pat.indptr, pat.diag, scale, d, data)
+    o = _sgs_kernels.SweepOrder(pat.indptr, pat.indices, pat.diag, order)
+    fixed, values, contacts = _constraint_set(pat.n, rng)
+    kind, normal, z = _constraints(pat.n, fixed, values, contacts)
+    b = rng.standard_normal((pat.n, 3))
+    runs = []
+    for threads in (1, 2):
+        with thread_count(threads):
+            y1, y2 = z.copy(), z.copy()
+            r1 = o.solve(data, kind, normal, b, y1, 1e-8, 2000)
+            r2 = o.solve_shifted(K, scale, d, kind, normal, b, y2, 1e-8, 2000)
+        assert r1 == r2 and r1[0] > 5
+        np.testing.assert_array_equal(y1, y2)
+        runs.append(y2)
+    np.testing.assert_array_equal(runs[0], runs[1])
