@@ -730,6 +730,8 @@ class World:
                 self._tet_friction(ctx, name, out, obstacles, *group)
                 if "members" not in t:
                     self._tet_restitution(ctx, name, s, out)
+                else:
+                    self._group_restitution(ctx, t, s, out)
                 self._tet_record(ctx, name, t, out)
             if len(names) == 1:
                 ctx.out.bodies[name] = out
@@ -740,6 +742,27 @@ class World:
                 ctx.out.bodies[n] = TetState(out.x[a:b].copy(), out.v[a:b].copy(), out.t)
                 ctx.start[n] = starts[n]
                 ctx.done.add(n)
+
+    def _group_restitution(self, ctx, t: dict, s, out) -> None:
+        """``_tet_restitution`` of each member of a group with the modal bodies it touches: its own vertices (views
+        into the group's states, changed in place), its contacts with them, the energy stored in its own
+        elasticity and in the contacts of its vertices."""
+        from modalfem.tet import TetState
+
+        pen = t["penalty"]
+        n_obstacle, modal = t["modal_contacts"]
+        if not modal:
+            return
+        owner = t["solver"].owner[pen.vid[:, 0]]
+        f = pen.forces(out.x)
+        psi = _tet_kernels.penalty(pen.depths(out.x), pen.k, pen.eps)[0]
+        for i, ((n, _), a, b) in enumerate(zip(t["members"], t["solver"].offsets[:-1], t["solver"].offsets[1:])):
+            rows = n_obstacle + np.flatnonzero(owner[n_obstacle:n_obstacle + len(modal)] == i)
+            view = {"masses": t["masses"][a:b], "solver": self._tet[n]["solver"], "contact": self._tet[n]["contact"],
+                    "modal_contacts": (0, [modal[r - n_obstacle] for r in rows]),
+                    "penalty": _MemberContacts(f[rows], pen.nrm[rows], float(psi[owner == i].sum()))}
+            self._tet_restitution(ctx, n, TetState(s.x[a:b], s.v[a:b], s.t), TetState(out.x[a:b], out.v[a:b], out.t),
+                                  view)
 
     def _tet_groups(self, ctx, starts: dict) -> list:
         """The tet bodies in groups stepped together (``tetgroup.touching``): those with contact whose surfaces'
@@ -790,12 +813,12 @@ class World:
         self._tet_modal[key] = list(self._modal_contact)
         return key, g
 
-    def _tet_pair_contacts(self, t: dict, s, r: float) -> tuple:
-        """The contacts of a group's tet bodies with each other within ``r`` [m] at the start ``s`` (stacked):
-        ``tetgroup.pair_contacts``, edges on edges as ``EDGE_ALIGN``."""
+    def _tet_pair_contacts(self, t: dict, s, r: float, u: np.ndarray) -> tuple:
+        """The contacts of a group's tet bodies with each other within ``r`` [m] at the start ``s`` (stacked), ``u``
+        (n, 3) [m] the predicted motion: ``tetgroup.pair_contacts``, edges on edges as ``EDGE_ALIGN``."""
         from modalfem.world.tetgroup import pair_contacts
 
-        return pair_contacts([(self._tet[n], o) for n, o in t["members"]], s.x, r, EDGE_ALIGN)
+        return pair_contacts([(self._tet[n], o) for n, o in t["members"]], s.x, r, EDGE_ALIGN, u)
 
     def _last_force(self, ctx, name: str, t: dict, kind: str):
         """The last step's contact force [N] by vertex of ``kind`` (``"obstacle force"``, ``"pair force"``), for a
@@ -938,7 +961,7 @@ class World:
                     h.normal, np.einsum("kj,kjd->kd", wm, x0[ids]), _ModalSurface(m, x0, x1, ids, wm))
                 modal.extend((m, ids[i], wm[i]) for i in range(len(ids)))
         if "members" in t:  # the group's bodies with each other: relative positions (signed weights), plane at 0
-            pv, pw, pn = self._tet_pair_contacts(t, s, reach + c.margin)
+            pv, pw, pn = self._tet_pair_contacts(t, s, reach + c.margin, dt * s.v)
             if len(pv):
                 verts.append(pv)
                 ws.append(pw)
@@ -1017,7 +1040,7 @@ class World:
             pen.set_friction(rows, c.friction * pen.forces(s.x)[rows], s.x, eps)
         return touched
 
-    def _tet_restitution(self, ctx, name: str, s, out) -> None:
+    def _tet_restitution(self, ctx, name: str, s, out, t: dict | None = None) -> None:
         """Restitution between tet body ``name`` (start ``s``, end ``out``) and the modal bodies it meets, on the
         bodies' relative motion (Poisson): an impact starts when their contacts first push (the relative velocity
         ``v0`` of the tet's centre of mass and the modal body noted); while the pair approaches, the normal impulse
@@ -1028,8 +1051,9 @@ class World:
         damping took is given back, never more; the elasticity of a soft body returns what it stored itself. When
         the contacts let go, the pair is topped up once more, to ``e v0`` apart under the same cap: at steps much
         shorter than the impact, the tet's elastic return after the end of compression takes many steps, and the
-        implicit step's damping of it (0.19 v0 of the rebound of a stiff block at dt = 0.1 ms) is given back too."""
-        t = self._tet[name]
+        implicit step's damping of it (0.19 v0 of the rebound of a stiff block at dt = 0.1 ms) is given back too.
+        ``t``: a member of a group's view (``_group_restitution``; ``s`` and ``out`` its slices of the group's)."""
+        t = self._tet[name] if t is None else t
         n_obstacle, modal = t.get("modal_contacts", (0, []))
         m = t["masses"]
         if not modal or not np.all(np.isfinite(m)):
@@ -1695,6 +1719,20 @@ class World:
                 if k:
                     out.append((a, b, k))
         return out
+
+
+class _MemberContacts:
+    """A group member's contacts with the modal bodies, as ``_tet_restitution`` reads them: their forces [N] and
+    normals at the step end, and the energy [J] stored in the contacts of its vertices."""
+
+    def __init__(self, f: np.ndarray, nrm: np.ndarray, stored: float) -> None:
+        self.f, self.nrm, self.stored = f, nrm, stored
+
+    def forces(self, x: np.ndarray) -> np.ndarray:
+        return self.f
+
+    def penalty_energy(self, x: np.ndarray) -> float:
+        return self.stored
 
 
 class _StepContext:
