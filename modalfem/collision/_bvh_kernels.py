@@ -259,13 +259,14 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
 @numba.njit(cache=True, parallel=True)
 def traverse_primitives(culling: bool, P: int, lo, hi, ne, slot, slo, shi, connected, cone_axis, cone_angle, adj,
                         bnd_start, bnd_edge, bnd_id, limit: int, x0, x1, static: bool, check_contour: bool,
-                        tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi):
+                        tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi, diag, fdiag, gap):
     """:func:`traverse` of a tree against itself (no dirty filter) fused with the expansion of each chunk's
     triangle pairs into point-triangle and edge-edge pairs (:func:`modalfem.collision._pair_kernels
     ._primitive_range`, with the triangle and edge boxes ``flo``..``ehi`` of
-    :func:`modalfem.collision._pair_kernels.primitive_boxes`) while they are in cache: the triangle pairs are
-    never gathered into one list. The same pairs in the same order as :func:`traverse` followed by
-    :func:`modalfem.collision._pair_kernels.primitive_pairs`, on any number of threads.
+    :func:`modalfem.collision._pair_kernels.primitive_boxes` and its diagonal test ``diag``, ``fdiag``, ``gap``)
+    while they are in cache: the triangle pairs are never gathered into one list. The same pairs in the same
+    order as :func:`traverse` followed by :func:`modalfem.collision._pair_kernels.primitive_pairs`, on any number
+    of threads.
 
     Returns:
         ``(vf, ee, tests)``: (p, 4) and (q, 4) vertex quadruples and the leaf tests.
@@ -284,7 +285,7 @@ def traverse_primitives(culling: bool, P: int, lo, hi, ne, slot, slo, shi, conne
                                     slot, slo, shi, connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id,
                                     limit, x0, x1, static, check_contour, none, none)
         vbufs[ch], ebufs[ch] = _primitive_range(tp, 0, len(tp), tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
-                                                ehi, none)
+                                                ehi, none, diag, fdiag, gap)
     return _concat4(vbufs), _concat4(ebufs), tests.sum()
 
 

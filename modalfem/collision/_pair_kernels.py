@@ -10,8 +10,8 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["dirty_self_pairs", "outgrown", "primitive_boxes", "primitive_pairs", "select_indexed", "select_pairs",
-           "vertex_index"]
+__all__ = ["box_diagonals", "dirty_self_pairs", "outgrown", "primitive_boxes", "primitive_pairs", "select_indexed",
+           "select_pairs", "triangle_diagonals", "vertex_index"]
 
 _apply_threads()
 
@@ -29,14 +29,17 @@ PAIR_CHUNK = 256
 
 @numba.njit(cache=True, parallel=True)
 def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: np.ndarray, own_e: np.ndarray,
-                    vlo: np.ndarray, vhi: np.ndarray, dirty: np.ndarray):
+                    vlo: np.ndarray, vhi: np.ndarray, dirty: np.ndarray, diag: np.ndarray, gap: float):
     """Point-triangle and edge-edge pairs of the triangle pairs ``tp`` (k, 2) whose boxes overlap.
 
     Each vertex and edge is owned by one triangle (``own_v``/``own_e`` (F, 3), -1 padded): a primitive
     pair comes from the triangle pair of its owners only. Boxes are the vertex boxes ``vlo``/``vhi``
     (N, 3) [m] (already grown by the margin), a triangle's or edge's the union of its vertices'. Pairs
     sharing a vertex are left out; with ``dirty`` ((N,) bool, empty: no filter) only pairs holding a
-    flagged vertex are kept. Chunks of ``tp`` run in parallel (:mod:`modalfem._threads`), their pairs
+    flagged vertex are kept. With ``diag`` ((N, 8) per-vertex intervals on the four box diagonals, as
+    :func:`modalfem.collision._ccd_kernels.diagonal_intervals`; empty: no such test), a pair is also left out
+    when its two primitives' intervals on one diagonal are more than ``gap`` [m] apart (:func:`_diagonal_apart`).
+    Chunks of ``tp`` run in parallel (:mod:`modalfem._threads`), their pairs
     concatenated in order: the same pairs in the same order on any number of threads.
 
     Returns:
@@ -44,7 +47,10 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     """
     F, E = len(tris), len(edges)
     k = len(tp)
-    # boxes of the triangles in tp and of the edges they own only (a dirty search holds a few of them)
+    use_diag = len(diag) > 0
+    # boxes (and diagonal intervals) of the triangles in tp and of the edges they own only (a dirty search holds a
+    # few of them)
+    fdiag = np.empty((F if use_diag else 0, 8))
     flo, fhi = np.empty((F, 3)), np.empty((F, 3))
     elo, ehi = np.empty((E, 3)), np.empty((E, 3))
     fdone = np.zeros(F, dtype=np.bool_)
@@ -64,6 +70,8 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
             for c in range(3):
                 flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
                 fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
+            if use_diag:
+                _triangle_diagonals(tris, diag, f, fdiag)
             for r in range(3):
                 e = own_e[f, r]
                 if e >= 0:
@@ -75,7 +83,7 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
         vbufs[ch], ebufs[ch] = _primitive_range(tp, start, stop, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
-                                                ehi, dirty)
+                                                ehi, dirty, diag, fdiag, gap)
     return _concat4(vbufs), _concat4(ebufs)
 
 
@@ -120,19 +128,89 @@ def _concat4(bufs):
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _diagonal_apart(diag: np.ndarray, a0: int, a1: int, b0: int, b1: int, b2: int, gap: float) -> bool:
+    """The primitive of vertices ``a0, a1`` and that of ``b0, b1, b2`` (repeat an index for fewer) have intervals
+    on one of the four diagonals of ``diag`` ((N, 8): ``lo_0..lo_3, hi_0..hi_3`` per vertex) more than ``gap``
+    apart."""
+    apart = False
+    for d in range(4):
+        alo, ahi = min(diag[a0, d], diag[a1, d]), max(diag[a0, 4 + d], diag[a1, 4 + d])
+        blo = min(diag[b0, d], diag[b1, d], diag[b2, d])
+        bhi = max(diag[b0, 4 + d], diag[b1, 4 + d], diag[b2, 4 + d])
+        apart = apart | (alo > bhi + gap) | (blo > ahi + gap)
+    return apart
+
+
+@numba.njit(cache=True, inline="always")
+def _triangle_diagonals(tris: np.ndarray, diag: np.ndarray, f: int, fdiag: np.ndarray) -> None:
+    """Row ``f`` of ``fdiag``: the union of triangle ``f``'s vertices' intervals on the four diagonals of ``diag``
+    ((N, 8) ``lo_0..lo_3, hi_0..hi_3``)."""
+    i, j, k = tris[f, 0], tris[f, 1], tris[f, 2]
+    for d in range(4):
+        fdiag[f, d] = min(diag[i, d], diag[j, d], diag[k, d])
+        fdiag[f, 4 + d] = max(diag[i, 4 + d], diag[j, 4 + d], diag[k, 4 + d])
+
+
+@numba.njit(cache=True, parallel=True)
+def triangle_diagonals(tris: np.ndarray, diag: np.ndarray) -> np.ndarray:
+    """(F, 8): each triangle's interval on the four diagonals of ``diag`` ((N, 8), the union of its vertices'
+    intervals; empty if ``diag`` is); chunks in parallel."""
+    F = len(tris) if len(diag) else 0
+    fdiag = np.empty((F, 8))
+    chunks = chunk_count(F, PAIR_CHUNK)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(F, chunks, ch)
+        for f in range(start, stop):
+            _triangle_diagonals(tris, diag, f, fdiag)
+    return fdiag
+
+
+@numba.njit(cache=True, parallel=True)
+def box_diagonals(vlo: np.ndarray, vhi: np.ndarray) -> np.ndarray:
+    """Per vertex, its box ``vlo``/``vhi`` ((N, 3) [m]) projected on the four box diagonals ``(1, 1, 1)``,
+    ``(1, 1, -1)``, ``(1, -1, 1)``, ``(-1, 1, 1)`` (not normalised; the rows of
+    :func:`modalfem.collision._ccd_kernels.diagonal_intervals`): (N, 8) ``lo_0..lo_3, hi_0..hi_3`` [m], each the
+    box corner's sum of three coordinates (rounded to within a few ulps of three times the coordinate scale)."""
+    N = len(vlo)
+    out = np.empty((N, 8))
+    chunks = chunk_count(N, 1024)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(N, chunks, ch)
+        for i in range(start, stop):
+            l0, l1, l2 = vlo[i, 0], vlo[i, 1], vlo[i, 2]
+            h0, h1, h2 = vhi[i, 0], vhi[i, 1], vhi[i, 2]
+            out[i, 0], out[i, 4] = l0 + l1 + l2, h0 + h1 + h2
+            out[i, 1], out[i, 5] = l0 + l1 - h2, h0 + h1 - l2
+            out[i, 2], out[i, 6] = l0 - h1 + l2, h0 - l1 + h2
+            out[i, 3], out[i, 7] = l1 + l2 - h0, h1 + h2 - l0
+    return out
+
+
 @numba.njit(cache=True)
-def _primitive_range(tp, start: int, stop: int, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi, dirty):
+def _primitive_range(tp, start: int, stop: int, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi, dirty, diag,
+                     fdiag, gap: float):
     """:func:`primitive_pairs` of the triangle pairs ``tp[start:stop]``, given the triangle and edge boxes.
 
     Each candidate is written at the next free row and kept by adding its box test to the count, without a
     branch on the test (about half of the tests fail, unpredictably): 30 % less time than branching on it
     (64x64 pile, full searches of 120k-165k triangle pairs: 10.1 -> 7.0 ms on one thread, Intel Xeon)."""
     filt = len(dirty) > 0
+    use_diag = len(diag) > 0
     k = stop - start
     vf_ids = np.empty((6 * k, 2), dtype=np.int64)
     ee_ids = np.empty((9 * k, 2), dtype=np.int64)
     nv = ne = 0
     for p in range(start, stop):
+        if use_diag:
+            # two triangles apart on a diagonal (``fdiag``: the union of their vertices' intervals): so is every
+            # primitive pair they own, which the test below would leave out
+            A, B = tp[p, 0], tp[p, 1]
+            apart = False
+            for d in range(4):
+                apart = apart | (fdiag[A, d] > fdiag[B, 4 + d] + gap) | (fdiag[B, d] > fdiag[A, 4 + d] + gap)
+            if apart:
+                continue
         for side in range(2):
             A, B = tp[p, side], tp[p, 1 - side]
             b0, b1, b2 = tris[B, 0], tris[B, 1], tris[B, 2]
@@ -162,15 +240,23 @@ def _primitive_range(tp, start: int, stop: int, tris, edges, own_v, own_e, vlo, 
                     continue
                 ee_ids[ne, 0], ee_ids[ne, 1] = ea, eb
                 ne += _boxes_overlap(elo, ehi, elo, ehi, ea, eb)
+    # the box-passing pairs (a few percent of the tests) as vertex quadruples, without those apart on a diagonal
     vf = np.empty((nv, 4), dtype=np.int64)
+    o = 0
     for i in range(nv):
-        vf[i, 0] = vf_ids[i, 0]
-        vf[i, 1], vf[i, 2], vf[i, 3] = tris[vf_ids[i, 1], 0], tris[vf_ids[i, 1], 1], tris[vf_ids[i, 1], 2]
+        v, B = vf_ids[i, 0], vf_ids[i, 1]
+        b0, b1, b2 = tris[B, 0], tris[B, 1], tris[B, 2]
+        vf[o, 0], vf[o, 1], vf[o, 2], vf[o, 3] = v, b0, b1, b2
+        o += not (use_diag and _diagonal_apart(diag, v, v, b0, b1, b2, gap))
+    vf = vf[:o]
     ee = np.empty((ne, 4), dtype=np.int64)
+    o = 0
     for i in range(ne):
-        ee[i, 0], ee[i, 1] = edges[ee_ids[i, 0], 0], edges[ee_ids[i, 0], 1]
-        ee[i, 2], ee[i, 3] = edges[ee_ids[i, 1], 0], edges[ee_ids[i, 1], 1]
-    return vf, ee
+        a0, a1 = edges[ee_ids[i, 0], 0], edges[ee_ids[i, 0], 1]
+        c0, c1 = edges[ee_ids[i, 1], 0], edges[ee_ids[i, 1], 1]
+        ee[o, 0], ee[o, 1], ee[o, 2], ee[o, 3] = a0, a1, c0, c1
+        o += not (use_diag and _diagonal_apart(diag, a0, a1, c0, c1, c1, gap))
+    return vf, ee[:o]
 
 
 @numba.njit(cache=True, inline="always")
@@ -310,3 +396,4 @@ def dirty_self_pairs(ids: np.ndarray, qi: np.ndarray, tri: np.ndarray, dirty_tri
             out[n, 0], out[n, 1] = a, t
             n += 1
     return out[:n].copy()
+

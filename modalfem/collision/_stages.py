@@ -182,7 +182,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             measured = cfg.measure_culling or not swept_culling
             X1 = X0 + dt * V
             c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=swept_culling,
-                                  count_unculled=cfg.measure_culling)
+                                  count_unculled=cfg.measure_culling, diagonals=True)
             stats.pair_tests += c.tests
             if measured:
                 stats.pair_tests_unculled = (stats.pair_tests_unculled or 0) + c.tests_unculled
@@ -201,14 +201,16 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             if dirty[:n].mean() > FRESH_SEARCH:
                 # most vertices dirty (the call after smoothing): one full search, as at the step's first
                 # call, shares the descent that the dirty search would repeat per dirty triangle
-                c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=swept_culling)
+                c = system.candidates(X0, X1, margin=margin, self_collision=cfg.self_collision, culling=swept_culling,
+                                      diagonals=True)
                 cache["store"], cache["V"] = PairStore(c), V.copy()
                 cache["lo"], cache["hi"] = system.vertex_boxes(X0, X1, margin)
             elif dirty.any():
                 cache["V"][dirty] = V[dirty]
                 lo[dirty], hi[dirty] = system.vertex_boxes(X0[dirty], X1[dirty], margin)
                 cache["store"].drop(dirty)
-                cache["store"].add(system.dirty_candidates(lo, hi, dirty, self_collision=cfg.self_collision))
+                cache["store"].add(system.dirty_candidates(lo, hi, dirty, self_collision=cfg.self_collision,
+                                                           diagonals=True))
         sec["broad_phase"] += time.perf_counter() - t0
         return cache["store"]
 
@@ -218,7 +220,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             # boxes at X0 grown by h / 2, normal cones of the static triangles (a traversal of its own)
             t1 = time.perf_counter()
             cand = system.candidates(X0, X0, margin=0.5 * cfg.thickness, self_collision=cfg.self_collision,
-                                     culling=cfg.culling, count_unculled=cfg.measure_culling)
+                                     culling=cfg.culling, count_unculled=cfg.measure_culling, within=cfg.thickness)
             stats.pair_tests += cand.tests
             if cfg.measure_culling or not cfg.culling:
                 stats.pair_tests_unculled = (stats.pair_tests_unculled or 0) + cand.tests_unculled

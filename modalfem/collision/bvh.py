@@ -257,9 +257,11 @@ class BroadPhaseBVH:
         primitive pairs (:func:`modalfem.collision._bvh_kernels.traverse_primitives`).
 
         Args:
-            expand: ``(tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi)``, the arguments of
-                :func:`modalfem.collision._pair_kernels.primitive_pairs` after the triangle pairs, plus the
-                triangle and edge boxes (:func:`modalfem.collision._pair_kernels.primitive_boxes`).
+            expand: ``(tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi, diag, fdiag, gap)``, the
+                arguments of :func:`modalfem.collision._pair_kernels.primitive_pairs` after the triangle pairs,
+                plus the triangle and edge boxes (:func:`modalfem.collision._pair_kernels.primitive_boxes`), the
+                vertices' and triangles' diagonal intervals and their gap (empty ``diag``: no diagonal test;
+                :func:`modalfem.collision._system.diagonal_test`).
             culling: as in :meth:`self_pairs`.
 
         Returns:

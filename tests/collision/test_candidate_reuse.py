@@ -5,8 +5,11 @@ The argument (``modalfem.collision._stages.resolve``'s ``candidates``): the stor
 vertex boxes overlap (a full search with those boxes; a vertex whose trajectory grown by eta / 2 leaves
 its box is dirty, its pairs dropped and searched again with its new box). A clean vertex's trajectory grown
 by eta / 2 is inside its box, so two primitives whose trajectory boxes come within eta (the CCD's own box
-test) have overlapping stored boxes: their pair is in the store. Checked here against an independent
-system (its own tree, so the pipeline's tree is not refitted by the check) at every CCD call."""
+test) have overlapping stored boxes: their pair is in the store. The searches also leave out pairs whose
+boxes are apart on a box diagonal (``System.candidates(diagonals=True)``); boxes holding the trajectory boxes
+are apart there only if those are too, so the fresh search needed is the one with that filter. Checked here
+against an independent system (its own tree, so the pipeline's tree is not refitted by the check) at every
+CCD call."""
 
 from __future__ import annotations
 
@@ -39,8 +42,9 @@ def test_kept_candidates_hold_every_pair_of_a_fresh_search_over_a_falling_pile(m
     def checked_ccd_hits(system, X0, V, dt, store, invm, eta_, **kw):
         X0 = np.ascontiguousarray(X0)
         X1 = X0 + dt * V
-        # what the CCD's box test needs: trajectory boxes within eta, i.e. grown by eta / 2 each, overlapping
-        fresh = checker.candidates(X0, X1, margin=0.5 * eta, self_collision=True, culling=False)
+        # what the CCD's box test needs: trajectory boxes within eta, i.e. grown by eta / 2 each, overlapping (on
+        # the axes and on the diagonals)
+        fresh = checker.candidates(X0, X1, margin=0.5 * eta, self_collision=True, culling=False, diagonals=True)
         for kind, q in (("vf", fresh.vf), ("ee", fresh.ee)):
             missing = _keys(kind, q) - _keys(kind, store.pairs(kind))
             assert not missing, f"{len(missing)} {kind} pairs of a fresh search missing from the kept candidates"

@@ -74,14 +74,15 @@ def test_stages_off_leave_velocities_and_report_unresolved():
 def test_culling_statistics_on_a_draped_sheet():
     """A flat sheet cannot touch itself: culling removes every test of the traversals it runs in, the
     proximity search by default (its unculled tests: the swept search's plus the proximity search's),
-    both with ``swept_culling``."""
-    x0, tri = grid(10, 10)
+    both with ``swept_culling``. (The thickness is the cell size: the unculled swept search then keeps pairs of
+    nearby primitives; with a thinner cloth the searches' box-diagonal test leaves none of a flat sheet's.)"""
+    x0, tri = grid(20, 20)
     v = np.zeros_like(x0)
     v[:, 2] = -1.0
-    both = CollisionConfig(thickness=0.005, measure_culling=True, swept_culling=True)
+    both = CollisionConfig(thickness=0.05, measure_culling=True, swept_culling=True)
     _, st = CollisionPipeline(tri, config=both).resolve(x0, v, np.ones(len(x0)), DT)
     assert st.pair_tests == 0 < st.pair_tests_unculled and st.culled_fraction == 1.0
-    default = CollisionConfig(thickness=0.005, measure_culling=True)
+    default = CollisionConfig(thickness=0.05, measure_culling=True)
     _, st2 = CollisionPipeline(tri, config=default).resolve(x0, v, np.ones(len(x0)), DT)
     assert st2.pair_tests_unculled == st.pair_tests_unculled
     assert 0 < st2.pair_tests < st2.pair_tests_unculled  # the swept traversal's tests, unculled
