@@ -24,7 +24,7 @@ order (``"sgs-colours"``, 7 colours) it takes 49.2 (a sweep carries a correction
 there are colours). The orders are fixed by the pattern, so every choice gives the same bits on any thread count.
 Per step on the 64x64 pile (80 steps, one thread) SGS in vertex order took 38.0 iterations against the multilevel
 preconditioner's 53.3 (drape 64x64: 37.0 against 56.8; the twist without collisions 23.5 against 25.4), and needs
-no setup of levels (the smoothing solve uses it too: ``SMOOTH_PRECONDITIONER``); its sweeps do not
+no setup of levels (the smoothing solve keeps the multilevel one: ``SMOOTH_PRECONDITIONER``); its sweeps do not
 reach a free-floating stiff sheet's global modes as well (a synthetic ``M + 1e-4 K`` on 24x24 vertices without
 constraints, random right-hand side: 49 against 35 iterations). The other, ``"multilevel"``, is additive: block Jacobi (the
 inverses of the vertices' projected 3x3 diagonal blocks) plus, on a hierarchy of vertex aggregates
@@ -76,11 +76,14 @@ SMOOTH_RTOL = 0.1
 #: "sgs-colours" 29.3, smoothing CPU per step within the load's noise of each other (10.8-11.9 ms; "sgs-colours" 14.3);
 #: the twist test now passes with each, and in the sibling twists (8x8 2.2 turns, 9x9, 10x10, 8x8 1.8, 7x7 2.0) each
 #: fails about as often (multilevel 7x7; "sgs" 8x8 2.2; "sgs-colours" 8x8 2.2 and 9x9): no reason to change then.
-#: Changed to "sgs-blocks" for two threads: the multilevel CG's levels (restriction, coarse solve, per iteration)
-#: and their Galerkin matrices (per call) run serially or in at most 4 chunks, the block SGS sweeps in parallel
-#: with no setup. Whole 64x64 pile, one thread (loaded machine, CPU time): 28.4 -> 24.5 smoothing iterations per
-#: step, 120.2 -> 119.0 CPU ms per step, 0 intersections with either.
-SMOOTH_PRECONDITIONER = "sgs-blocks"
+#: Tried "sgs-blocks" for two threads (the multilevel CG's level corrections run serially every iteration, its
+#: Galerkin matrices in at most 4 chunks every call; the SGS sweeps in parallel, no setup; an SGS order also forms
+#: the matrix directly in its order, ``SweepOrder.solve_shifted``): whole 64x64 pile on one thread (CPU, loaded
+#: machine) 28.4 -> 24.5 smoothing iterations per step, CPU per step within the load's noise, 0 intersections; but
+#: the pile's step-61 smoothing system, fastest of 829 interleaved calls on a loaded machine (load 3-4, Intel
+#: Xeon), took 9.52 / 7.12 ms (1 / 2 threads, multilevel with its level set-up) against 9.16 / 8.02 (sgs-blocks).
+#: Kept multilevel until a quiet two-core measurement shows the change pays.
+SMOOTH_PRECONDITIONER = "multilevel"
 
 __all__ = ["ImplicitEuler", "LinearSolveInfo", "pcg_constrained"]
 
