@@ -715,14 +715,27 @@ class World:
                                    for n, o in t["members"] if n in ctx.control.scripted])
                     ctl = TetControl(np.concatenate(cv), np.concatenate(cp))
             obstacles = self._tet_contacts(ctx, name, s, t) if t["penalty"] is not None else None
-            out = s.copy()
+            out, kept = s.copy(), None
             for attempt in range(TET_RETRIES + 1):
                 try:
                     t["solver"].step(s, out, dt, control=ctl)
                 except SimulationError as exc:
                     raise SimulationError(f"tet body {name!r}: {exc}") from None
-                if obstacles is None or attempt == TET_RETRIES or not self._tet_too_deep(t["penalty"], out.x):
+                if obstacles is None:
                     break
+                # a stiffened retry must not end with more energy than the attempt it redoes: where a soft vertex is
+                # wedged between contacts pushing it opposite ways (foam between the ground and a heavy bar's
+                # tilted face), stiffening them in turn flung it ~9 cm in one 5 ms step and stored +23 J in them
+                energy = self._tet_end_energy(ctx, name, t, out) if kept is not None else None
+                if kept is not None and energy > kept[2]:
+                    out, t["penalty"].k = kept[0], kept[1]
+                    t["penalty"].stiffen(np.ones(len(kept[1])))  # (drops the cached depths)
+                    break
+                pen = t["penalty"]
+                if attempt == TET_RETRIES or not (pen.depths(out.x) > MAX_DEPTH * pen.dhat).any():
+                    break
+                kept = (out, pen.k.copy(), self._tet_end_energy(ctx, name, t, out) if energy is None else energy)
+                self._tet_too_deep(pen, out.x)
                 out = s.copy()
             if obstacles is not None:
                 group = (t,) if "members" in t else ()  # (a body alone: looked up by name)
@@ -742,6 +755,31 @@ class World:
                 ctx.out.bodies[n] = TetState(out.x[a:b].copy(), out.v[a:b].copy(), out.t)
                 ctx.start[n] = starts[n]
                 ctx.done.add(n)
+
+    def _tet_end_energy(self, ctx, name: str, t: dict, out) -> float:
+        """The energy [J] a tet step ``out`` of ``name`` (a body or a group ``t``) ends with, to compare attempts of
+        one step: its bodies' (kinetic, elastic, vertex potentials), its penalty contacts' and the kinetic energy of
+        the modal bodies it pushes (their start velocity plus gravity's and the reaction's in the step)."""
+        from modalfem.tet import TetState
+
+        def own(e):  # (a body's solver holds its penalty contacts as a vertex term: counted once, below)
+            return e["total"] - e.get(type(pen).__name__.lower(), 0.0)
+
+        pen = t["penalty"]
+        if "members" in t:
+            e = sum(own(self._tet[n]["solver"].energies(TetState(out.x[a:b], out.v[a:b], out.t)))
+                    for (n, _), a, b in zip(t["members"], t["solver"].offsets[:-1], t["solver"].offsets[1:]))
+        else:
+            e = own(t["solver"].energies(out))
+        e += pen.penalty_energy(out.x)  # (also sets pen.u, the modal bodies' displacements, for these positions)
+        modal = t["modal_contacts"][1]
+        touched = [b for b in self._tet_modal.get(name, ()) if len(_contacts_of(modal, b))]
+        for b, u, S in zip(touched, pen.u, pen.inertia):
+            body, st = self._modal[b]["body"], ctx.state_in.bodies[b]
+            V = np.concatenate([st.velocity + np.asarray(self._modal[b]["g"]) * ctx.dt, body.angular_velocity(st)])
+            V = V + u / ctx.dt
+            e += 0.5 * ctx.dt**2 * float(V @ S @ V)
+        return e
 
     def _group_restitution(self, ctx, t: dict, s, out) -> None:
         """``_tet_restitution`` of each member of a group with the modal bodies it touches: its own vertices (views
