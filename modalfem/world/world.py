@@ -53,6 +53,7 @@ from modalfem.runtime.effects import windward_pressure
 from modalfem.world import _kernels, _tet_kernels
 from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
+from modalfem.world.pair_restitution import pair_restitution
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
 from modalfem.world.tetcontact import STIFFNESS, CoupledTetSolver, PenaltyContacts
 
@@ -745,6 +746,7 @@ class World:
                     self._tet_restitution(ctx, name, s, out)
                 else:
                     self._group_restitution(ctx, t, s, out)
+                    pair_restitution(self, ctx, t, s, out, _REACTION_KEY)  # tet-tet (pair_restitution.py)
                 self._tet_record(ctx, name, t, out)
             if len(names) == 1:
                 ctx.out.bodies[name] = out
