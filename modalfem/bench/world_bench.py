@@ -7,6 +7,8 @@ Cases:
   ``World.step`` of a world holding only that body (the world's overhead: the issue asks for the free step's rate);
 * ``stack``: modal bars dropped on each other onto the ground (the compiled solid-contact solve between bodies plus
   each bar's own ground contact), steps/s and contacts per step;
+* ``tets``: a stiff tet cube landing on a soft tet foam block on the ground (a tet group's joint step),
+  steps/s, the tet step's ms per step, contacts per step;
 * ``mixed``: the tutorial scene: a brass bell dropped onto a soft tet block on the ground, a cloth falling over
   both (every stage of the plan), steps/s and each stage's share.
 
@@ -89,6 +91,7 @@ def measure(*, seconds: float = 2.0, quick: bool = False) -> list[dict]:
     from modalfem.mesh import box
 
     foam = tet.tet_model(box(size=(0.16, 0.16, 0.05), cells=(4, 4, 2)), Material(E=3e4, nu=0.3, rho=60.0))
+    out.append(_tets(foam, 0.1 if quick else 0.3))
     knit = ClothMaterial(areal_density=0.2, young=2e5, poisson=0.3, thickness=5e-4, bending_stiffness=1e-5)
     nc = 10 if quick else 16
     cloth = ClothModel(grid((0.3, 0.3), (nc, nc), origin=(-0.07, -0.07, 0.0)), knit, mass_damping=0.2)
@@ -114,6 +117,32 @@ def measure(*, seconds: float = 2.0, quick: bool = False) -> list[dict]:
     return out
 
 
+def _tets(foam, duration: float) -> dict:
+    """The ``tets`` case: a 6 cm tet cube (1 MPa) landing on the soft foam block (30 kPa) on the ground, the two
+    stepped as one tet group (``world.tetgroup``) while they may touch, dt = 1 ms for ``duration`` [s]."""
+    from modalfem import tet
+    from modalfem import world as mw
+    from modalfem.effects import Contact, Gravity
+    from modalfem.material import Material
+    from modalfem.mesh import box
+
+    cube = tet.tet_model(box(size=(0.06, 0.06, 0.06), cells=(3, 3, 3)), Material(E=1e6, nu=0.3, rho=1000.0))
+    w = mw.World(bodies=[mw.Tet(cube, name="cube", position=(0.05, 0.05, 0.07)), mw.Tet(foam, name="block")],
+                 obstacles=[mw.Ground(0.0)], effects=[Gravity(), Contact(restitution=0.2, friction=0.5)])
+    ws = w.state()
+    steps = round(duration / 1e-3)
+    tet_s, contacts, t0 = 0.0, 0, time.perf_counter()
+    for _ in range(steps):
+        r = w.step(ws, ws, None, 1e-3)
+        tet_s += r.seconds.get("tet step", 0.0)
+        contacts += r.contacts.get("tet", 0)
+    dt_wall = time.perf_counter() - t0
+    return {"case": "tets", "what": f"a 6 cm tet cube ({cube.point_count} vertices, 1 MPa) landing on a soft tet "
+            f"foam block ({foam.point_count} vertices, 30 kPa) on the ground, dt = 1 ms, {duration:g} s",
+            "rate": steps / dt_wall, "tet_ms": 1e3 * tet_s / steps, "contacts": contacts / steps,
+            "intersections": len(w.intersections(ws))}
+
+
 def render(cases: list[dict], *, command: str, date: str, machine: str, load: tuple) -> str:
     """The markdown section."""
     head = (f"`{command}` ({date}; {machine}; load average (1 min) {load[0]:.2f} before, {load[1]:.2f} after). "
@@ -126,6 +155,10 @@ def render(cases: list[dict], *, command: str, date: str, machine: str, load: tu
         elif c["case"] == "stack":
             lines.append(f"- {c['what']}: {c['rate']:,.0f} steps/s, {c['contacts']:.0f} contacts per step in the "
                          f"solid solve, {c['intersections']} intersecting triangle pairs at the end.")
+        elif c["case"] == "tets":
+            lines.append(f"- {c['what']}: {c['rate']:,.1f} steps/s, tet step (the joint step of the tet group) "
+                         f"{c['tet_ms']:.2f} ms per step, {c['contacts']:.0f} tet contacts per step, "
+                         f"{c['intersections']} intersecting triangle pairs at the end.")
         else:
             share = ", ".join(f"{k} {v:.2f} ms" for k, v in sorted(c["stages"].items(), key=lambda kv: -kv[1]))
             lines.append(f"- {c['what']}: {c['rate']:,.1f} steps/s ({share} per step), {c['intersections']} "
