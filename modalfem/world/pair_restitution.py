@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from modalfem.world import _tet_kernels
+from modalfem.world.tetgroup import between, pair_owners
 
 __all__ = ["pair_restitution"]
 
@@ -50,15 +51,12 @@ def pair_restitution(world, ctx, t: dict, s, out, key0: str) -> None:
     f = pen.forces(out.x)[rows] if len(rows) else np.zeros(0)
     psi = _tet_kernels.penalty(pen.depths(out.x), pen.k, pen.eps)[0][rows] if len(rows) else np.zeros(0)
     if len(rows):
-        owner = np.where(pen.verts[rows] >= 0, solver.owner[pen.vid[rows]], -1)  # (k, 4)
-        first = owner[:, 0]
-        other = np.where(owner != first[:, None], owner, -1).max(1)
+        owner, first, other = pair_owners(solver, pen, rows)
     for a in range(len(names)):
         for b in range(a + 1, len(names)):
             key = (key0, names[a], "pair impact", names[b])
             rec = ctx.state_in.contacts.get(key)
-            sel = (np.flatnonzero(((first == a) & (other == b)) | ((first == b) & (other == a))) if len(rows)
-                   else np.zeros(0, dtype=np.int64))
+            sel = between(first, other, a, b) if len(rows) else np.zeros(0, dtype=np.int64)
             if len(sel):  # a's share of each contact's normal impulse (its vertices' signed weights)
                 wa = np.where(owner[sel] == a, pen.w[rows[sel]], 0.0).sum(1)
                 J = ((wa * f[sel] * ctx.dt)[:, None] * pen.nrm[rows[sel]]).sum(0)

@@ -229,6 +229,21 @@ def touching(names: list, boxes: dict) -> list:
     return list(groups.values())
 
 
+def pair_owners(solver, penalty, rows: np.ndarray) -> tuple:
+    """Which members a group's contacts ``rows`` (penalty indices, contacts between members) join: ``owner``
+    (k, 4) the member of each of a contact's vertices (-1: no vertex), ``first`` (k,) the member of its first
+    vertex and ``other`` (k,) the other member it touches. ``solver``: the group's ``JointTetSolver``."""
+    owner = np.where(penalty.verts[rows] >= 0, solver.owner[penalty.vid[rows]], -1)
+    first = owner[:, 0]
+    other = np.where(owner != first[:, None], owner, -1).max(1)
+    return owner, first, other
+
+
+def between(first: np.ndarray, other: np.ndarray, a: int, b: int) -> np.ndarray:
+    """Indices of the contacts (``pair_owners``' ``first``, ``other``) joining members ``a`` and ``b``."""
+    return np.flatnonzero(((first == a) & (other == b)) | ((first == b) & (other == a)))
+
+
 def pair_contacts(members: list, x: np.ndarray, r: float, edge_align: float, u: np.ndarray | None = None) -> tuple:
     """The contacts of a group's tet bodies with each other within ``r`` [m] at stacked positions ``x`` (n, 3) [m]:
     each body's surface vertices on the other's faces within ``r`` whose closest point to them is inside the face,

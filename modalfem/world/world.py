@@ -56,6 +56,7 @@ from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
 from modalfem.world.pair_restitution import pair_restitution
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
 from modalfem.world.tetcontact import STIFFNESS, CoupledTetSolver, PenaltyContacts
+from modalfem.world.tetgroup import between, pair_owners
 
 __all__ = ["Stage", "StepReport", "World", "WorldControl", "WorldState"]
 
@@ -84,6 +85,17 @@ EDGE_ALIGN = 0.5
 #: the slip speed [m/s] below which a contact between two tet bodies stepped together sticks (their friction in the
 #: implicit step, ``PenaltyContacts.set_friction``: a slip below ``FRICTION_SLIP dt`` per step is elastic)
 FRICTION_SLIP = 1e-4
+
+
+def _top_speed(s) -> float:
+    """The fastest vertex's speed [m/s] of tet state ``s`` (0 without vertices)."""
+    return float(np.sqrt(np.einsum("ij,ij->i", s.v, s.v)).max()) if len(s.v) else 0.0
+
+
+def _tet_reach(vmax: float, margin: float, dt: float) -> float:
+    """How far [m] a tet body whose fastest vertex moves at ``vmax`` [m/s] may meet something in a step of ``dt``
+    [s]: its contact's skin ``margin`` [m] twice, twice that vertex's travel and gravity's ``g dt^2``."""
+    return margin + margin + 2.0 * vmax * dt + 9.81 * dt * dt
 
 
 def _contacts_of(modal: list, body: str) -> np.ndarray:
@@ -815,8 +827,7 @@ class World:
                 continue
             s = starts[n]
             xs = s.x[t["surface"]]
-            vmax = float(np.sqrt(np.einsum("ij,ij->i", s.v, s.v)).max()) if len(s.v) else 0.0
-            r = 2.0 * t["contact"].margin + 2.0 * vmax * ctx.dt + 9.81 * ctx.dt**2
+            r = _tet_reach(_top_speed(s), t["contact"].margin, ctx.dt)
             boxes[n] = (xs.min(0) - r, xs.max(0) + r)
         return touching(list(self._tet), boxes)
 
@@ -931,8 +942,8 @@ class World:
         dhat = c.margin
         sv = t["surface"]
         xs = s.x[sv]
-        vmax = float(np.sqrt(np.einsum("ij,ij->i", s.v, s.v)).max()) if len(s.v) else 0.0
-        reach = dhat + c.margin + 2.0 * vmax * dt + 9.81 * dt * dt
+        vmax = _top_speed(s)
+        reach = _tet_reach(vmax, c.margin, dt)
         verts, ws, ps, ns, p0s, touched = [], [], [], [], [], []
 
         def add(ids, w, p, n, p0, o):  # (up to 4 vertices per contact: two tet bodies' in a group)
@@ -1249,13 +1260,11 @@ class World:
         if not len(rows):
             return
         imp = (f[rows] * ctx.dt)[:, None] * pen.nrm[rows] + J[rows]  # on the point (sum_j w_j x_j)
-        owner = np.where(pen.verts[rows] >= 0, t["solver"].owner[pen.vid[rows]], -1)  # (k, 4)
-        first = owner[:, 0]
-        other = np.where(owner != first[:, None], owner, -1).max(1)
+        owner, first, other = pair_owners(t["solver"], pen, rows)  # (k, 4), (k,), (k,)
         names = [n for n, _ in t["members"]]
         for a in range(len(names)):
             for b in range(len(names)):
-                sel = np.flatnonzero(((first == a) & (other == b)) | ((first == b) & (other == a)))
+                sel = between(first, other, a, b)
                 if a == b or not len(sel):
                     continue
                 on_a = np.where(owner[sel] == a, pen.w[rows[sel]], 0.0)  # (k, 4): the weights of a's vertices
