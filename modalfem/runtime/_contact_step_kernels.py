@@ -79,7 +79,7 @@ def pay_lift(mass, accel, total, R, inertia_inv, v, L, qdot):
 
 
 @numba.njit(cache=True)
-def _push_scaled(s, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius, eps, R, c0, c, passes):
+def _push_scaled(s, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius, eps, R, c0, c, passes, no, nv):
     """The push-out (``push_shift``) of the body with its vibration scaled by s: q = s q0, qdot = s qd0, c from c0
     (all in place); returns the shift (3,) [m]."""
     for i in range(q.shape[0]):
@@ -88,12 +88,12 @@ def _push_scaled(s, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius
     c[0], c[1], c[2] = c0[0], c0[1], c0[2]
     skip, bound = modal_terms(q, row_scale, radius)
     slack = 4.0 * (q.shape[0] + 2) * eps * bound
-    return push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes)
+    return push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes, no, nv)
 
 
 @numba.njit(cache=True)
 def push_and_pay(kinds, params, rest, vm, row_scale, radius, eps, omega2, R, c, mass, accel, inertia_inv, v, L, q,
-                 qdot, passes):
+                 qdot, passes, no, nv):
     """``contact.push_out`` with its energy payment (both paths call this): translate the body (c (3,) [m], in
     place) so that no vertex is inside an obstacle and take the potential energy ``-mass accel . shift`` [J] the
     lift adds from the body's motion, so that the push-out adds no energy.
@@ -109,12 +109,13 @@ def push_and_pay(kinds, params, rest, vm, row_scale, radius, eps, omega2, R, c, 
     above. Shrinking the vibration only removes energy (the contact that stops it is inelastic). If even the rest
     shape needs an unpaid lift (the rigid body sunk into the support), the rest shape is lifted and the guard
     sees the gain. Returns the shift (3,) [m]. R (3, 3) body -> world; inertia_inv (3, 3) body axes; omega2 (r,)
-    [rad^2/s^2]."""
+    [rad^2/s^2]; no, nv: the obstacles and points of ``push_shift`` (box-edge points after the body's nv
+    vertices, each held out of its own plane, obstacle ``no + i``)."""
     nm = q.shape[0]
     skip, bound = modal_terms(q, row_scale, radius)
     slack = 4.0 * (nm + 2) * eps * bound
     c0 = c.copy()
-    total = push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes)
+    total = push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes, no, nv)
     gain = -mass * (accel[0] * total[0] + accel[1] * total[1] + accel[2] * total[2])
     if gain <= 0.0:
         return total
@@ -136,19 +137,21 @@ def push_and_pay(kinds, params, rest, vm, row_scale, radius, eps, omega2, R, c, 
     q0, qd0 = q.copy(), qdot.copy()
     vib = kin_m + el
     lo, hi = 0.0, 1.0  # hi: its lift not paid
-    total = _push_scaled(0.0, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius, eps, R, c0, c, passes)
+    total = _push_scaled(0.0, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius, eps, R, c0, c, passes, no,
+                         nv)
     need = -mass * (accel[0] * total[0] + accel[1] * total[1] + accel[2] * total[2]) - vib
     if need <= kin_r:
         for _ in range(40):
             s = 0.5 * (lo + hi)
-            t = _push_scaled(s, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius, eps, R, c0, c, passes)
+            t = _push_scaled(s, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius, eps, R, c0, c, passes,
+                             no, nv)
             nd = -mass * (accel[0] * t[0] + accel[1] * t[1] + accel[2] * t[2]) - (1.0 - s * s) * vib
             if nd <= kin_r + s * s * kin_m:
                 lo = s
             else:
                 hi = s
         total = _push_scaled(lo, q0, qd0, q, qdot, kinds, params, rest, vm, row_scale, radius, eps, R, c0, c,
-                             passes)
+                             passes, no, nv)
         need = -mass * (accel[0] * total[0] + accel[1] * total[1] + accel[2] * total[2]) - (1.0 - lo * lo) * vib
     if need > 0.0:  # the rest from the kinetic energy left (all of it if it is smaller)
         kin = kin_r + lo * lo * kin_m
@@ -296,7 +299,7 @@ def stop_share(mass, normal, lam_n, mu, v_start, v_after, accel, span):
 def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, vertex, effect, local, gap, normal,
                    rest, vm, row_scale, radius, omega2, mass, inertia, inertia_inv, axes, moments, eps,
                    co_half, force, torque, fmodal, accel, h, iters, passes,
-                   pos, qt, v, L, w, q, qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0):
+                   pos, qt, v, L, w, q, qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0, rest_c, vm_c, no):
     """One contact step of h [s] as a single sustained sub-step, when that is what the Python path does.
 
     Args:
@@ -318,6 +321,9 @@ def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, v
         after_impact: the state is the one after the impact solve of the contacts touching and approaching
             at the start of the step (the caller's, as the Python path's step 1.): no touching test then, and
             own0, e0 [J] are the energies (``energy``) before that solve, for the energy guard (else unused).
+        rest_c, vm_c, no: the contacts' body points (``contact._EdgePoints``: the body's vertices, then the box-edge
+            points; else ``rest``, ``vm``) and the number of real obstacles (the first ``no`` of ``kinds``,
+            ``params``; the rest are the box-edge contacts' planes: the push-out holds each point out of its own).
 
     Returns:
         1 when the step was done (state and outputs written); 2 when contacts touch and approach now (an impact
@@ -344,7 +350,7 @@ def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, v
             anymodal = True
     R0 = _matrix(qt)
     skip, _ = modal_terms(q, row_scale, radius)
-    vn = normal_velocities(vertex, rest, vm, q, skip, modal, R0, nm if anymodal else 0, normal, v, w, qdot)
+    vn = normal_velocities(vertex, rest_c, vm_c, q, skip, modal, R0, nm if anymodal else 0, normal, v, w, qdot)
     if not after_impact:
         for i in range(k):  # 1. an impact now: the caller's
             if gap[i] <= 1e-8 * slop[i] and vn[i] < 0.0:
@@ -359,17 +365,17 @@ def sustained_step(kinds, params, first, margin, threshold, friction, modal_e, v
     _advance_free(p1, qt1, v1, L1, q1, qd1, force, torque, fmodal, mass, axes, moments, co_half, 0.5 * h)
     Rm = _matrix(qt1)
     rigid = np.ones(nm, dtype=np.bool_)  # the solve sees the rest shape: the modes it leaves out swing about it
-    gm, nmid = gaps_at(vertex, obstacle, kinds, params, rest, vm, q1, rigid, Rm, p1)
+    gm, nmid = gaps_at(vertex, obstacle, kinds, params, rest_c, vm_c, q1, rigid, Rm, p1)
     jt = np.empty((k, 3))
-    resolve_rigid(vertex, rest, vm, q1, rigid, Rm, inertia, inertia_inv, mass, v1, L1, nmid, gm, mu, accel, h,
+    resolve_rigid(vertex, rest_c, vm_c, q1, rigid, Rm, inertia, inertia_inv, mass, v1, L1, nmid, gm, mu, accel, h,
                   iters, lam_n, jt)
     if not math.isnan(stop_share(mass, nmid, lam_n, mu, v, v1, accel, h)):
         return 0
     _advance_free(p1, qt1, v1, L1, q1, qd1, force, torque, fmodal, mass, axes, moments, co_half, 0.5 * h)
     # push-out (contact.push_out with its energy payment)
     Re = _matrix(qt1)
-    push_and_pay(kinds, params, rest, vm, row_scale, radius, eps, omega2, Re, p1, mass, accel, inertia_inv, v1, L1, q1,
-                 qd1, passes)
+    push_and_pay(kinds, params, rest_c, vm_c, row_scale, radius, eps, omega2, Re, p1, mass, accel, inertia_inv, v1, L1,
+                 q1, qd1, passes, no, rest.shape[0])
     # energy guard (ModalSolver._contact_step_without_gain)
     own1, e1 = energy(mass, inertia_inv, omega2, p1, qt1, v1, L1, q1, qd1, force)
     fn = math.sqrt(force[0] * force[0] + force[1] * force[1] + force[2] * force[2])

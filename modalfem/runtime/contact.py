@@ -49,6 +49,20 @@ Contacts found by ``ModalSolver.collide`` at the very state and dt of the step a
 search (``ModalSolver.advance``), and the rotation matrix, skipped modes and deformation bound are kept for
 the last state seen.
 
+Box edges. A body face lying across a box's edge touches it between its vertices, where no vertex contact can
+hold it (a bar whose centre of mass is over its last supported row, a block or plate across a box narrower than
+it: the energy guard split every step, up to hundreds of sub-steps). With a box among the obstacles,
+``find_contacts`` also clips the box's 12 edges against the body's surface triangles near it
+(``_contact_edge_kernels.edge_contacts``): where an edge passes under a face within the margin, the clipped ends
+are contacts, each a barycentric point of the face (``_EdgePoints``: its rows, velocity and push-out are those of
+the weighted sum of the face's vertices) against the plane through the edge point whose normal is the face's
+outward normal reversed. Such points are appended to the body's vertices for the kernels (contact vertex
+``nv + i``); the step record names them by their face's vertex of largest weight. A vertex contact at the box's
+edge (within the margin of two of its face planes) whose vertex is a corner of such a face is left to the face's
+edge contacts (the box's nearest feature to it, and so its normal, changes with the step's motion and pushed the
+body sideways against them). Without a box nothing of this runs. The rigid sustained solve then sweeps to
+convergence (``_contact_body_kernels.RIGID_SWEEPS``): a body resting on a few rows needs more than ten sweeps.
+
 After the step, vertices left inside an obstacle (impact times are predicted without the rotation and
 the modes) are pushed out by translating the body along the obstacle normal, so no vertex ends
 inside (e.g. below the ground); the potential energy this lift adds is taken from the kinetic energy, or, when
@@ -118,6 +132,9 @@ class Contacts:
             ``ModalSolver.step``, the total normal impulse of each listed vertex over the step.
         obstacle: (k,) index of the obstacle within its effect's ``obstacles`` (None: unknown).
         tangential: (k, 3) friction impulses [N s] (world) of the last resolve.
+        points: None, or the box-edge contacts' body points (``_EdgePoints``): contacts whose ``vertex`` is
+            ``nv + i`` are points on a body face over a box edge (``_contact_edge_kernels``), i indexing it;
+            the step record names them by their face's nearest vertex.
     """
 
     vertex: np.ndarray
@@ -128,11 +145,12 @@ class Contacts:
     impulses: np.ndarray | None = None
     obstacle: np.ndarray | None = None
     tangential: np.ndarray | None = None
+    points: object = None
 
     def subset(self, keep) -> Contacts:
         """The contacts selected by the boolean mask or index array ``keep``."""
         return Contacts(self.vertex[keep], self.normal[keep], self.gap[keep], self.effect[keep], self.effects,
-                        obstacle=None if self.obstacle is None else self.obstacle[keep])
+                        obstacle=None if self.obstacle is None else self.obstacle[keep], points=self.points)
 
     @property
     def count(self) -> int:
@@ -144,7 +162,8 @@ class Contacts:
             return None if a is None else np.array(a, copy=True)
 
         return Contacts(c(self.vertex), c(self.normal), c(self.gap), c(self.effect), self.effects,
-                        impulses=c(self.impulses), obstacle=c(self.obstacle), tangential=c(self.tangential))
+                        impulses=c(self.impulses), obstacle=c(self.obstacle), tangential=c(self.tangential),
+                        points=self.points)
 
 
 # ---------------------------------------------------------------------------------------- step record
@@ -159,13 +178,25 @@ def merge_contacts(into: Contacts, earlier: Contacts) -> None:
 
 
 def _accumulate(record: list, c: Contacts, gap) -> None:
-    """Add the contacts of ``c`` that pushed (impulse > 0) to a step record (see ``_write_record``)."""
+    """Add the contacts of ``c`` that pushed (impulse > 0) to a step record (see ``_write_record``); box-edge
+    contacts are recorded under their face's vertex of largest weight (merged with that vertex's own)."""
     sel = c.impulses > 0.0
+    vertex = c.vertex
+    if c.points is not None:
+        vertex = c.points.names(vertex)
     if len(sel) and sel.all():
-        record.append((c.vertex, c.effect, c.obstacle, c.normal, np.asarray(gap), c.impulses))
+        record.append((vertex, c.effect, c.obstacle, c.normal, np.asarray(gap), c.impulses))
     elif sel.any():
-        record.append((c.vertex[sel], c.effect[sel], c.obstacle[sel], c.normal[sel], np.asarray(gap)[sel],
+        record.append((vertex[sel], c.effect[sel], c.obstacle[sel], c.normal[sel], np.asarray(gap)[sel],
                        c.impulses[sel]))
+    else:
+        return
+    if c.points is not None:  # names may repeat: an empty part makes _write_record merge them
+        record.append(_NO_PART)
+
+
+_NO_PART = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros((0, 3)),
+            np.zeros(0), np.zeros(0))
 
 
 def _write_record(contacts: Contacts, record: list) -> None:
@@ -221,9 +252,78 @@ class _Plan:
         self.threshold = np.array([e.bounce_threshold for e in effects])
         self.modal = np.array([e.modal for e in effects], dtype=bool)
         self.iterations = max(e.iterations for e in effects)
+        from modalfem.runtime.obstacles import BOX
+        self.boxes = bool((self.kinds == BOX).any())  # box edges to search (``_edge_points``)
+
+
+class _EdgePoints:
+    """The body points of box-edge contacts (``_contact_edge_kernels.edge_contacts``) appended to the body's
+    vertices and their obstacles appended to a plan's, so that every per-contact kernel takes them as vertices:
+    contact vertex ``nv + i`` is point i, at rest ``rest[nv + i] = sum_a w_a X_a`` with the modes
+    ``vm[nv + i] = sum_a w_a Phi_a`` (its velocity and Jacobian rows the same combination of its face's vertices'),
+    against obstacle row ``no + i``: the plane through the edge point with the face's normal reversed.
+
+    Attributes: rest (nv + p, 3) [m], vm (nv + p, r, 3), kinds, params, margin (no + p): the extended arrays;
+    nv, no: the body's vertex count and the plan's obstacle count; major (p,): each point's face vertex of
+    largest weight (the name the step record gives it). ``rest`` and ``vm`` live in one buffer per body (the
+    body's part copied once, not per step: 18 MB of modes for 50k vertices and 30 modes); the points that last
+    wrote their rows into it own it, and others write theirs again (p rows) when asked."""
+
+    def __init__(self, body, plan, rows, vertices, weights, normal, offset) -> None:
+        nv, p = body.vertex_count, len(offset)
+        self.nv, self.no = nv, len(plan.kinds)
+        self._body = weakref.ref(body)
+        self.major = vertices[np.arange(p), np.argmax(weights, axis=1)]
+        self.weights, self.vertices = weights, vertices
+        from modalfem.runtime.obstacles import PLANE
+        self.kinds = np.concatenate([plan.kinds, np.full(p, PLANE, dtype=plan.kinds.dtype)])
+        self.params = np.zeros((self.no + p, plan.params.shape[1]))
+        self.params[:self.no] = plan.params
+        self.params[self.no:, 0:3] = normal
+        self.params[self.no:, 3] = offset
+        self.margin = np.concatenate([plan.margin, plan.margin[rows]])
+        self._views = None
+
+    def _own(self):
+        """(rest, vm) views of the body's buffer holding this object's points."""
+        body = self._body()
+        nv, p = self.nv, len(self.major)
+        buf = _EDGE_BUFFERS.get(body)
+        if buf is None or buf[0].shape[0] < nv + p:
+            rest, vm = body.rest, vertex_modes(body)
+            cap = nv + max(64, 2 * p)
+            buf = [np.empty((cap, 3), dtype=rest.dtype), np.empty((cap,) + vm.shape[1:], dtype=vm.dtype), None]
+            buf[0][:nv] = rest
+            buf[1][:nv] = vm
+            _EDGE_BUFFERS[body] = buf
+        if buf[2] is not self or self._views is None or self._views[0].base is not buf[0]:
+            rest, vm = buf[0], buf[1]
+            rest[nv:nv + p] = np.einsum("pa,pad->pd", self.weights, rest[self.vertices])
+            vm[nv:nv + p] = np.einsum("pa,pard->prd", self.weights, vm[self.vertices])
+            buf[2] = self
+            self._views = (rest[:nv + p], vm[:nv + p])
+        return self._views
+
+    @property
+    def rest(self) -> np.ndarray:
+        return self._own()[0]
+
+    @property
+    def vm(self) -> np.ndarray:
+        return self._own()[1]
+
+    def names(self, vertex: np.ndarray) -> np.ndarray:
+        """Contact vertices with the points replaced by their face's vertex of largest weight."""
+        edge = vertex >= self.nv
+        if not edge.any():
+            return vertex
+        out = vertex.copy()
+        out[edge] = self.major[vertex[edge] - self.nv]
+        return out
 
 
 _PLANS: dict = {}
+_EDGE_BUFFERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # body -> [rest, vm, owner] (_EdgePoints)
 
 
 def _plan(effects) -> _Plan:
@@ -330,8 +430,87 @@ def find_contacts(solver, state, effects, dt=None, *, accel=None) -> Contacts:
     vs, og, gap, nrm = KB.find(plan.kinds, plan.params, margin, body.rest, vertex_modes(body), q, _skip(body, q), R,
                                state.position, deformation_bound(body, q))
     c = Contacts(vs, nrm, gap, plan.effect[og], list(effects), obstacle=plan.obstacle[og])
+    if plan.boxes:
+        c = _with_edges(body, plan, margin, q, R, state.position, c)
     c._found = (_fingerprint(state), None if dt is None else float(dt), accel)
     return c
+
+
+def _with_edges(body, plan, margin, q, R, position, c: Contacts) -> Contacts:
+    """``c`` with the box-edge contacts (``_contact_edge_kernels.edge_contacts``) appended, if any."""
+    from modalfem.runtime import _contact_edge_kernels as KE
+    og, verts, w, nrm, gap, offset = KE.edge_contacts(plan.kinds, plan.params, margin, plan.margin, body.rest,
+                                                       vertex_modes(body),
+                                                       q, _skip(body, q), R, position, deformation_bound(body, q),
+                                                       body.triangles)
+    if len(og) == 0:
+        return c
+    # one contact per body point: a clipped end on a triangle side shared by two triangles, or at a vertex of
+    # several, is found once per triangle, and one at a vertex with its own contact with that box is that contact
+    # (repeated contacts slow the sweeps down: a plate resting across a box's edges had its steps split)
+    rest = body.rest
+    x = np.einsum("pa,pad->pd", w, rest[verts])
+    scale = 1e-9 * float(body.radius)
+    key = np.concatenate([og[:, None].astype(np.float64), np.round(x / scale)], axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    keep = np.zeros(len(og), dtype=bool)
+    keep[first] = True
+    at_vertex = w.max(axis=1) >= 1.0 - 1e-9
+    if at_vertex.any():
+        nv = body.vertex_count
+        own = np.isin(og * nv + verts[np.arange(len(og)), np.argmax(w, axis=1)],
+                      (plan.first[c.effect] + c.obstacle) * nv + c.vertex)
+        keep &= ~(at_vertex & own)
+    if not keep.all():
+        og, verts, w, nrm, gap, offset = og[keep], verts[keep], w[keep], nrm[keep], gap[keep], offset[keep]
+        if len(og) == 0:
+            return c
+    # a vertex contact with a box at one of its edges (within the margin of two of its faces' planes) whose vertex
+    # is a corner of a face over that box's edges is left to the face's edge contacts: the box's nearest feature
+    # to such a vertex changes with a step's motion (at the mid-step state of a 0.1 s step, a vertex 30 nm inside
+    # a box's edge is nearest its side), and the sideways push of its slanted or side normal fought theirs
+    row = plan.first[c.effect] + c.obstacle
+    boxed = np.flatnonzero(np.isin(row, og))
+    if len(boxed):
+        p = plan.params[row[boxed]]
+        axes = p[:, 6:15].reshape(-1, 3, 3)  # box -> world rotation, row-major
+        x = body.rest[c.vertex[boxed]] @ R.T + position - p[:, 0:3]
+        local = np.abs(np.einsum("kji,kj->ki", axes, x)) - p[:, 3:6]
+        near = (np.abs(local) <= plan.margin[row[boxed]][:, None]).sum(axis=1) >= 2
+        if near.any():
+            nv = body.vertex_count
+            at = boxed[near]
+            drop = np.isin(row[at] * nv + c.vertex[at], ((og * nv)[:, None] + verts).ravel())
+            if drop.any():
+                keep = np.ones(c.count, dtype=bool)
+                keep[at[drop]] = False
+                c = Contacts(c.vertex[keep], c.normal[keep], c.gap[keep], c.effect[keep], c.effects,
+                             obstacle=c.obstacle[keep])
+    pts = _EdgePoints(body, plan, og, verts, w, nrm, offset)
+    nv = body.vertex_count
+    return Contacts(np.concatenate([c.vertex, nv + np.arange(len(og))]), np.concatenate([c.normal, nrm]),
+                    np.concatenate([c.gap, gap]), np.concatenate([c.effect, plan.effect[og]]), c.effects,
+                    obstacle=np.concatenate([c.obstacle, plan.obstacle[og]]), points=pts)
+
+
+def _geometry(body, c: Contacts):
+    """(rest (n, 3), vertex-major modes (n, r, 3)) of the contacts' body points: the body's vertices, with the
+    box-edge points appended when ``c`` has any."""
+    if c.points is None:
+        return body.rest, vertex_modes(body)
+    return c.points._own()
+
+
+def _obstacles(plan, c: Contacts):
+    """(row (k,), kinds, params, margin): each contact's obstacle row in the obstacle arrays, with the box-edge
+    contacts' planes appended when ``c`` has any."""
+    row = plan.first[c.effect] + c.obstacle
+    pts = c.points
+    if pts is None:
+        return row, plan.kinds, plan.params, plan.margin
+    edge = c.vertex >= pts.nv
+    row = np.where(edge, pts.no + c.vertex - pts.nv, row)
+    return row, pts.kinds, pts.params, pts.margin
 
 
 def _fingerprint(state) -> np.ndarray:
@@ -373,9 +552,10 @@ def _gaps(effects, contacts: Contacts, body, state, skip=None):
     from modalfem.runtime import _contact_body_kernels as KB
     plan = _plan(effects)
     q = state.q
-    return KB.gaps_at(contacts.vertex, plan.first[contacts.effect] + contacts.obstacle, plan.kinds, plan.params,
-                      body.rest, vertex_modes(body), q, _skip(body, q) if skip is None else skip, _rotation(state),
-                      state.position)
+    row, kinds, params, _ = _obstacles(plan, contacts)
+    rest, vm = _geometry(body, contacts)
+    return KB.gaps_at(contacts.vertex, row, kinds, params, rest, vm, q, _skip(body, q) if skip is None else skip,
+                      _rotation(state), state.position)
 
 
 def _seen(body, plan, contacts: Contacts, span: float):
@@ -414,7 +594,9 @@ def _system(solver, state, contacts: Contacts, slow: float | None = None):
     m = 6 + nm
     J = np.empty((k, 3, m))
     WJ = np.empty((k, 3, m))
-    K.rows(contacts.vertex, local_positions(body, state.q, contacts.vertex), modal, vertex_modes(body), R, body.mass,
+    rest, vm = _geometry(body, contacts)
+    q = state.q
+    K.rows(contacts.vertex, K.local_positions(contacts.vertex, rest, vm, q, _skip(body, q)), modal, vm, R, body.mass,
            Iw_inv, m, J, WJ, np.arange(k))
     V = np.concatenate([state.velocity, Iw_inv @ state.angular_momentum, state.qdot[:nm]])
     return J, WJ, V, R, Iw_inv, nm
@@ -436,7 +618,8 @@ def normal_velocities(solver, state, contacts: Contacts) -> np.ndarray:
     nm = body.mode_count if modal.any() else 0
     q = state.q
     R = _rotation(state)
-    return KB.normal_velocities(contacts.vertex, body.rest, vertex_modes(body), q, _skip(body, q), modal, R, nm,
+    rest, vm = _geometry(body, contacts)
+    return KB.normal_velocities(contacts.vertex, rest, vm, q, _skip(body, q), modal, R, nm,
                                 np.ascontiguousarray(contacts.normal, dtype=np.float64), state.velocity,
                                 _angular_velocity(body, R, state.angular_momentum), state.qdot)
 
@@ -550,7 +733,8 @@ def _resolve_rigid(body, state, contacts: Contacts, plan, n, mu, dt: float, acce
     q = state.q
     lam_n = np.empty(k)
     jt = np.empty((k, 3))
-    KB.resolve_rigid(contacts.vertex, body.rest, vertex_modes(body), q, _seen(body, plan, contacts, dt),
+    rest, vm = _geometry(body, contacts)
+    KB.resolve_rigid(contacts.vertex, rest, vm, q, _seen(body, plan, contacts, dt),
                      _rotation(state), body.inertia, body.inertia_inv, float(body.mass), state.velocity,
                      state.angular_momentum, n,
                      np.ascontiguousarray(contacts.gap, dtype=np.float64), mu,
@@ -617,11 +801,13 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         _accumulate(record, c, gap)
 
     t_left, events, forced, event_vertex = float(dt), 0, None, -1
+    points = None
     # the contacts handed in are reused when found at this very state for this step (ModalSolver.advance)
     reuse = contacts if _fresh(contacts, state, t_left, accel) else None
     while t_left > 1e-12 * dt:
         c = find_contacts(solver, state, effects, t_left, accel=accel) if reuse is None else reuse
         reuse = None
+        points = c.points
         if c.count == 0:
             solver.advance_free(state, loads, t_left)
             break
@@ -654,7 +840,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         v_start = state.velocity.copy()
         solver.advance_free(state, loads, 0.5 * span)
         gap_mid, n_mid = _gaps(effects, c, body, state, _seen(body, plan, c, span))
-        mid = Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, obstacle=c.obstacle)
+        mid = Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, obstacle=c.obstacle, points=c.points)
         resolve_contacts(solver, state, mid, span, accel=accel, sustained=True)
         stop = _stop_fraction(body, mid, v_start, state.velocity, accel, span)
         if stop is not None and events < MAX_EVENTS:  # the sliding ends inside: step to that instant
@@ -667,6 +853,7 @@ def step_with_contacts(solver, state, contacts: Contacts, loads, dt: float) -> N
         solver.advance_free(state, loads, 0.5 * span)
         t_left -= span
     _write_record(contacts, record)
+    contacts.points = points
 
 
 def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
@@ -696,16 +883,20 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
     gap_mid = np.empty(k)
     n_mid = np.empty((k, 3))
     lam_n = np.empty(k)
+    row, kinds, params, margin = _obstacles(plan, c)
+    local = c.obstacle if c.points is None else row - plan.first[c.effect]
+    rest_c, vm_c = _geometry(body, c)
 
     def fused(after_impact: bool, own0: float, e0: float) -> int:
-        return KS.sustained_step(plan.kinds, plan.params, plan.first, plan.margin, plan.threshold, plan.friction,
-                                 plan.modal, c.vertex, c.effect, c.obstacle, c.gap, c.normal, body.rest,
+        return KS.sustained_step(kinds, params, plan.first, margin, plan.threshold, plan.friction,
+                                 plan.modal, c.vertex, c.effect, local, c.gap, c.normal, body.rest,
                                  vertex_modes(body), _row_scale(body), float(body.radius), omega2, float(body.mass),
                                  body.inertia, body.inertia_inv, axes, moments, eps, co[1], loads.force, loads.torque,
                                  loads.modal, accel, float(dt), int(plan.iterations), 4, state.position,
                                  state.orientation, state.velocity, state.angular_momentum,
                                  _angular_velocity(body, _rotation(state), state.angular_momentum), state.q,
-                                 state.qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0)
+                                 state.qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0, rest_c, vm_c,
+                                 len(plan.kinds))
 
     done = fused(False, 0.0, 0.0)
     if done == 2:  # contacts touching and approaching: the impact solve of step_with_contacts' 1., then fused
@@ -720,22 +911,32 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
         record: list = []
         _accumulate(record, sub, sub.gap)
         _accumulate(record, Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, impulses=lam_n,
-                                     obstacle=c.obstacle), gap_mid)
+                                     obstacle=c.obstacle, points=c.points), gap_mid)
         _write_record(contacts, record)
+        contacts.points = c.points
         return True
     if done != 1:
         return False
+    if c.points is not None:  # box-edge contacts: recorded under their faces' vertices (as step_with_contacts)
+        record = []
+        _accumulate(record, Contacts(c.vertex, n_mid, gap_mid, c.effect, effects, impulses=lam_n,
+                                     obstacle=c.obstacle, points=c.points), gap_mid)
+        _write_record(contacts, record)
+        contacts.points = c.points
+        return True
     # the step record, as _accumulate + _write_record write it: the contacts that pushed
     sel = lam_n > 0.0
     if not sel.all():
         if not sel.any():
             _write_record(contacts, [])
+            contacts.points = None
             return True
         c = c.subset(sel)
         gap_mid, n_mid, lam_n = gap_mid[sel], n_mid[sel], lam_n[sel]
     contacts.vertex, contacts.effect, contacts.obstacle = (a.astype(np.int64, copy=False)
                                                           for a in (c.vertex, c.effect, c.obstacle))
     contacts.normal, contacts.gap, contacts.impulses, contacts.tangential = n_mid, gap_mid, lam_n, None
+    contacts.points = None
     return True
 
 
@@ -836,13 +1037,17 @@ def push_out(solver, state, contacts: Contacts, passes: int = 4, *, accel=None) 
     body = solver.body
     plan = _plan(contacts.effects)
     q = state.q
+    pts = contacts.points  # the box-edge points of the step's last contact search (each held out of its plane)
+    kinds, params = (plan.kinds, plan.params) if pts is None else (pts.kinds, pts.params)
+    rest, vm = _geometry(body, contacts)
+    no, nv = len(plan.kinds), body.vertex_count
     if accel is not None:  # with the payment (KS.push_and_pay: the fused step's very function)
-        KS.push_and_pay(plan.kinds, plan.params, body.rest, vertex_modes(body), _row_scale(body), float(body.radius),
+        KS.push_and_pay(kinds, params, rest, vm, _row_scale(body), float(body.radius),
                         _eps(body.shapes_t.dtype), _fast_terms(body)[0], _rotation(state), state.position,
                         float(body.mass), np.asarray(accel, dtype=np.float64), body.inertia_inv, state.velocity,
-                        state.angular_momentum, q, state.qdot, int(passes))
+                        state.angular_momentum, q, state.qdot, int(passes), no, nv)
         return
     bound = deformation_bound(body, q)
     slack = 4.0 * (body.mode_count + 2) * _eps(body.shapes_t.dtype) * bound
-    KB.push_shift(plan.kinds, plan.params, body.rest, vertex_modes(body), q, _skip(body, q), _rotation(state),
-                  state.position, bound, slack, int(passes))
+    KB.push_shift(kinds, params, rest, vm, q, _skip(body, q), _rotation(state), state.position, bound, slack,
+                  int(passes), no, nv)

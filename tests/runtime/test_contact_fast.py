@@ -22,15 +22,21 @@ SLOPE = np.radians(10.0)  # a plane tilted about y: tan 10 deg = 0.18 < friction
 SLOPE_NORMAL = np.array([np.sin(SLOPE), 0.0, np.cos(SLOPE)])
 
 
-def _solver(body, friction=0.3, slope=False):
+def _solver(body, friction=0.3, slope=False, box=False):
     plane = rt.Plane(SLOPE_NORMAL, (0.0, 0.0, 0.0)) if slope else rt.Ground(0.0)
+    if box:  # a box narrower than the body (0.1 x 0.06 m, top at z = 0): it rests across the box's edges
+        plane = rt.Box((0.0, 0.0, -0.05), (0.05, 0.03, 0.05))
     return rt.ModalSolver(body, effects=[rt.Gravity((0, 0, -G)), rt.Obstacles([plane], friction=friction)])
 
 
-def _on_ground(solver, slope=False, **kwargs):
-    """A state with its lowest vertex on the ground (or on the slope, the body turned to lie on it)."""
+def _on_ground(solver, slope=False, box=False, **kwargs):
+    """A state with its lowest vertex on the ground (or on the slope, the body turned to lie on it; or on the box,
+    centred and turned by 1e-5 rad about z, not exactly square to its edges)."""
     if slope:
         kwargs["orientation"] = quat_from_axis_angle((0.0, 1.0, 0.0), SLOPE)
+    if box:
+        kwargs["orientation"] = quat_from_axis_angle((0.0, 0.0, 1.0), 1e-5)
+        kwargs["position"] = (3e-7, 2e-7, 0.0)
     st = solver.state(**kwargs)
     up = SLOPE_NORMAL if slope else np.array([0.0, 0.0, 1.0])
     st.position -= up * (solver.body.positions(st, precise=True) @ up).min()
@@ -55,7 +61,7 @@ def _run(monkeypatch, body, fast: bool, steps: int, **kwargs):
 
     monkeypatch.setattr(C, "sustained_step", fused if fast else (lambda *a: False))
     monkeypatch.setattr(C, "resolve_contacts", resolve)
-    solver = _solver(body, slope=kwargs.get("slope", False))
+    solver = _solver(body, slope=kwargs.get("slope", False), box=kwargs.get("box", False))
     st = _on_ground(solver, **kwargs)
     out = []
     for _ in range(steps):
@@ -69,7 +75,7 @@ def _run(monkeypatch, body, fast: bool, steps: int, **kwargs):
 
 
 CASES = {"resting": {}, "sliding": {"velocity": (0.5, 0.2, 0.0), "angular_velocity": (0.0, 0.0, 0.5)},
-         "on a slope": {"slope": True}}
+         "on a slope": {"slope": True}, "across a box's edges": {"box": True}}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -80,7 +86,8 @@ def test_the_fused_step_gives_the_python_paths_state_bit_for_bit(small_model, mo
     friction against gravity's pull along it), and nearly every step of the sliding one (while it slides, a
     vertex touches and approaches in most steps: the impact solve of those first, then the fused rest; here
     all 300 on an Intel Xeon, 0.9 of them asked: an impact predicted within a step on another machine's
-    rounding would leave that step to the Python path)."""
+    rounding would leave that step to the Python path). Across a narrow box's edges the box-edge contacts (points
+    of the body's faces) take part in both paths' solves and push-outs."""
     body = rt.ModalBody(small_model)  # float32 shapes (the runtime default)
     steps = 300
     fused, taken, impacts = _run(monkeypatch, body, True, steps, **CASES[case])
@@ -108,7 +115,7 @@ def test_fused_steps_never_add_energy_nor_leave_a_vertex_below_the_ground(small_
     with the body's own energy functions; no vertex ends below the ground beyond the float64 rounding of a
     position (1e-12 m, as the contact tests)."""
     body = rt.ModalBody(small_model)
-    solver = _solver(body, slope=CASES[case].get("slope", False))
+    solver = _solver(body, slope=CASES[case].get("slope", False), box=CASES[case].get("box", False))
     st = _on_ground(solver, **CASES[case])
     up = SLOPE_NORMAL if CASES[case].get("slope") else np.array([0.0, 0.0, 1.0])
     real = C.sustained_step
