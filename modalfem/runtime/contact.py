@@ -61,7 +61,8 @@ outward normal reversed. Such points are appended to the body's vertices for the
 edge (within the margin of two of its face planes) whose vertex is a corner of such a face is left to the face's
 edge contacts (the box's nearest feature to it, and so its normal, changes with the step's motion and pushed the
 body sideways against them). Without a box nothing of this runs. The rigid sustained solve then sweeps to
-convergence (``_contact_body_kernels.RIGID_SWEEPS``): a body resting on a few rows needs more than ten sweeps.
+convergence when a box is among the obstacles (``_contact_body_kernels.RIGID_SWEEPS``): a body resting on a few
+rows needs more than ten sweeps.
 
 After the step, vertices left inside an obstacle (impact times are predicted without the rotation and
 the modes) are pushed out by translating the body along the obstacle normal, so no vertex ends
@@ -253,7 +254,9 @@ class _Plan:
         self.modal = np.array([e.modal for e in effects], dtype=bool)
         self.iterations = max(e.iterations for e in effects)
         from modalfem.runtime.obstacles import BOX
-        self.boxes = bool((self.kinds == BOX).any())  # box edges to search (``_edge_points``)
+        self.boxes = bool((self.kinds == BOX).any())  # box edges to search (``_with_edges``)
+        from modalfem.runtime._contact_body_kernels import RIGID_SWEEPS
+        self.rigid_sweeps = max(self.iterations, RIGID_SWEEPS) if self.boxes else self.iterations
 
 
 class _EdgePoints:
@@ -738,8 +741,8 @@ def _resolve_rigid(body, state, contacts: Contacts, plan, n, mu, dt: float, acce
                      _rotation(state), body.inertia, body.inertia_inv, float(body.mass), state.velocity,
                      state.angular_momentum, n,
                      np.ascontiguousarray(contacts.gap, dtype=np.float64), mu,
-                     _ZERO3 if accel is None else np.asarray(accel, dtype=np.float64), float(dt), int(plan.iterations),
-                     lam_n, jt)
+                     _ZERO3 if accel is None else np.asarray(accel, dtype=np.float64), float(dt),
+                     int(plan.rigid_sweeps), lam_n, jt)
     contacts.impulses = lam_n
     contacts.tangential = jt
 
@@ -883,16 +886,20 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
     gap_mid = np.empty(k)
     n_mid = np.empty((k, 3))
     lam_n = np.empty(k)
-    row, kinds, params, margin = _obstacles(plan, c)
-    local = c.obstacle if c.points is None else row - plan.first[c.effect]
-    rest_c, vm_c = _geometry(body, c)
+    if c.points is None:  # (no box edges: nothing more to form)
+        kinds, params, margin, local, rest_c, vm_c = (plan.kinds, plan.params, plan.margin, c.obstacle, body.rest,
+                                                      vertex_modes(body))
+    else:
+        row, kinds, params, margin = _obstacles(plan, c)
+        local = row - plan.first[c.effect]
+        rest_c, vm_c = _geometry(body, c)
 
     def fused(after_impact: bool, own0: float, e0: float) -> int:
         return KS.sustained_step(kinds, params, plan.first, margin, plan.threshold, plan.friction,
                                  plan.modal, c.vertex, c.effect, local, c.gap, c.normal, body.rest,
                                  vertex_modes(body), _row_scale(body), float(body.radius), omega2, float(body.mass),
                                  body.inertia, body.inertia_inv, axes, moments, eps, co[1], loads.force, loads.torque,
-                                 loads.modal, accel, float(dt), int(plan.iterations), 4, state.position,
+                                 loads.modal, accel, float(dt), int(plan.rigid_sweeps), 4, state.position,
                                  state.orientation, state.velocity, state.angular_momentum,
                                  _angular_velocity(body, _rotation(state), state.angular_momentum), state.q,
                                  state.qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0, rest_c, vm_c,
