@@ -180,17 +180,21 @@ def push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes, no,
             best, bn0, bn1, bn2 = math.inf, 0.0, 0.0, 0.0
             found = False
             if o < no:
-                _rigid_gaps(kinds[o], params[o], rest[:nv], R, c, g)
-                js = range(nv)
-            else:
-                js = range(nv + o - no, nv + o - no + 1)
-            for j in js:
-                if o >= no or g[j] < lim:
-                    x0, x1, x2 = _world(j, rest, vm, q, act, R, c)
-                    d, a, b, e = _signed(kinds[o], params[o], x0, x1, x2)
-                    if not found or d < best:
-                        best, bn0, bn1, bn2 = d, a, b, e
-                        found = True
+                if rest.shape[0] == nv:  # (no box-edge points: the array as is, not a slice of it)
+                    _rigid_gaps(kinds[o], params[o], rest, R, c, g)
+                else:
+                    _rigid_gaps(kinds[o], params[o], rest[:nv], R, c, g)
+                for j in range(nv):
+                    if g[j] < lim:
+                        x0, x1, x2 = _world(j, rest, vm, q, act, R, c)
+                        d, a, b, e = _signed(kinds[o], params[o], x0, x1, x2)
+                        if not found or d < best:
+                            best, bn0, bn1, bn2 = d, a, b, e
+                            found = True
+            else:  # a box-edge point against its own plane
+                x0, x1, x2 = _world(nv + o - no, rest, vm, q, act, R, c)
+                best, bn0, bn1, bn2 = _signed(kinds[o], params[o], x0, x1, x2)
+                found = True
             if found and (best < 0.5 * slack or best < 0.0):
                 f = (slack - best) * (1.0 + 1e-9)
                 s0, s1, s2 = f * bn0, f * bn1, f * bn2
