@@ -18,7 +18,8 @@ reading the triangle's row of :func:`triangle_diagonals` instead of its three ve
 measurable change (7.3-7.6 ms either way for a 144k triangle-pair expansion); (4) a vertex searched again within a
 step keeping the union of its old box and its new trajectory grown by twice the margin (fewer repeated dirty
 searches: 43 % of a step's dirty vertices were dirty before in the same step): about -1 ms per pipeline call, but
-a different candidate order (answers equal only to ~1e-9 m/s per call), so not taken; (5) the pipeline's numpy
+a different candidate order (answers equal only to ~1e-9 m/s per call), so not taken then; taken since the CCD
+hands its hits on in a canonical order (``_stages.ccd_hits``, ``_stages.DIRTY_GROW``); (5) the pipeline's numpy
 glue compiled (``(dV != 0).any(axis=1)``-style masks, the CCD's end positions and diagonal intervals in one
 pass, the dirty triangles): no measurable change (the glue is ~9 of the pipeline's ~82 CPU ms per step, spread
 over many small calls).

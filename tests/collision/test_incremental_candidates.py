@@ -87,7 +87,8 @@ def test_stamped_drops_and_selections_equal_masks():
 @pytest.mark.parametrize("indexed", [1, 10**9])  # every block to the CCD as stored / every block selected first
 def test_ccd_of_store_segments_equals_the_ccd_of_the_selected_pairs(indexed, monkeypatch):
     """``ccd_hits`` hands large blocks to the CCD with their alive masks and the flagged vertices (filtered in
-    its pass): the hits, their order and times are those of the CCD of the selected pairs, on 1 and 2 threads."""
+    its pass): the hits and times are those of the CCD of the selected pairs, on 1 and 2 threads, in the
+    canonical order (an edge-edge pair's smaller edge first, then sorted by the four vertex indices)."""
     from modalfem._threads import thread_count
     from modalfem.collision import _ccd_kernels, _stages
     from modalfem.collision.ccd import MAX_INTERVALS
@@ -122,7 +123,12 @@ def test_ccd_of_store_segments_equals_the_ccd_of_the_selected_pairs(indexed, mon
             idx, toi = _ccd_kernels.ccd_candidates(kind == "vf", x0, X1, q, invm > 0, roots, eta,
                                                    _stages.PIPELINE_DEPTH, MAX_INTERVALS)
             if len(idx):
-                want.append((kind, q[idx], toi))
+                qh = q[idx].copy()
+                if kind == "ee":
+                    swap = [tuple(r[2:]) < tuple(r[:2]) for r in qh.tolist()]
+                    qh[swap] = qh[swap][:, [2, 3, 0, 1]]
+                order = sorted(range(len(qh)), key=lambda i: tuple(qh[i].tolist()))
+                want.append((kind, qh[order], toi[order]))
         total += sum(len(w[1]) for w in want)
         for t in (1, 2):
             with thread_count(t):
