@@ -1,0 +1,439 @@
+"""The solid contact stage of ``World`` (a mixin): modal bodies against each other and against moving and mesh
+obstacles in one compiled sequential-impulse solve (see ``modalfem.world.world`` and ``modalfem.world._kernels``)."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from modalfem import effects as fx
+from modalfem.world import _kernels
+from modalfem.world._shared import _REACTION_KEY, BOUNCE_THRESHOLD, PUSH_OUT, SLOW
+from modalfem.world.obstacles import TriangleMesh
+
+if TYPE_CHECKING:
+    from modalfem.world.world import World, _StepContext
+
+
+class _SolidStage:
+    """``World``'s solid contact stage methods (they read the world's build: ``_modal``, ``_fast`` ...)."""
+
+    def _stage_contacts(self, ctx) -> None:
+        """Modal bodies against each other and against moving and mesh obstacles (a tet body meets modal bodies and
+        other tet bodies in its implicit step): one compiled sequential-impulse solve (see the module docstring).
+        Modal bodies against each other and static planes are found and written by ``modal_contacts.ModalContacts``
+        (compiled); the rest by ``_ContactBuilder``."""
+        dt = ctx.dt
+        t0 = ctx.state_in.time
+        names = self._modal_contact
+        seg, V_parts, pos, speed = {}, [], {}, {}
+        n_off = 0
+        fast = self._fast
+        blocks = {}  # the compiled modal contacts' bodies: their velocity blocks and speed bounds in one call
+        if fast is not None:
+            Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, {n: self._modal[n]["g"] for n in fast.names}, dt)
+            o = 0
+            for i, n in enumerate(fast.names):
+                blocks[n] = (Vf[o:o + 6 + fast.nm[i]], float(sf[i]))
+                o += 6 + fast.nm[i]
+        for name in names:
+            if name in blocks:
+                V_parts.append(blocks[name][0])
+                if name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
+                    V_parts[-1] = V_parts[-1] + ctx.dV[name]
+                speed[name] = blocks[name][1]
+                seg[name] = (n_off, len(blocks[name][0]))
+            elif name in self._modal:
+                m = self._modal[name]
+                s = ctx.state_in.bodies[name]
+                body = m["body"]
+                w = body.angular_velocity(s)
+                V_parts.append(np.concatenate([s.velocity + m["g"] * dt, w, s.qdot]))
+                if name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
+                    V_parts[-1] += ctx.dV[name]
+                speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
+                                    + np.linalg.norm(m["g"]) * dt)
+                if body.mode_count:
+                    u = (s.qdot @ body.shapes_t).reshape(-1, 3)  # each vertex's deformation velocity
+                    speed[name] += float(np.sqrt((u * u).sum(1)).max())
+                seg[name] = (n_off, 6 + body.mode_count)
+            else:
+                out = ctx.out.bodies[name]
+                V_parts.append(out.v.reshape(-1).copy())
+                pos[name] = ctx.start[name].x[self._tet[name]["surface"]]
+                speed[name] = float(np.sqrt(np.einsum("ij,ij->i", out.v, out.v)).max())
+                seg[name] = (n_off, 3 * len(out.v))
+            n_off += seg[name][1]
+        V = np.concatenate(V_parts)
+
+        def where(name):  # world surface of a modal body at the step start, computed once when needed
+            x = pos.get(name)
+            if x is None:
+                x = pos[name] = self._modal[name]["body"].positions(ctx.state_in.bodies[name], precise=True)
+            return x
+
+        builder = _ContactBuilder(self, ctx, seg, names)
+        driven = False  # a moving obstacle in contact: it may do work on the bodies (no energy rule then)
+        for name, obs in self._world_obstacles.items():  # modal bodies: moving obstacles and meshes (all if shared)
+            c = None
+            for o in obs:
+                tag = self.obstacles.index(o)
+                if tag in self._fast_planes:
+                    continue
+                if c is None:
+                    c = self._one(name, fx.Contact)
+                x = where(name)
+                reach = c.margin + speed[name] * dt
+                if o.moving:
+                    reach += float(np.linalg.norm(o.path.velocity(t0, dt))) * dt
+                if isinstance(o, TriangleMesh):
+                    hits = self._obstacle_surf[tag].query(x, o.vertices + o.offset(t0), reach)
+                    idx, gap, nrm = hits.point, hits.gap, hits.normal
+                else:
+                    gap_all, n_all = o.signed_distance(x, t0)
+                    idx = np.flatnonzero(gap_all < reach)
+                    gap, nrm = gap_all[idx], np.asarray(n_all)[idx]
+                if len(idx):
+                    builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c, tag=tag)
+                    driven |= o.moving
+        for i, a in enumerate(names):  # every pair with a tet body: vertices on faces both ways, edges on edges
+            for b in names[i + 1:]:
+                if fast is not None and a in self._modal and b in self._modal:
+                    continue  # compiled below
+                if a in self._tet or b in self._tet:
+                    continue  # in the tet's implicit step (``_tet_contacts``; never here today: names are modal)
+                ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
+                reach = max(ca.margin, cb.margin) + (speed[a] + speed[b]) * dt
+                xa, xb = where(a), where(b)
+                lo = np.maximum(xa.min(0), xb.min(0)) - reach
+                hi = np.minimum(xa.max(0), xb.max(0)) + reach
+                if np.any(lo > hi):
+                    continue
+                for p, q, xp, xq, cp, cq in ((a, b, xa, xb, ca, cb), (b, a, xb, xa, cb, ca)):
+                    near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
+                    if len(near):
+                        h = self._surf[q].query(xp[near], xq, reach)
+                        if len(h.point):
+                            builder.general(p, near[h.point][:, None], np.ones((len(h.point), 1)), q,
+                                            self._tris[q][h.triangle], h.bary, h.gap, h.normal, cp, cq)
+                # edges against edges only within the margin (surfaces at rest on each other, where an edge can
+                # cross a face with every vertex outside); approaching surfaces are held by their vertices
+                ea = self._edges[a].edges
+                a0, a1 = xa[ea[:, 0]], xa[ea[:, 1]]
+                sel = np.flatnonzero(np.all((np.minimum(a0, a1) <= hi) & (np.maximum(a0, a1) >= lo), axis=1))
+                if len(sel):
+                    h = self._edges[b].query(a0[sel], a1[sel], xb, max(ca.margin, cb.margin))
+                    if len(h.mine):
+                        builder.general(a, ea[sel[h.mine]], np.column_stack([1.0 - h.s, h.s]), b,
+                                        self._edges[b].edges[h.other], np.column_stack([1.0 - h.t, h.t]),
+                                        h.gap, h.normal, ca, cb)
+        fdata = None
+        if fast is not None:
+            fdata = fast.collect(ctx.state_in.bodies, {n: seg[n][0] for n in fast.names}, speed, dt,
+                                 {n: names.index(n) for n in fast.names}, ctx.state_in.contacts.get(_FAST_KEY))
+        kp = builder.count
+        k = kp + (len(fdata["gap"]) if fdata is not None else 0)
+        ctx.report.contacts["solid"] = k
+        ctx.contacts = {key: v for key, v in ctx.contacts.items() if key[0] == _REACTION_KEY}
+        if k == 0:
+            return
+        data = _merge(builder.arrays() if kp else None, fdata)
+        n = data["normal"]
+        lam_n, lam_t = np.zeros(k), np.zeros((k, 3))
+        old_lam = np.zeros((k, 3))
+        for c, key in enumerate(builder.keys):  # warm start: the impulses these contacts had in the last step
+            old = ctx.state_in.contacts.get(key)
+            if old is not None:
+                old_lam[c] = old
+        if fdata is not None:
+            old_lam[kp:] = fdata["warm"]
+        lam_n[:] = np.maximum(np.einsum("ij,ij->i", old_lam, n), 0.0)
+        t = old_lam - np.einsum("ij,ij->i", old_lam, n)[:, None] * n
+        tn = np.sqrt(np.einsum("ij,ij->i", t, t))
+        lim = data["mu"] * lam_n
+        lam_t[:] = t * np.where(tn <= lim, 1.0, lim / np.where(tn > 0, tn, 1.0))[:, None]
+        lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, None if driven else
+                                     self._inverse_mass_blocks(ctx, seg, names))
+        ctx.report.sweeps = sweeps
+        ctx.contacts.update({key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0})
+        if fdata is not None:
+            fk = fdata["keys"]
+            held = lam_n[kp:] > 0.0
+            order = np.argsort(fk[held], kind="stable")
+            ctx.contacts[_FAST_KEY] = (fk[held][order], lam[kp:][held][order])
+        dV = data["dV"]
+        for name, (o, nd) in seg.items():
+            if name in self._modal:
+                ctx.dV[name] = dV[o:o + nd] + ctx.dV.get(name, 0.0)  # taken at the step start by the modal step
+            else:  # a tet body's end velocities, and its positions with them (x = x_start + dt v)
+                dv = dV[o:o + nd].reshape(-1, 3)
+                out = ctx.out.bodies[name]
+                out.v += dv
+                out.x += dt * dv
+        # what each body received from each other body (the other received the opposite), per pair
+        uniq, J, L = _kernels.exchanged(data["body"], data["other"], data["point"], lam, len(names))
+        if len(uniq):  # per pair sums in contact order
+            for i, kk in enumerate(uniq.tolist()):
+                ctx.report.exchanged.append((names[kk // len(names)], names[kk % len(names)], J[i], L[i]))
+        for name in self._sounds:  # what sounding bodies hear: the modal kick of the contacts that bounced
+            if name in seg:
+                i = names.index(name)
+                sel = np.flatnonzero(bounce & ((data["body"] == i) | (data["other"] == i)))
+                if len(sel):
+                    dq = builder.modal_change(name, sel[sel < kp], lam) if np.any(sel < kp) else 0.0
+                    if fdata is not None and name in fast.names and np.any(sel >= kp):
+                        dq = dq + fast.modal_change(name, fdata, sel[sel >= kp] - kp, lam[kp:])
+                    ctx.impacts[name] = dq
+
+    def _inverse_mass_blocks(self, ctx, seg: dict, names: list) -> tuple:
+        """Per body ``(offset, size, mass, inertia, shift)`` to measure the energy of velocity changes: a modal
+        body's mass [kg] and world inertia [kg m^2] (its modal coordinates have unit mass), a tet body's vertex
+        masses (inf, pinned: 0) and no inertia; ``shift`` (3,) [m/s] is ``g dt``, which the solve's velocities hold
+        but the energy must not count: a velocity change dv at the step start moves the body by ``dv dt`` in the
+        gravity field, which costs ``-m g . dv dt``, so the energy change is ``dv . M (V - g dt) + 0.5 dv . M dv``.
+        Returns ``(fast, out)``: the compiled modal contacts' bodies as arrays for ``_kernels.modal_energy_change``
+        (offsets, sizes, masses, rotations at the step start, body-axes inertias, shifts; None without them), and
+        the list of the other bodies' tuples."""
+        fast = self._fast
+        quick = None
+        if fast is not None and all(n in seg for n in fast.names):
+            quick = (np.array([seg[n][0] for n in fast.names], dtype=np.int64), 6 + fast.nm, fast.mass,
+                     fast.rotations, fast.inertia, np.array([self._modal[n]["g"] for n in fast.names]) * ctx.dt)
+        out = []
+        for name in names:
+            if quick is not None and name in fast.index:
+                continue
+            o, nd = seg[name]
+            if name in self._modal:
+                g = self._modal[name]["g"]  # its gravity effects' sum, formed at build
+            else:
+                g = np.zeros(3)
+                for e in self.effects_of(name):
+                    if isinstance(e, fx.Gravity):
+                        g += np.asarray(e.g)
+            if name in self._modal:
+                body = self._modal[name]["body"]
+                R = ctx.state_in.bodies[name].rotation()
+                out.append((o, nd, body.mass, R @ body.inertia @ R.T, g * ctx.dt))
+            else:
+                m = self._tet[name]["masses"]
+                out.append((o, nd, np.where(np.isfinite(m), m, 0.0), None, g * ctx.dt))
+        return quick, out
+
+
+#: the key of the compiled modal contacts' impulses in ``WorldState.contacts``: (sorted int64 keys, (k, 3) [N s])
+_FAST_KEY = "modal contacts"
+
+
+def _merge(a: dict | None, b: dict | None) -> dict:
+    """The solve arrays of the Python builder's contacts followed by the compiled modal contacts'."""
+    if a is None or b is None:
+        return dict(a if b is None else b)
+    out = {key: np.concatenate([a[key], b[key]]) for key in (
+        "off", "nd", "normal", "gap", "vobs_n", "mu", "restitution", "margin", "body", "other", "point", "J", "WJt")}
+    out["ptr"] = np.concatenate([a["ptr"], b["ptr"][1:] + a["ptr"][-1]])
+    out["jptr"] = np.concatenate([a["jptr"], b["jptr"] + len(a["J"])])
+    out["iterations"] = max(a["iterations"], b["iterations"])
+    return out
+
+
+#: the solve stops once a sweep changes no contact's velocity by more than this fraction of the velocity that
+#: closes its skin (half its margin) in one step
+VELOCITY_STOP = 1e-2
+
+
+def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None):
+    """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
+    kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
+    ``World._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 by scaling
+    every impulse back (equal and opposite impulses stay so). Returns ``(lam (k, 3), bounce (k,), sweeps)`` and
+    leaves ``data["dV"]``."""
+    ptr, off, nd, jptr, J, WJt = (data[key] for key in ("ptr", "off", "nd", "jptr", "J", "WJt"))
+    K = data.get("K")  # the compiled modal contacts' come with their entries
+    if K is None:
+        K = _kernels.effective_masses(ptr, off, nd, jptr, J, WJt)
+    u = _kernels.contact_velocities(V, ptr, off, nd, jptr, J)
+    n = data["normal"]
+    vn = np.einsum("ij,ij->i", u, n) - data["vobs_n"]
+    gap = data["gap"]
+    skin = 0.5 * data["margin"]
+    target = np.where(gap > skin, -(gap - skin) / dt, PUSH_OUT * (skin - gap) / dt)
+    e = data["restitution"]
+    bounce = (vn < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
+    target = np.where(bounce, np.maximum(target, -e * vn), target) + data["vobs_n"]
+    V0 = V.copy()
+    _kernels.apply_impulses(V, ptr, off, nd, jptr, WJt, lam_n[:, None] * n + lam_t)
+    vtol = VELOCITY_STOP * float(np.min(skin)) / dt
+    sweeps = _kernels.sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, n, target, data["mu"],
+                                          int(data["iterations"]), lam_n, lam_t, vtol)
+    lam = lam_n[:, None] * n + lam_t
+    dV = V - V0
+    work = quad = 0.0
+    if blocks is not None and blocks[0] is not None:
+        work, quad = _kernels.modal_energy_change(dV, V0, *blocks[0])
+    for o, m, mass, inertia, shift in blocks[1] if blocks is not None else ():
+        dv, v0 = dV[o:o + m], V0[o:o + m]
+        if inertia is not None:  # modal: (v, w, qdot)
+            work += (mass * float(dv[:3] @ (v0[:3] - shift)) + float(dv[3:6] @ (inertia @ v0[3:6]))
+                     + float(dv[6:] @ v0[6:]))
+            quad += mass * float(dv[:3] @ dv[:3]) + float(dv[3:6] @ (inertia @ dv[3:6])) + float(dv[6:] @ dv[6:])
+        else:
+            dv, v0 = dv.reshape(-1, 3), v0.reshape(-1, 3) - shift
+            work += float(mass @ np.einsum("ij,ij->i", dv, v0))
+            quad += float(mass @ np.einsum("ij,ij->i", dv, dv))
+    if blocks is not None and work + 0.5 * quad > 1e-12 * quad:  # the impulses would add energy: scale them back (never below 0)
+        scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
+        dV *= scale
+        lam *= scale
+        V[:] = V0 + dV
+    data["dV"] = dV
+    return lam, bounce, sweeps
+
+
+class _ContactBuilder:
+    """Entries of the compiled solve (see ``modalfem.world._kernels``), built a batch of contacts at a time: in a
+    batch every contact has the same entry layout (a modal side is one entry of 6 + r velocities, a tet side one
+    entry of 3 per vertex of the touched point), so the arrays are assembled with numpy, not per contact."""
+
+    def __init__(self, world: World, ctx: _StepContext, seg: dict, names: list) -> None:
+        self.w, self.ctx, self.seg, self.names = world, ctx, seg, names
+        self.count = 0
+        self.n_entries = 0
+        self.jlen = 0
+        self.batches = []  # per batch: dict of arrays
+        self.keys = []  # per contact: what identifies it from step to step (warm start)
+        self.iterations = 1
+        self._modal_frames = {}
+
+    def _modal_frame(self, name: str):
+        f = self._modal_frames.get(name)
+        if f is None:
+            m = self.w._modal[name]
+            s = self.ctx.state_in.bodies[name]
+            R = s.rotation()
+            Iw_inv = R @ m["body"].inertia_inv @ R.T
+            f = (R, Iw_inv, s)
+            self._modal_frames[name] = f
+        return f
+
+    def _entries_modal(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
+        """(k,) entries for points sum_j w_j vertex_j of a modal body: J (k, 3, 6 + r), WJt (k, 6 + r, 3), r (k, 3),
+        sign R Phi (k, 3, r)."""
+        body = self.w._modal[name]["body"]
+        R, Iw_inv, s = self._modal_frame(name)
+        phi = np.einsum("kj,kjcr->kcr", w, body.vertex_shapes(verts.reshape(-1)).reshape(verts.shape + (3, -1)))
+        rest = np.einsum("kj,kjc->kc", w, body.rest[verts])
+        r = (rest + np.einsum("kcr,r->kc", phi, s.q)) @ R.T
+        k, nm = len(r), body.mode_count
+        J = np.zeros((k, 3, 6 + nm))
+        J[:, :, 0:3] = np.eye(3)
+        S = np.zeros((k, 3, 3))
+        S[:, 0, 1], S[:, 0, 2] = -r[:, 2], r[:, 1]
+        S[:, 1, 0], S[:, 1, 2] = r[:, 2], -r[:, 0]
+        S[:, 2, 0], S[:, 2, 1] = -r[:, 1], r[:, 0]
+        J[:, :, 3:6] = -S
+        Rphi = np.einsum("ab,kbr->kar", R, phi)
+        # modes the step resolves (omega dt <= SLOW) join the contact; faster ones would swing back within the
+        # step, so a velocity-level contact cannot predict them: they take no part (the sound still hears
+        # them: ``modal_change``)
+        J[:, :, 6:] = Rphi * (body.omega * self.ctx.dt <= SLOW)
+        WJt = np.transpose(J, (0, 2, 1)).copy()
+        WJt[:, 0:3, :] /= body.mass
+        WJt[:, 3:6, :] = np.einsum("ab,kbc->kac", Iw_inv, S)  # Iw^-1 (-[r]x)^T = Iw^-1 [r]x
+        return sign * J, sign * WJt, r + s.position, sign * Rphi
+
+    def _side(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
+        """One side of k contacts at points sum_j w_j verts_j (verts (k, m)): entry arrays ``off`` (k, e), ``nd`` (e,),
+        ``J`` (k, sum 3 nd) and ``WJt`` (k, sum 3 nd) flattened per contact, the points (k, 3) and the modal
+        matrices (k, 3, r) (None for a tet side)."""
+        o0, _ = self.seg[name]
+        k = len(verts)
+        if name in self.w._modal:
+            J, WJt, p, full = self._entries_modal(name, verts, w, sign)
+            nd = J.shape[2]
+            return (np.full((k, 1), o0, dtype=np.int64), np.array([nd]), J.reshape(k, -1), WJt.reshape(k, -1), p,
+                    full)
+        t = self.w._tet[name]
+        ids = t["surface"][verts]  # surface-local -> mesh vertex ids (k, m)
+        m = ids.shape[1]
+        masses = t["masses"][ids]
+        inv = np.where(np.isfinite(masses), 1.0 / np.where(np.isfinite(masses), masses, 1.0), 0.0)
+        p = np.einsum("kj,kjd->kd", w, self.ctx.start[name].x[ids])
+        eye = np.eye(3)
+        J = (sign * w)[:, :, None, None] * eye  # (k, m, 3, 3)
+        WJt = (sign * w * inv)[:, :, None, None] * eye
+        return (o0 + 3 * ids, np.full(m, 3), J.reshape(k, -1), WJt.reshape(k, -1), p, None)
+
+    def _add(self, a, side_a, b, side_b, n, gap, vobs_n, ca, cb, other):
+        k = len(gap)
+        if k == 0:
+            return
+        off = [side_a[0]] + ([side_b[0]] if side_b is not None else [])
+        nd = [side_a[1]] + ([side_b[1]] if side_b is not None else [])
+        J = [side_a[2]] + ([side_b[2]] if side_b is not None else [])
+        W = [side_a[3]] + ([side_b[3]] if side_b is not None else [])
+        full = [side_a[5]] + ([side_b[5]] if side_b is not None else [])
+        off = np.concatenate(off, axis=1)  # (k, e)
+        nd = np.concatenate(nd)  # (e,)
+        e = len(nd)
+        per = int((3 * nd).sum())  # J data per contact
+        jstart = np.concatenate([[0], np.cumsum(3 * nd)[:-1]])
+        self.batches.append({
+            "ptr": self.n_entries + e * np.arange(1, k + 1), "off": off.reshape(-1), "nd": np.tile(nd, k),
+            "jptr": (self.jlen + per * np.arange(k)[:, None] + jstart[None, :]).reshape(-1),
+            "J": np.concatenate(J, axis=1).reshape(-1), "WJt": np.concatenate(W, axis=1).reshape(-1),
+            "normal": np.asarray(n, dtype=float).reshape(k, 3), "gap": np.asarray(gap, dtype=float),
+            "vobs_n": np.asarray(vobs_n, dtype=float),
+            "mu": np.full(k, ca.friction if cb is None else math.sqrt(ca.friction * cb.friction)),
+            "restitution": np.full(k, ca.restitution if cb is None else min(ca.restitution, cb.restitution)),
+            "margin": np.full(k, ca.margin if cb is None else max(ca.margin, cb.margin)),
+            "body": np.full(k, self.names.index(a)), "other": np.full(k, other), "point": side_a[4],
+            "full": full, "modal_names": [a] + ([b] if b is not None else []), "first": self.count})
+        self.n_entries += e * k
+        self.jlen += per * k
+        self.count += k
+        self.iterations = max(self.iterations, ca.iterations, 0 if cb is None else cb.iterations)
+
+    def obstacle(self, name, idx, gap, nrm, vobs, contact, tag: int = 0) -> None:
+        side = self._side(name, idx[:, None], np.ones((len(idx), 1)), 1.0)
+        nrm = np.asarray(nrm, dtype=float)
+        self._add(name, side, None, None, nrm, gap, np.einsum("ij,ij->i", vobs, nrm), contact, None, -1)
+        self.keys.extend((name, "obstacle", tag, int(i)) for i in idx)
+
+    def general(self, a, verts_a, w_a, b, verts_b, w_b, gap, nrm, ca, cb) -> None:
+        """Contacts between points sum_j w_a[:, j] verts_a[:, j] of body a and sum_j w_b verts_b of body b (normal
+        from b to a). A contact is known from step to step by body a's feature (vertex or edge) and body b."""
+        side_a = self._side(a, verts_a, w_a, 1.0)
+        side_b = self._side(b, verts_b, w_b, -1.0)
+        self._add(a, side_a, b, side_b, nrm, gap, np.zeros(len(gap)), ca, cb, self.names.index(b))
+        self.keys.extend((a, b, *map(int, f)) for f in np.asarray(verts_a))
+
+    def arrays(self) -> dict:
+        cat = {key: np.concatenate([bt[key] for bt in self.batches]) for key in (
+            "ptr", "off", "nd", "jptr", "J", "WJt", "normal", "gap", "vobs_n", "mu", "restitution", "margin", "body",
+            "other", "point")}
+        cat["ptr"] = np.concatenate([[0], cat["ptr"]]).astype(np.int64)
+        for key in ("off", "nd", "jptr"):
+            cat[key] = cat[key].astype(np.int64)
+        cat["normal"] = np.ascontiguousarray(cat["normal"])
+        cat["iterations"] = self.iterations
+        cat["keys"] = self.keys
+        return cat
+
+    def modal_change(self, name: str, sel: np.ndarray, lam: np.ndarray) -> np.ndarray:
+        """The modal velocity change (r,) the impulses of contacts ``sel`` give every mode of modal body ``name``
+        (what its sound hears)."""
+        dq = None
+        chosen = {int(c) for c in sel}
+        for bt in self.batches:
+            for side, nm in enumerate(bt["modal_names"]):
+                full = bt["full"][side]
+                if nm != name or full is None:
+                    continue
+                rows = [c - bt["first"] for c in range(bt["first"], bt["first"] + len(bt["gap"])) if c in chosen]
+                if rows:
+                    add = np.einsum("kcr,kc->r", full[rows], lam[np.asarray(rows) + bt["first"]])
+                    dq = add if dq is None else dq + add
+        return dq if dq is not None else np.zeros(self.w._modal[name]["body"].mode_count)
