@@ -572,7 +572,8 @@ def pcg(indptr, indices, data, diag, kind, normal, b, y, rtol, maxiter, agg, up,
     # Tried and dropped (64x64 pile's smoothing system, 4096 vertices, 30 iterations; fastest of 200 interleaved
     # calls, Intel Xeon, machine loaded (load ~7), so one-thread figures only): the direction formed inside the
     # product (each block forming its neighbour's z + beta c, a second buffer for c; the same bits), saving a
-    # pass that costs ~9 us on 1 and on 2 threads (a launch, not work): product + direction 181 + 9 -> 247 us,
+    # pass of ~9 us (1 and 2 threads alike on the loaded machine; an empty parallel region costs 1.5-1.9 us
+    # called from Python, tbb): product + direction 181 + 9 -> 247 us,
     # the product being bound by arithmetic here, not memory; the level-0 restriction as a parallel pass over
     # the aggregates (each one's vertices in increasing order: the same bits): the levels' correction 23.5 ->
     # 27.3 us on one thread (the pass 13.6 us, about what the serial scatter cost).
