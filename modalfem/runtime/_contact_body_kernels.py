@@ -37,15 +37,15 @@ __all__ = ["TOLERANCE", "crossings", "find", "gaps_at", "lever_arms", "normal_ve
 #: and gain 1e-10 J from the push-out (tests/runtime/test_contact.py).
 TOLERANCE = 1e-12
 
-#: the sweeps of ``resolve_rigid`` (at most: it stops when converged, ``TOLERANCE``) when a box is among the
-#: obstacles (``contact._Plan.rigid_sweeps``). Ten sweeps (the ``Obstacles`` default) left a bar resting on a box
+#: the sweeps of ``resolve_rigid`` (at most: it stops when converged, ``TOLERANCE``) with box-edge contacts
+#: (``contact._sweeps``). Ten sweeps (the ``Obstacles`` default) left a bar resting on a box
 #: with its centre of mass over its last supported row ~20 nm short at a pivot vertex, whose push-out the energy
 #: guard then halved the step for; converged, it holds, and a body across a narrow box's edges rests on the
 #: box-edge contacts (``_contact_edge_kernels``) instead of tipping over its one supported row
-#: (tests/runtime/test_contact_box_edges.py). 200 left a friction stop 1.2e-9 m/s short. On the ground the
-#: default stays: a 1,802-vertex bar resting there does not reach the tolerance in ten sweeps, and sweeping on
-#: cost it 1.4x per step (151 -> 210 us, Intel Xeon) for nothing the tests could see.
-RIGID_SWEEPS = 1000
+#: (tests/runtime/test_contact_box_edges.py). Without them the default stays: a 1,802-vertex bar resting on the
+#: ground does not reach the tolerance in ten sweeps, and sweeping on cost it 1.4x per step (151 -> 210 us, Intel
+#: Xeon) for nothing the tests could see (and 2.3x on a box wider than it).
+RIGID_SWEEPS = 200
 
 
 @numba.njit(cache=True)

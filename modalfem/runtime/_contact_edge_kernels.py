@@ -9,9 +9,10 @@ vertices (its velocity and Jacobian rows the same combination of theirs), agains
 point with the normal the triangle's outward normal reversed (pushing the body away from the box), so the
 contact's normal is the body face's, not the direction to the box's nearest feature.
 
-Only triangles whose rigid bounding box (grown by the deformation bound and the margin) meets the box's are
-tested, so a body far from a box's edges costs one pass over its vertices per box; a body with no box among its
-obstacles costs nothing (the caller skips the search).
+Only triangles whose rigid bounding box (grown by the deformation bound and the margin) meets the box and an edge's
+line are tested against that edge, so a body far from a box's edges (or resting inside one of its faces) costs one
+pass over its vertices and triangles per box; a body with no box among its obstacles costs nothing (the caller
+skips the search).
 """
 
 from __future__ import annotations
@@ -73,7 +74,8 @@ def edge_contacts(kinds, params, margins, depths, rest, vm, q, skip, R, c, bound
     d_out = np.empty(cap)
     k = 0
     loc = np.empty((nv, 3))  # rigid box-local positions
-    near = np.empty(nv, dtype=np.bool_)
+    blo = np.empty(3)
+    bhi = np.empty(3)
     X = np.empty((3, 3))
     for o in range(kinds.shape[0]):
         if kinds[o] != BOX:
@@ -83,7 +85,6 @@ def edge_contacts(kinds, params, margins, depths, rest, vm, q, skip, R, c, bound
         lim = margins[o] + bound
         # rigid positions in box axes: l = B^T (c + R X - centre)
         b0, b1, b2 = c[0] - p[0], c[1] - p[1], c[2] - p[2]
-        any_near = False
         for j in range(nv):
             x0 = b0 + R[0, 0] * rest[j, 0] + R[0, 1] * rest[j, 1] + R[0, 2] * rest[j, 2]
             x1 = b1 + R[1, 0] * rest[j, 0] + R[1, 1] * rest[j, 1] + R[1, 2] * rest[j, 2]
@@ -92,25 +93,25 @@ def edge_contacts(kinds, params, margins, depths, rest, vm, q, skip, R, c, bound
             l1 = p[7] * x0 + p[10] * x1 + p[13] * x2
             l2 = p[8] * x0 + p[11] * x1 + p[14] * x2
             loc[j, 0], loc[j, 1], loc[j, 2] = l0, l1, l2
-            # within lim of the box's surface on the outside or inside (only the outside counts for the gap, but
-            # a triangle over an edge has vertices on either side of it)
-            inside_grown = abs(l0) <= h0 + lim and abs(l1) <= h1 + lim and abs(l2) <= h2 + lim
-            near[j] = inside_grown
-            any_near = any_near or inside_grown
         for t in range(nt):
             ia, ib, ic = tri[t, 0], tri[t, 1], tri[t, 2]
-            # the triangle's box-local bounding box must meet the grown box, and it must straddle or touch a face
-            # plane of the box near an edge: at least one vertex near the grown box
-            if not (near[ia] or near[ib] or near[ic]):
-                lo0 = min(loc[ia, 0], loc[ib, 0], loc[ic, 0])
-                hi0 = max(loc[ia, 0], loc[ib, 0], loc[ic, 0])
-                lo1 = min(loc[ia, 1], loc[ib, 1], loc[ic, 1])
-                hi1 = max(loc[ia, 1], loc[ib, 1], loc[ic, 1])
-                lo2 = min(loc[ia, 2], loc[ib, 2], loc[ic, 2])
-                hi2 = max(loc[ia, 2], loc[ib, 2], loc[ic, 2])
-                if (lo0 > h0 + lim or hi0 < -h0 - lim or lo1 > h1 + lim or hi1 < -h1 - lim
-                        or lo2 > h2 + lim or hi2 < -h2 - lim):
-                    continue
+            # the triangle's box-local bounding box (rigid, grown by lim) must meet the box and, for an edge to be
+            # tested, that edge's line (below): a body resting inside a box's face tests no edge
+            for d in range(3):
+                blo[d] = min(loc[ia, d], loc[ib, d], loc[ic, d]) - lim
+                bhi[d] = max(loc[ia, d], loc[ib, d], loc[ic, d]) + lim
+            if (blo[0] > h0 or bhi[0] < -h0 or blo[1] > h1 or bhi[1] < -h1 or blo[2] > h2 or bhi[2] < -h2):
+                continue
+            ok = False
+            for ax in range(3):
+                u = (ax + 1) % 3
+                v = (ax + 2) % 3
+                for su in (-1.0, 1.0):
+                    for sv in (-1.0, 1.0):
+                        if blo[u] <= su * p[3 + u] <= bhi[u] and blo[v] <= sv * p[3 + v] <= bhi[v]:
+                            ok = True
+            if not ok:
+                continue
             # deformed world positions of the three vertices
             for s in range(3):
                 X[s, 0], X[s, 1], X[s, 2] = _world(tri[t, s], rest, vm, q, act, R, c)
@@ -139,6 +140,8 @@ def edge_contacts(kinds, params, margins, depths, rest, vm, q, skip, R, c, bound
                 v = (ax + 2) % 3
                 for su in (-1.0, 1.0):
                     for sv in (-1.0, 1.0):
+                        if not (blo[u] <= su * p[3 + u] <= bhi[u] and blo[v] <= sv * p[3 + v] <= bhi[v]):
+                            continue  # the triangle is not near this edge's line
                         # the edge's two box face normals (world): su e_u, sv e_v
                         nu0, nu1, nu2 = su * p[6 + u], su * p[9 + u], su * p[12 + u]
                         nv0, nv1, nv2 = sv * p[6 + v], sv * p[9 + v], sv * p[12 + v]

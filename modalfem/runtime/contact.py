@@ -61,8 +61,8 @@ outward normal reversed. Such points are appended to the body's vertices for the
 edge (within the margin of two of its face planes) whose vertex is a corner of such a face is left to the face's
 edge contacts (the box's nearest feature to it, and so its normal, changes with the step's motion and pushed the
 body sideways against them). Without a box nothing of this runs. The rigid sustained solve then sweeps to
-convergence when a box is among the obstacles (``_contact_body_kernels.RIGID_SWEEPS``): a body resting on a few
-rows needs more than ten sweeps.
+convergence when there are box-edge contacts (``_contact_body_kernels.RIGID_SWEEPS``): a body resting on a few
+rows and edges needs more than ten sweeps.
 
 After the step, vertices left inside an obstacle (impact times are predicted without the rotation and
 the modes) are pushed out by translating the body along the obstacle normal, so no vertex ends
@@ -256,7 +256,7 @@ class _Plan:
         from modalfem.runtime.obstacles import BOX
         self.boxes = bool((self.kinds == BOX).any())  # box edges to search (``_with_edges``)
         from modalfem.runtime._contact_body_kernels import RIGID_SWEEPS
-        self.rigid_sweeps = max(self.iterations, RIGID_SWEEPS) if self.boxes else self.iterations
+        self.rigid_sweeps = max(self.iterations, RIGID_SWEEPS)  # (with box-edge contacts: ``_sweeps``)
 
 
 class _EdgePoints:
@@ -326,6 +326,12 @@ class _EdgePoints:
 
 
 _PLANS: dict = {}
+def _sweeps(plan, c: Contacts) -> int:
+    """Most sweeps of the rigid sustained solve of the contacts ``c``: to convergence with box-edge contacts
+    (``_contact_body_kernels.RIGID_SWEEPS``), else the effects' ``iterations``."""
+    return int(plan.iterations if c.points is None else plan.rigid_sweeps)
+
+
 _EDGE_BUFFERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # body -> [rest, vm, owner] (_EdgePoints)
 
 
@@ -742,7 +748,7 @@ def _resolve_rigid(body, state, contacts: Contacts, plan, n, mu, dt: float, acce
                      state.angular_momentum, n,
                      np.ascontiguousarray(contacts.gap, dtype=np.float64), mu,
                      _ZERO3 if accel is None else np.asarray(accel, dtype=np.float64), float(dt),
-                     int(plan.rigid_sweeps), lam_n, jt)
+                     _sweeps(plan, contacts), lam_n, jt)
     contacts.impulses = lam_n
     contacts.tangential = jt
 
@@ -899,7 +905,7 @@ def sustained_step(solver, state, contacts: Contacts, loads, dt: float) -> bool:
                                  plan.modal, c.vertex, c.effect, local, c.gap, c.normal, body.rest,
                                  vertex_modes(body), _row_scale(body), float(body.radius), omega2, float(body.mass),
                                  body.inertia, body.inertia_inv, axes, moments, eps, co[1], loads.force, loads.torque,
-                                 loads.modal, accel, float(dt), int(plan.rigid_sweeps), 4, state.position,
+                                 loads.modal, accel, float(dt), _sweeps(plan, c), 4, state.position,
                                  state.orientation, state.velocity, state.angular_momentum,
                                  _angular_velocity(body, _rotation(state), state.angular_momentum), state.q,
                                  state.qdot, gap_mid, n_mid, lam_n, after_impact, own0, e0, rest_c, vm_c,
