@@ -143,6 +143,16 @@ class PenaltyContacts:
         self._cache = (np.array(x), depth)
         return depth
 
+    def keep_first(self, n: int, x: np.ndarray) -> None:
+        """Drop every contact after the first ``n``, keeping the bodies' displacements and the depths at ``x``
+        (n, 3) [m] solved with all of them (what the step ended with)."""
+        depth = self._solve(x)[:n].copy() if self.count else np.zeros(0)
+        u, fric = self.u, self.fric
+        self.set(self.verts[:n], self.w[:n], self.p[:n], self.nrm[:n], self.k[:n], self.dhat, bodies=self.bodies[:n],
+                 arms=self.arms[:n], inertia=self.inertia)
+        self.u, self.fric = u, fric
+        self._cache = (np.array(x), depth)
+
     def depths(self, x: np.ndarray) -> np.ndarray:
         """Depths (c,) [m] of the contacts into their skins at ``x`` (the bodies at their displacements)."""
         return self._solve(x) if self.count else np.zeros(0)

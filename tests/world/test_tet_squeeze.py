@@ -9,7 +9,10 @@ vertex on the foam's face: normals with z from -0.5 to -0.69). The tet step's "t
 over-deep contact in turn (ground to 1.05e6 N/m, bar contacts to 1.3e8) and each retry flung the vertex further
 (it ended 8, 20, 32, 37 mm from the bar, 9 cm from where it started a 5 ms step at 1.4 m/s): +22.95 J stored at 5 ms
 (step 29; the surfaces crossed the next step), a peak of +5339 J at 2 ms, +199 J and a crossing at 3 ms. Now a
-retry is kept only if the step does not end with more energy than the attempt it redoes."""
+retry is kept only if the step does not end with more energy than the attempt it redoes. At 10 ms (step 15) the bar
+took the ground's impulse after the tet step had placed it on the cube (5.7 rad/s: 3.6 degrees, 7.4 mm from the solved
+pose) and crossed the cube: its ground contacts are now solved in the tet step with its rigid motion, and the
+reaction turns it about its free step end, as solved. (At 20 ms it still crosses the foam: not in the test.)"""
 
 from __future__ import annotations
 
@@ -23,7 +26,7 @@ from modalfem.mesh import box
 G = 9.81
 
 
-@pytest.mark.parametrize("dt", [2e-3, 5e-3])
+@pytest.mark.parametrize("dt", [2e-3, 5e-3, 1e-2])
 def test_a_steel_bar_squeezing_a_tet_cube_on_foam_never_gains_energy_nor_crosses(bar_model, dt):
     from modalfem import tet
     from modalfem.material import Material
