@@ -3,7 +3,6 @@ obstacles in one compiled sequential-impulse solve (see ``modalfem.world.world``
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,44 +26,22 @@ class _SolidStage:
         (compiled); the rest by ``_ContactBuilder``."""
         dt = ctx.dt
         t0 = ctx.state_in.time
+        # the modal bodies with contact, all of them in the compiled modal contacts (``self._fast``, made at build
+        # whenever there are any; this stage is planned only then); tet bodies meet them in their implicit step
         names = self._modal_contact
         seg, V_parts, pos, speed = {}, [], {}, {}
         n_off = 0
         fast = self._fast
-        blocks = {}  # the compiled modal contacts' bodies: their velocity blocks and speed bounds in one call
-        if fast is not None:
-            Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, {n: self._modal[n]["g"] for n in fast.names}, dt)
-            o = 0
-            for i, n in enumerate(fast.names):
-                blocks[n] = (Vf[o:o + 6 + fast.nm[i]], float(sf[i]))
-                o += 6 + fast.nm[i]
-        for name in names:
-            if name in blocks:
-                V_parts.append(blocks[name][0])
-                if name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
-                    V_parts[-1] = V_parts[-1] + ctx.dV[name]
-                speed[name] = blocks[name][1]
-                seg[name] = (n_off, len(blocks[name][0]))
-            elif name in self._modal:
-                m = self._modal[name]
-                s = ctx.state_in.bodies[name]
-                body = m["body"]
-                w = body.angular_velocity(s)
-                V_parts.append(np.concatenate([s.velocity + m["g"] * dt, w, s.qdot]))
-                if name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
-                    V_parts[-1] += ctx.dV[name]
-                speed[name] = float(np.linalg.norm(s.velocity) + np.linalg.norm(w) * body.radius
-                                    + np.linalg.norm(m["g"]) * dt)
-                if body.mode_count:
-                    u = (s.qdot @ body.shapes_t).reshape(-1, 3)  # each vertex's deformation velocity
-                    speed[name] += float(np.sqrt((u * u).sum(1)).max())
-                seg[name] = (n_off, 6 + body.mode_count)
-            else:
-                out = ctx.out.bodies[name]
-                V_parts.append(out.v.reshape(-1).copy())
-                pos[name] = ctx.start[name].x[self._tet[name]["surface"]]
-                speed[name] = float(np.sqrt(np.einsum("ij,ij->i", out.v, out.v)).max())
-                seg[name] = (n_off, 3 * len(out.v))
+        # their velocity blocks (v + g dt, w, qdot) and speed bounds in one call
+        Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, {n: self._modal[n]["g"] for n in fast.names}, dt)
+        o = 0
+        for i, name in enumerate(fast.names):
+            V_parts.append(Vf[o:o + 6 + fast.nm[i]])
+            if name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
+                V_parts[-1] = V_parts[-1] + ctx.dV[name]
+            speed[name] = float(sf[i])
+            seg[name] = (n_off, 6 + int(fast.nm[i]))
+            o += 6 + fast.nm[i]
             n_off += seg[name][1]
         V = np.concatenate(V_parts)
 
@@ -98,41 +75,9 @@ class _SolidStage:
                 if len(idx):
                     builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c, tag=tag)
                     driven |= o.moving
-        for i, a in enumerate(names):  # every pair with a tet body: vertices on faces both ways, edges on edges
-            for b in names[i + 1:]:
-                if fast is not None and a in self._modal and b in self._modal:
-                    continue  # compiled below
-                if a in self._tet or b in self._tet:
-                    continue  # in the tet's implicit step (``_tet_contacts``; never here today: names are modal)
-                ca, cb = self._one(a, fx.Contact), self._one(b, fx.Contact)
-                reach = max(ca.margin, cb.margin) + (speed[a] + speed[b]) * dt
-                xa, xb = where(a), where(b)
-                lo = np.maximum(xa.min(0), xb.min(0)) - reach
-                hi = np.minimum(xa.max(0), xb.max(0)) + reach
-                if np.any(lo > hi):
-                    continue
-                for p, q, xp, xq, cp, cq in ((a, b, xa, xb, ca, cb), (b, a, xb, xa, cb, ca)):
-                    near = np.flatnonzero(np.all((xp >= lo) & (xp <= hi), axis=1))
-                    if len(near):
-                        h = self._surf[q].query(xp[near], xq, reach)
-                        if len(h.point):
-                            builder.general(p, near[h.point][:, None], np.ones((len(h.point), 1)), q,
-                                            self._tris[q][h.triangle], h.bary, h.gap, h.normal, cp, cq)
-                # edges against edges only within the margin (surfaces at rest on each other, where an edge can
-                # cross a face with every vertex outside); approaching surfaces are held by their vertices
-                ea = self._edges[a].edges
-                a0, a1 = xa[ea[:, 0]], xa[ea[:, 1]]
-                sel = np.flatnonzero(np.all((np.minimum(a0, a1) <= hi) & (np.maximum(a0, a1) >= lo), axis=1))
-                if len(sel):
-                    h = self._edges[b].query(a0[sel], a1[sel], xb, max(ca.margin, cb.margin))
-                    if len(h.mine):
-                        builder.general(a, ea[sel[h.mine]], np.column_stack([1.0 - h.s, h.s]), b,
-                                        self._edges[b].edges[h.other], np.column_stack([1.0 - h.t, h.t]),
-                                        h.gap, h.normal, ca, cb)
-        fdata = None
-        if fast is not None:
-            fdata = fast.collect(ctx.state_in.bodies, {n: seg[n][0] for n in fast.names}, speed, dt,
-                                 {n: names.index(n) for n in fast.names}, ctx.state_in.contacts.get(_FAST_KEY))
+        # modal bodies against each other and static planes (None: no such contact)
+        fdata = fast.collect(ctx.state_in.bodies, {n: seg[n][0] for n in fast.names}, speed, dt,
+                             {n: names.index(n) for n in fast.names}, ctx.state_in.contacts.get(_FAST_KEY))
         kp = builder.count
         k = kp + (len(fdata["gap"]) if fdata is not None else 0)
         ctx.report.contacts["solid"] = k
@@ -155,7 +100,7 @@ class _SolidStage:
         lim = data["mu"] * lam_n
         lam_t[:] = t * np.where(tn <= lim, 1.0, lim / np.where(tn > 0, tn, 1.0))[:, None]
         lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, None if driven else
-                                     self._inverse_mass_blocks(ctx, seg, names))
+                                     self._inverse_mass_blocks(ctx, seg))
         ctx.report.sweeps = sweeps
         ctx.contacts.update({key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0})
         if fdata is not None:
@@ -165,13 +110,7 @@ class _SolidStage:
             ctx.contacts[_FAST_KEY] = (fk[held][order], lam[kp:][held][order])
         dV = data["dV"]
         for name, (o, nd) in seg.items():
-            if name in self._modal:
-                ctx.dV[name] = dV[o:o + nd] + ctx.dV.get(name, 0.0)  # taken at the step start by the modal step
-            else:  # a tet body's end velocities, and its positions with them (x = x_start + dt v)
-                dv = dV[o:o + nd].reshape(-1, 3)
-                out = ctx.out.bodies[name]
-                out.v += dv
-                out.x += dt * dv
+            ctx.dV[name] = dV[o:o + nd] + ctx.dV.get(name, 0.0)  # taken at the step start by the modal step
         # what each body received from each other body (the other received the opposite), per pair
         uniq, J, L = _kernels.exchanged(data["body"], data["other"], data["point"], lam, len(names))
         if len(uniq):  # per pair sums in contact order
@@ -187,40 +126,16 @@ class _SolidStage:
                         dq = dq + fast.modal_change(name, fdata, sel[sel >= kp] - kp, lam[kp:])
                     ctx.impacts[name] = dq
 
-    def _inverse_mass_blocks(self, ctx, seg: dict, names: list) -> tuple:
-        """Per body ``(offset, size, mass, inertia, shift)`` to measure the energy of velocity changes: a modal
-        body's mass [kg] and world inertia [kg m^2] (its modal coordinates have unit mass), a tet body's vertex
-        masses (inf, pinned: 0) and no inertia; ``shift`` (3,) [m/s] is ``g dt``, which the solve's velocities hold
-        but the energy must not count: a velocity change dv at the step start moves the body by ``dv dt`` in the
-        gravity field, which costs ``-m g . dv dt``, so the energy change is ``dv . M (V - g dt) + 0.5 dv . M dv``.
-        Returns ``(fast, out)``: the compiled modal contacts' bodies as arrays for ``_kernels.modal_energy_change``
-        (offsets, sizes, masses, rotations at the step start, body-axes inertias, shifts; None without them), and
-        the list of the other bodies' tuples."""
+    def _inverse_mass_blocks(self, ctx, seg: dict) -> tuple:
+        """The bodies of the solve (the compiled modal contacts') as arrays for ``_kernels.modal_energy_change``, to
+        measure the energy of velocity changes: offsets, sizes, masses [kg], rotations at the step start, body-axes
+        inertias [kg m^2] (modal coordinates have unit mass) and shifts ``g dt`` (3,) [m/s], which the solve's
+        velocities hold but the energy must not count: a velocity change dv at the step start moves the body by
+        ``dv dt`` in the gravity field, which costs ``-m g . dv dt``, so the energy change is
+        ``dv . M (V - g dt) + 0.5 dv . M dv``."""
         fast = self._fast
-        quick = None
-        if fast is not None and all(n in seg for n in fast.names):
-            quick = (np.array([seg[n][0] for n in fast.names], dtype=np.int64), 6 + fast.nm, fast.mass,
-                     fast.rotations, fast.inertia, np.array([self._modal[n]["g"] for n in fast.names]) * ctx.dt)
-        out = []
-        for name in names:
-            if quick is not None and name in fast.index:
-                continue
-            o, nd = seg[name]
-            if name in self._modal:
-                g = self._modal[name]["g"]  # its gravity effects' sum, formed at build
-            else:
-                g = np.zeros(3)
-                for e in self.effects_of(name):
-                    if isinstance(e, fx.Gravity):
-                        g += np.asarray(e.g)
-            if name in self._modal:
-                body = self._modal[name]["body"]
-                R = ctx.state_in.bodies[name].rotation()
-                out.append((o, nd, body.mass, R @ body.inertia @ R.T, g * ctx.dt))
-            else:
-                m = self._tet[name]["masses"]
-                out.append((o, nd, np.where(np.isfinite(m), m, 0.0), None, g * ctx.dt))
-        return quick, out
+        return (np.array([seg[n][0] for n in fast.names], dtype=np.int64), 6 + fast.nm, fast.mass,
+                fast.rotations, fast.inertia, np.array([self._modal[n]["g"] for n in fast.names]) * ctx.dt)
 
 
 #: the key of the compiled modal contacts' impulses in ``WorldState.contacts``: (sorted int64 keys, (k, 3) [N s])
@@ -247,7 +162,7 @@ VELOCITY_STOP = 1e-2
 def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None):
     """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
     kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
-    ``World._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 by scaling
+    ``_SolidStage._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 by scaling
     every impulse back (equal and opposite impulses stay so). Returns ``(lam (k, 3), bounce (k,), sweeps)`` and
     leaves ``data["dV"]``."""
     ptr, off, nd, jptr, J, WJt = (data[key] for key in ("ptr", "off", "nd", "jptr", "J", "WJt"))
@@ -271,18 +186,8 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     lam = lam_n[:, None] * n + lam_t
     dV = V - V0
     work = quad = 0.0
-    if blocks is not None and blocks[0] is not None:
-        work, quad = _kernels.modal_energy_change(dV, V0, *blocks[0])
-    for o, m, mass, inertia, shift in blocks[1] if blocks is not None else ():
-        dv, v0 = dV[o:o + m], V0[o:o + m]
-        if inertia is not None:  # modal: (v, w, qdot)
-            work += (mass * float(dv[:3] @ (v0[:3] - shift)) + float(dv[3:6] @ (inertia @ v0[3:6]))
-                     + float(dv[6:] @ v0[6:]))
-            quad += mass * float(dv[:3] @ dv[:3]) + float(dv[3:6] @ (inertia @ dv[3:6])) + float(dv[6:] @ dv[6:])
-        else:
-            dv, v0 = dv.reshape(-1, 3), v0.reshape(-1, 3) - shift
-            work += float(mass @ np.einsum("ij,ij->i", dv, v0))
-            quad += float(mass @ np.einsum("ij,ij->i", dv, dv))
+    if blocks is not None:
+        work, quad = _kernels.modal_energy_change(dV, V0, *blocks)
     if blocks is not None and work + 0.5 * quad > 1e-12 * quad:  # the impulses would add energy: scale them back (never below 0)
         scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
         dV *= scale
@@ -293,9 +198,10 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
 
 
 class _ContactBuilder:
-    """Entries of the compiled solve (see ``modalfem.world._kernels``), built a batch of contacts at a time: in a
-    batch every contact has the same entry layout (a modal side is one entry of 6 + r velocities, a tet side one
-    entry of 3 per vertex of the touched point), so the arrays are assembled with numpy, not per contact."""
+    """Entries of the compiled solve (see ``modalfem.world._kernels``) for modal bodies' surface vertices against
+    moving and mesh obstacles (the compiled ``modal_contacts.ModalContacts`` writes the contacts between bodies), built
+    a batch of contacts at a time: each contact is one entry of 6 + r velocities of its body, so the arrays are
+    assembled with numpy, not per contact."""
 
     def __init__(self, world: World, ctx: _StepContext, seg: dict, names: list) -> None:
         self.w, self.ctx, self.seg, self.names = world, ctx, seg, names
@@ -344,71 +250,30 @@ class _ContactBuilder:
         WJt[:, 3:6, :] = np.einsum("ab,kbc->kac", Iw_inv, S)  # Iw^-1 (-[r]x)^T = Iw^-1 [r]x
         return sign * J, sign * WJt, r + s.position, sign * Rphi
 
-    def _side(self, name: str, verts: np.ndarray, w: np.ndarray, sign: float):
-        """One side of k contacts at points sum_j w_j verts_j (verts (k, m)): entry arrays ``off`` (k, e), ``nd`` (e,),
-        ``J`` (k, sum 3 nd) and ``WJt`` (k, sum 3 nd) flattened per contact, the points (k, 3) and the modal
-        matrices (k, 3, r) (None for a tet side)."""
-        o0, _ = self.seg[name]
-        k = len(verts)
-        if name in self.w._modal:
-            J, WJt, p, full = self._entries_modal(name, verts, w, sign)
-            nd = J.shape[2]
-            return (np.full((k, 1), o0, dtype=np.int64), np.array([nd]), J.reshape(k, -1), WJt.reshape(k, -1), p,
-                    full)
-        t = self.w._tet[name]
-        ids = t["surface"][verts]  # surface-local -> mesh vertex ids (k, m)
-        m = ids.shape[1]
-        masses = t["masses"][ids]
-        inv = np.where(np.isfinite(masses), 1.0 / np.where(np.isfinite(masses), masses, 1.0), 0.0)
-        p = np.einsum("kj,kjd->kd", w, self.ctx.start[name].x[ids])
-        eye = np.eye(3)
-        J = (sign * w)[:, :, None, None] * eye  # (k, m, 3, 3)
-        WJt = (sign * w * inv)[:, :, None, None] * eye
-        return (o0 + 3 * ids, np.full(m, 3), J.reshape(k, -1), WJt.reshape(k, -1), p, None)
-
-    def _add(self, a, side_a, b, side_b, n, gap, vobs_n, ca, cb, other):
+    def obstacle(self, name, idx, gap, nrm, vobs, contact, tag: int = 0) -> None:
+        """Contacts of modal body ``name``'s surface vertices ``idx`` (k,) with obstacle ``tag``: gaps (k,) [m],
+        normals (k, 3) out of the obstacle, the obstacle's velocities there (k, 3) [m/s], its ``Contact`` effect."""
         k = len(gap)
         if k == 0:
             return
-        off = [side_a[0]] + ([side_b[0]] if side_b is not None else [])
-        nd = [side_a[1]] + ([side_b[1]] if side_b is not None else [])
-        J = [side_a[2]] + ([side_b[2]] if side_b is not None else [])
-        W = [side_a[3]] + ([side_b[3]] if side_b is not None else [])
-        full = [side_a[5]] + ([side_b[5]] if side_b is not None else [])
-        off = np.concatenate(off, axis=1)  # (k, e)
-        nd = np.concatenate(nd)  # (e,)
-        e = len(nd)
-        per = int((3 * nd).sum())  # J data per contact
-        jstart = np.concatenate([[0], np.cumsum(3 * nd)[:-1]])
+        o0, _ = self.seg[name]
+        J, WJt, p, full = self._entries_modal(name, idx[:, None], np.ones((k, 1)), 1.0)
+        nd = J.shape[2]
+        nrm = np.asarray(nrm, dtype=float)
+        per = 3 * nd  # J data per contact
         self.batches.append({
-            "ptr": self.n_entries + e * np.arange(1, k + 1), "off": off.reshape(-1), "nd": np.tile(nd, k),
-            "jptr": (self.jlen + per * np.arange(k)[:, None] + jstart[None, :]).reshape(-1),
-            "J": np.concatenate(J, axis=1).reshape(-1), "WJt": np.concatenate(W, axis=1).reshape(-1),
-            "normal": np.asarray(n, dtype=float).reshape(k, 3), "gap": np.asarray(gap, dtype=float),
-            "vobs_n": np.asarray(vobs_n, dtype=float),
-            "mu": np.full(k, ca.friction if cb is None else math.sqrt(ca.friction * cb.friction)),
-            "restitution": np.full(k, ca.restitution if cb is None else min(ca.restitution, cb.restitution)),
-            "margin": np.full(k, ca.margin if cb is None else max(ca.margin, cb.margin)),
-            "body": np.full(k, self.names.index(a)), "other": np.full(k, other), "point": side_a[4],
-            "full": full, "modal_names": [a] + ([b] if b is not None else []), "first": self.count})
-        self.n_entries += e * k
+            "ptr": self.n_entries + np.arange(1, k + 1), "off": np.full(k, o0, dtype=np.int64),
+            "nd": np.full(k, nd), "jptr": self.jlen + per * np.arange(k),
+            "J": J.reshape(-1), "WJt": WJt.reshape(-1), "normal": nrm.reshape(k, 3),
+            "gap": np.asarray(gap, dtype=float), "vobs_n": np.einsum("ij,ij->i", vobs, nrm),
+            "mu": np.full(k, contact.friction), "restitution": np.full(k, contact.restitution),
+            "margin": np.full(k, contact.margin), "body": np.full(k, self.names.index(name)), "other": np.full(k, -1),
+            "point": p, "full": full, "name": name, "first": self.count})
+        self.n_entries += k
         self.jlen += per * k
         self.count += k
-        self.iterations = max(self.iterations, ca.iterations, 0 if cb is None else cb.iterations)
-
-    def obstacle(self, name, idx, gap, nrm, vobs, contact, tag: int = 0) -> None:
-        side = self._side(name, idx[:, None], np.ones((len(idx), 1)), 1.0)
-        nrm = np.asarray(nrm, dtype=float)
-        self._add(name, side, None, None, nrm, gap, np.einsum("ij,ij->i", vobs, nrm), contact, None, -1)
+        self.iterations = max(self.iterations, contact.iterations)
         self.keys.extend((name, "obstacle", tag, int(i)) for i in idx)
-
-    def general(self, a, verts_a, w_a, b, verts_b, w_b, gap, nrm, ca, cb) -> None:
-        """Contacts between points sum_j w_a[:, j] verts_a[:, j] of body a and sum_j w_b verts_b of body b (normal
-        from b to a). A contact is known from step to step by body a's feature (vertex or edge) and body b."""
-        side_a = self._side(a, verts_a, w_a, 1.0)
-        side_b = self._side(b, verts_b, w_b, -1.0)
-        self._add(a, side_a, b, side_b, nrm, gap, np.zeros(len(gap)), ca, cb, self.names.index(b))
-        self.keys.extend((a, b, *map(int, f)) for f in np.asarray(verts_a))
 
     def arrays(self) -> dict:
         cat = {key: np.concatenate([bt[key] for bt in self.batches]) for key in (
@@ -428,12 +293,10 @@ class _ContactBuilder:
         dq = None
         chosen = {int(c) for c in sel}
         for bt in self.batches:
-            for side, nm in enumerate(bt["modal_names"]):
-                full = bt["full"][side]
-                if nm != name or full is None:
-                    continue
-                rows = [c - bt["first"] for c in range(bt["first"], bt["first"] + len(bt["gap"])) if c in chosen]
-                if rows:
-                    add = np.einsum("kcr,kc->r", full[rows], lam[np.asarray(rows) + bt["first"]])
-                    dq = add if dq is None else dq + add
+            if bt["name"] != name:
+                continue
+            rows = [c - bt["first"] for c in range(bt["first"], bt["first"] + len(bt["gap"])) if c in chosen]
+            if rows:
+                add = np.einsum("kcr,kc->r", bt["full"][rows], lam[np.asarray(rows) + bt["first"]])
+                dq = add if dq is None else dq + add
         return dq if dq is not None else np.zeros(self.w._modal[name]["body"].mode_count)

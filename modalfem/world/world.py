@@ -228,14 +228,12 @@ class World(_TetStage, _SolidStage, _ClothStage):
                 self._cloth[b.name] = self._build_cloth(b, eff)
         # modal bodies in the compiled solve: against each other, moving and mesh obstacles
         self._modal_contact = [n for n in self._modal if self._one(n, fx.Contact)]
+        # their surfaces' faces and edges, as the tet bodies' contacts (``_tet_contacts``) and the cloth's reaction
+        # (``_reaction``) query them
         self._surf = {n: SurfaceProximity(self._modal[n]["body"].triangles, self._modal[n]["body"].rest)
                       for n in self._modal_contact}
-        self._solid = self._modal_contact + [n for n, t in self._tet.items() if t["contact"] is not None]
         self._tris = {n: self._modal[n]["body"].triangles for n in self._modal_contact}
-        self._tris.update({n: self._tet[n]["triangles"] for n in self._solid if n in self._tet})
         self._edges = {n: EdgeProximity(self._tris[n], self._modal[n]["body"].rest) for n in self._modal_contact}
-        self._edges.update({n: self._tet[n]["edges"] for n in self._solid if n in self._tet})
-        self._surf.update({n: self._tet[n]["proximity"] for n in self._solid if n in self._tet})
         self._world_obstacles = {}
         for n in self._modal_contact:
             obs = [o for o in self.obstacles if self._shared or o.moving or isinstance(o, TriangleMesh)]
@@ -244,7 +242,7 @@ class World(_TetStage, _SolidStage, _ClothStage):
         # a tet body meets the modal bodies inside its implicit step (moving penalty obstacles, ``_tet_contacts``),
         # and the tet bodies it may touch in one implicit step with them (``_tet_groups``), so only modal pairs are in
         # the solid solve
-        self._tet_modal = {n: [m for m in self._modal_contact] for n in self._solid if n in self._tet}
+        self._tet_modal = {n: list(self._modal_contact) for n, t in self._tet.items() if t["contact"] is not None}
         self._groups = {}  # tet bodies stepped together (``_tet_group``), made when first needed
         self._pairs = [(a, b) for i, a in enumerate(self._modal_contact) for b in self._modal_contact[i + 1:]]
         # the modal bodies' contacts with each other and with static planes: compiled search and entries
