@@ -82,16 +82,21 @@ def test_a_body_across_box_edges_takes_no_split_steps_and_never_gains_energy(sma
     assert abs(st.position[0]) < 0.01 and st.position[2] > 0.0  # still lying across the box
 
 
-@pytest.fixture(scope="module")
-def plate_body():
-    """A steel plate 0.2 x 0.2 x 0.025 m (P1, 4 x 4 x 1 hexahedra, 8 modes from ~5.9 kHz), float64."""
+def _steel_plate(size, cells):
+    """A steel plate of ``size`` [m] (P1 on ``cells`` hexahedra, 8 undamped modes), float64."""
     import modalfem
     from modalfem.mesh import box
     from modalfem.model import ModalModel
 
-    mesh = box(size=(0.2, 0.2, 0.025), cells=(4, 4, 1))
+    mesh = box(size=size, cells=cells)
     res = modalfem.modes(mesh, modalfem.STEEL, k=8, degree=1, backend="skfem", solver="scipy")
     return rt.ModalBody(ModalModel.from_modes(res, mesh, modalfem.STEEL, damping=(0.0, 0.0)), dtype=np.float64)
+
+
+@pytest.fixture(scope="module")
+def plate_body():
+    """A steel plate 0.2 x 0.2 x 0.025 m (P1, 4 x 4 x 1 hexahedra, 8 modes from ~5.9 kHz), float64."""
+    return _steel_plate((0.2, 0.2, 0.025), (4, 4, 1))
 
 
 @pytest.mark.parametrize("dt", [1e-4, 1e-3, 1e-2, 0.1])
@@ -173,13 +178,7 @@ def test_the_push_out_of_a_vibrating_body_at_rest_shrinks_the_vibration_instead_
 @pytest.fixture(scope="module")
 def thin_plate():
     """A steel plate 0.2 x 0.1 x 0.01 m (P1, 4 x 2 x 1 hexahedra, 8 modes), float64."""
-    import modalfem
-    from modalfem.mesh import box
-    from modalfem.model import ModalModel
-
-    mesh = box(size=(0.2, 0.1, 0.01), cells=(4, 2, 1))
-    res = modalfem.modes(mesh, modalfem.STEEL, k=8, degree=1, backend="skfem", solver="scipy")
-    return rt.ModalBody(ModalModel.from_modes(res, mesh, modalfem.STEEL, damping=(0.0, 0.0)), dtype=np.float64)
+    return _steel_plate((0.2, 0.1, 0.01), (4, 2, 1))
 
 
 @pytest.mark.parametrize("dt", [1e-4, 1e-3, 1e-2, 0.1])
