@@ -28,8 +28,8 @@ from modalfem.mesh import box
 G = 9.81
 
 
-@pytest.mark.parametrize("dt", [2e-3, 5e-3])
-def test_a_steel_bar_squeezing_a_tet_cube_on_foam_never_gains_energy_nor_crosses(bar_model, dt):
+def _squeeze_scene(bar_model):
+    """The bar above the cube on the foam on the ground: (world, state, cube model, foam model)."""
     from modalfem import tet
     from modalfem.material import Material
 
@@ -39,7 +39,27 @@ def test_a_steel_bar_squeezing_a_tet_cube_on_foam_never_gains_energy_nor_crosses
               mw.Tet(cube, name="cube", position=(0.09, 0.01, 0.0512)), mw.Tet(foam, name="block")]
     w = mw.World(bodies=bodies, obstacles=[mw.Ground(0.0)],
                  effects=[Gravity(), Contact(restitution=0.2, friction=0.5), Damping(alpha=1.0, bodies=["block"])])
-    s = w.state()
+    return w, w.state(), cube, foam
+
+
+def test_a_steel_bar_landing_on_a_tet_cube_and_the_ground_in_one_10_ms_step_does_not_cross_the_cube(bar_model):
+    """At 10 ms the bar comes down on the cube and the ground within one step (step 15). Before the ground's
+    contacts were solved inside the tet step, the solid stage gave the bar the ground's impulse after it (5.7 rad/s
+    the tet step never saw): the bar ended 7.4 mm / 3.6 degrees from the pose solved with the cube, and 14 triangle
+    pairs crossed. Only the landing is run (18 steps): later at 10 ms the cube and the foam can still cross each
+    other (README's known limit)."""
+    w, s, _, _ = _squeeze_scene(bar_model)
+    touched = set()
+    for i in range(18):
+        r = w.step(s, s, None, 1e-2)
+        assert w.intersections(s) == [], f"surfaces cross at step {i}"
+        touched |= {frozenset((a, b)) for a, b, _, _ in r.exchanged}
+    assert frozenset(("bar", "cube")) in touched  # (it did land on the cube)
+
+
+@pytest.mark.parametrize("dt", [2e-3, 5e-3])
+def test_a_steel_bar_squeezing_a_tet_cube_on_foam_never_gains_energy_nor_crosses(bar_model, dt):
+    w, s, cube, foam = _squeeze_scene(bar_model)
     names = ("bar", "cube", "block")
 
     def energy():
