@@ -454,11 +454,38 @@ def _with_edges(body, plan, margin, q, R, position, c: Contacts) -> Contacts:
                                                        body.triangles)
     if len(og) == 0:
         return c
-    # one contact per body point: a clipped end on a triangle side shared by two triangles, or at a vertex of
-    # several, is found once per triangle, and one at a vertex with its own contact with that box is that contact
-    # (repeated contacts slow the sweeps down: a plate resting across a box's edges had its steps split)
-    rest = body.rest
-    x = np.einsum("pa,pad->pd", w, rest[verts])
+    nv = body.vertex_count
+    row = plan.first[c.effect] + c.obstacle
+    keep = unique_edge_points(body, og, verts, w, row, c.vertex)
+    if not keep.all():
+        og, verts, w, nrm, gap, offset = og[keep], verts[keep], w[keep], nrm[keep], gap[keep], offset[keep]
+        if len(og) == 0:
+            return c
+    boxed = np.flatnonzero(np.isin(row, og))
+    if len(boxed):
+        near = near_box_edge(plan.params[row[boxed]], plan.margin[row[boxed]],
+                             body.rest[c.vertex[boxed]] @ R.T + position)
+        if near.any():
+            at = boxed[near]
+            drop = left_to_edges(og, verts, nv, row[at], c.vertex[at])
+            if drop.any():
+                keep = np.ones(c.count, dtype=bool)
+                keep[at[drop]] = False
+                c = Contacts(c.vertex[keep], c.normal[keep], c.gap[keep], c.effect[keep], c.effects,
+                             obstacle=c.obstacle[keep])
+    pts = _EdgePoints(body, plan, og, verts, w, nrm, offset)
+    return Contacts(np.concatenate([c.vertex, nv + np.arange(len(og))]), np.concatenate([c.normal, nrm]),
+                    np.concatenate([c.gap, gap]), np.concatenate([c.effect, plan.effect[og]]), c.effects,
+                    obstacle=np.concatenate([c.obstacle, plan.obstacle[og]]), points=pts)
+
+
+def unique_edge_points(body, og, verts, w, row, vertex) -> np.ndarray:
+    """Which box-edge contacts (``_contact_edge_kernels.edge_contacts``: box labels ``og`` (p,), face vertices
+    ``verts`` (p, 3), weights ``w`` (p, 3)) to keep: one per body point (a clipped end on a triangle side shared by
+    two triangles, or at a vertex of several, is found once per triangle; repeated contacts slow the sweeps down: a
+    plate resting across a box's edges had its steps split), and none at a vertex with its own contact with that
+    box (vertex contacts' labels ``row`` (k,) and vertices ``vertex`` (k,)): that contact is it. Returns (p,) bool."""
+    x = np.einsum("pa,pad->pd", w, body.rest[verts])
     scale = 1e-9 * float(body.radius)
     key = np.concatenate([og[:, None].astype(np.float64), np.round(x / scale)], axis=1)
     _, first = np.unique(key, axis=0, return_index=True)
@@ -467,39 +494,26 @@ def _with_edges(body, plan, margin, q, R, position, c: Contacts) -> Contacts:
     at_vertex = w.max(axis=1) >= 1.0 - 1e-9
     if at_vertex.any():
         nv = body.vertex_count
-        own = np.isin(og * nv + verts[np.arange(len(og)), np.argmax(w, axis=1)],
-                      (plan.first[c.effect] + c.obstacle) * nv + c.vertex)
+        own = np.isin(og * nv + verts[np.arange(len(og)), np.argmax(w, axis=1)], row * nv + vertex)
         keep &= ~(at_vertex & own)
-    if not keep.all():
-        og, verts, w, nrm, gap, offset = og[keep], verts[keep], w[keep], nrm[keep], gap[keep], offset[keep]
-        if len(og) == 0:
-            return c
-    # a vertex contact with a box at one of its edges (within the margin of two of its faces' planes) whose vertex
-    # is a corner of a face over that box's edges is left to the face's edge contacts: the box's nearest feature
-    # to such a vertex changes with a step's motion (at the mid-step state of a 0.1 s step, a vertex 30 nm inside
-    # a box's edge is nearest its side), and the sideways push of its slanted or side normal fought theirs
-    row = plan.first[c.effect] + c.obstacle
-    boxed = np.flatnonzero(np.isin(row, og))
-    if len(boxed):
-        p = plan.params[row[boxed]]
-        axes = p[:, 6:15].reshape(-1, 3, 3)  # box -> world rotation, row-major
-        x = body.rest[c.vertex[boxed]] @ R.T + position - p[:, 0:3]
-        local = np.abs(np.einsum("kji,kj->ki", axes, x)) - p[:, 3:6]
-        near = (np.abs(local) <= plan.margin[row[boxed]][:, None]).sum(axis=1) >= 2
-        if near.any():
-            nv = body.vertex_count
-            at = boxed[near]
-            drop = np.isin(row[at] * nv + c.vertex[at], ((og * nv)[:, None] + verts).ravel())
-            if drop.any():
-                keep = np.ones(c.count, dtype=bool)
-                keep[at[drop]] = False
-                c = Contacts(c.vertex[keep], c.normal[keep], c.gap[keep], c.effect[keep], c.effects,
-                             obstacle=c.obstacle[keep])
-    pts = _EdgePoints(body, plan, og, verts, w, nrm, offset)
-    nv = body.vertex_count
-    return Contacts(np.concatenate([c.vertex, nv + np.arange(len(og))]), np.concatenate([c.normal, nrm]),
-                    np.concatenate([c.gap, gap]), np.concatenate([c.effect, plan.effect[og]]), c.effects,
-                    obstacle=np.concatenate([c.obstacle, plan.obstacle[og]]), points=pts)
+    return keep
+
+
+def near_box_edge(params: np.ndarray, margin: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(k,) bool: points ``x`` (k, 3) [m] (world) within ``margin`` (k,) [m] of two face planes of their boxes
+    (``params`` (k, >= 15): the boxes' encodings), i.e. at one of the box's edges."""
+    axes = params[:, 6:15].reshape(-1, 3, 3)  # box -> world rotation, row-major
+    local = np.abs(np.einsum("kji,kj->ki", axes, x - params[:, 0:3])) - params[:, 3:6]
+    return (np.abs(local) <= margin[:, None]).sum(axis=1) >= 2
+
+
+def left_to_edges(og, verts, nv: int, row, vertex) -> np.ndarray:
+    """(k,) bool: vertex contacts (labels ``row``, vertices ``vertex``) at their box's edge (``near_box_edge``) whose
+    vertex is a corner of a face with edge contacts on that box (``og``, ``verts``): they are left to the face's edge
+    contacts. The box's nearest feature to such a vertex changes with a step's motion (at the mid-step state of a
+    0.1 s step, a vertex 30 nm inside a box's edge is nearest its side), and the sideways push of its slanted or side
+    normal fought theirs."""
+    return np.isin(row * nv + vertex, ((og * nv)[:, None] + verts).ravel())
 
 
 def _geometry(body, c: Contacts):
