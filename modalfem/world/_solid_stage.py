@@ -10,7 +10,7 @@ import numpy as np
 from modalfem import effects as fx
 from modalfem.world import _kernels
 from modalfem.world._shared import _REACTION_KEY, BOUNCE_THRESHOLD, PUSH_OUT, SLOW
-from modalfem.world.obstacles import TriangleMesh
+from modalfem.world.obstacles import Box, TriangleMesh
 
 if TYPE_CHECKING:
     from modalfem.world.world import World, _StepContext
@@ -72,8 +72,20 @@ class _SolidStage:
                     gap_all, n_all = o.signed_distance(x, t0)
                     idx = np.flatnonzero(gap_all < reach)
                     gap, nrm = gap_all[idx], np.asarray(n_all)[idx]
+                edges = None
+                if isinstance(o, Box):  # its edges under the body's faces (``_box_edges``)
+                    edges = _box_edges(self._modal[name]["body"], ctx.state_in.bodies[name], o, t0, x, idx, reach,
+                                       c.margin)
+                    if edges is not None and edges[0] is not None:  # vertex contacts left to the edge contacts
+                        idx, gap, nrm = idx[edges[0]], gap[edges[0]], nrm[edges[0]]
                 if len(idx):
                     builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c, tag=tag)
+                    driven |= o.moving
+                if edges is not None:
+                    _, verts, w, e_nrm, e_gap, key = edges
+                    p = np.einsum("ka,kad->kd", w, x[verts])
+                    builder.obstacle(name, verts, e_gap, e_nrm, np.asarray(o.velocity(p, t0, dt)), c, tag=tag,
+                                     weights=w, keys=[(name, "edge", tag) + tuple(k) for k in key.tolist()])
                     driven |= o.moving
         # modal bodies against each other and static planes (None: no such contact)
         fdata = fast.collect(ctx.state_in.bodies, {n: seg[n][0] for n in fast.names}, speed, dt,
@@ -152,6 +164,56 @@ def _merge(a: dict | None, b: dict | None) -> dict:
     out["jptr"] = np.concatenate([a["jptr"], b["jptr"] + len(a["J"])])
     out["iterations"] = max(a["iterations"], b["iterations"])
     return out
+
+
+def _box_edges(body, s, box: Box, t: float, x: np.ndarray, idx: np.ndarray, reach: float, margin: float):
+    """Box-edge contacts of modal body ``body`` (state ``s``, surface ``x`` (nv, 3) [m] at time ``t`` [s]) with
+    ``box``, as the runtime's (``runtime.contact._with_edges``): where an edge of the box passes under a body face
+    within ``reach`` [m], the clipped ends (``_contact_edge_kernels.edge_contacts``) are body points ``sum_a w_a X_a``
+    of the face against the plane through the edge point whose normal is the face's outward normal reversed; one per
+    body point, none at a vertex with its own contact with the box (``idx`` (k,): the vertex contacts), and the vertex
+    contacts at the box's edge (within ``margin`` [m] of two of its face planes) whose vertex is a corner of such a
+    face are left to them.
+
+    Returns None (no edge contact; the search runs only when the body's bounding sphere is within ``reach`` of the
+    box), else ``(keep (k,) bool or None, vertices (p, 3), weights (p, 3), normals (p, 3), gaps (p,) [m], keys (p, 3)
+    int64)``: ``keep`` the vertex contacts kept (None: all), the keys the body points at rest in 1e-6 of the body's
+    radius (what names a contact from step to step)."""
+    from modalfem.runtime import _contact_edge_kernels as KE
+    from modalfem.runtime.contact import (
+        _skip,
+        deformation_bound,
+        left_to_edges,
+        near_box_edge,
+        unique_edge_points,
+        vertex_modes,
+    )
+    from modalfem.runtime.obstacles import BOX, PARAMS
+
+    q = s.q
+    bound = deformation_bound(body, q)
+    if float(box.signed_distance(s.position[None, :], t)[0][0]) > body.radius + bound + reach:
+        return None
+    params = np.zeros((1, PARAMS))
+    params[0, 0:3], params[0, 3:6], params[0, 6:15] = box.center + box.offset(t), box.half, box.rotation.reshape(-1)
+    og, verts, w, nrm, gap, _ = KE.edge_contacts(np.array([BOX], dtype=np.int64), params, np.array([reach]),
+                                                  np.array([margin]), body.rest, vertex_modes(body), q, _skip(body, q),
+                                                  s.rotation(), s.position, bound, body.triangles)
+    if len(og) == 0:
+        return None
+    row = np.zeros(len(idx), dtype=np.int64)
+    keep = unique_edge_points(body, og, verts, w, row, idx)
+    og, verts, w, nrm, gap = og[keep], verts[keep], w[keep], nrm[keep], gap[keep]
+    if len(og) == 0:
+        return None
+    vkeep = None
+    near = near_box_edge(np.repeat(params, len(idx), axis=0), np.full(len(idx), margin), x[idx])
+    if near.any():
+        drop = np.zeros(len(idx), dtype=bool)
+        drop[near] = left_to_edges(og, verts, body.vertex_count, row[near], idx[near])
+        vkeep = None if not drop.any() else ~drop
+    key = np.round(np.einsum("ka,kad->kd", w, body.rest[verts]) / (1e-6 * body.radius)).astype(np.int64)
+    return vkeep, verts, w, nrm, gap, key
 
 
 #: the solve stops once a sweep changes no contact's velocity by more than this fraction of the velocity that
@@ -250,14 +312,19 @@ class _ContactBuilder:
         WJt[:, 3:6, :] = np.einsum("ab,kbc->kac", Iw_inv, S)  # Iw^-1 (-[r]x)^T = Iw^-1 [r]x
         return sign * J, sign * WJt, r + s.position, sign * Rphi
 
-    def obstacle(self, name, idx, gap, nrm, vobs, contact, tag: int = 0) -> None:
+    def obstacle(self, name, idx, gap, nrm, vobs, contact, tag: int = 0, *, weights=None, keys=None) -> None:
         """Contacts of modal body ``name``'s surface vertices ``idx`` (k,) with obstacle ``tag``: gaps (k,) [m],
-        normals (k, 3) out of the obstacle, the obstacle's velocities there (k, 3) [m/s], its ``Contact`` effect."""
+        normals (k, 3) out of the obstacle, the obstacle's velocities there (k, 3) [m/s], its ``Contact`` effect.
+        With ``weights`` (k, m), ``idx`` (k, m) are the vertices of body points ``sum_a w_a X_a`` (box-edge contacts:
+        their rows the weighted sums of the vertices'), and ``keys`` name them from step to step (warm start)."""
         k = len(gap)
         if k == 0:
             return
         o0, _ = self.seg[name]
-        J, WJt, p, full = self._entries_modal(name, idx[:, None], np.ones((k, 1)), 1.0)
+        if weights is None:
+            J, WJt, p, full = self._entries_modal(name, idx[:, None], np.ones((k, 1)), 1.0)
+        else:
+            J, WJt, p, full = self._entries_modal(name, idx, weights, 1.0)
         nd = J.shape[2]
         nrm = np.asarray(nrm, dtype=float)
         per = 3 * nd  # J data per contact
@@ -273,7 +340,7 @@ class _ContactBuilder:
         self.jlen += per * k
         self.count += k
         self.iterations = max(self.iterations, contact.iterations)
-        self.keys.extend((name, "obstacle", tag, int(i)) for i in idx)
+        self.keys.extend(keys if keys is not None else ((name, "obstacle", tag, int(i)) for i in idx))
 
     def arrays(self) -> dict:
         cat = {key: np.concatenate([bt[key] for bt in self.batches]) for key in (
