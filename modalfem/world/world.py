@@ -607,6 +607,14 @@ class World(_TetStage, _SolidStage, _ClothStage):
                     out.append((a, b, k))
         return out
 
+    def penetrations(self, state: WorldState, *, tolerance: float) -> list:
+        """Bodies' vertices inside the ground, planes, spheres and boxes (not triangle meshes) by more than
+        ``tolerance`` [m]: a list of ``Penetration(body, obstacle index, count, deepest [m])``, empty when none is
+        (``modalfem.world.penetration``, which says what depth the contacts allow)."""
+        from modalfem.world.penetration import obstacle_penetrations
+
+        return obstacle_penetrations(self, state, tolerance)
+
 
 class _StepContext:
     def __init__(self, state_in: WorldState, out: WorldState, control: WorldControl, dt: float) -> None:
