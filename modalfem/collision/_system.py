@@ -3,6 +3,19 @@
 Vertices ``0..n-1`` are the cloth's, then the obstacle meshes' (kinematic: infinite mass). Triangles
 and edges are numbered likewise. Candidates are point-triangle (``vf``: p, a, b, c) and edge-edge
 (``ee``: a0, a1, b0, b1) vertex quadruples from BVH triangle pairs, without pairs sharing a vertex.
+
+Tried and dropped: the step's two full searches (the proximity search of stage (a), the first swept search of
+stage (b)) as one walk of the tree. The swept search needs the velocities after stage (a), which needs the
+proximity pairs, so the walk used union boxes (the trajectories before stage (a) grown by the margin, joined with
+the start positions grown by h / 2), carried per node pair whether the proximity search (its own boxes, its
+culling, split by its box sizes) was alive there, and gave the proximity pairs exactly (same pairs, same order,
+same test counts: 23 recorded 64x64 pile states) plus the union boxes' triangle pairs; after stage (a) the swept
+pairs were expanded from that list with the new boxes (a vertex leaving its union box took the union box and was
+searched again). Answers the same bits on all 154 replayed pile calls, but slower (one thread, CPU time, Intel
+Xeon, load 3.6-5): a late call's leaf tests and expansions dominate a search (walk 3.3 ms of a 19.4 ms proximity
+search), and both searches still need their own: shared walk 29.0 ms + expansion from the list 13.0 against 19.4 +
+20.5 for the two searches; and 12 % of the vertices (up to 27 %) leave their union box in stage (a) (4.3 % at once
+dirty: dirty searches 6.6 -> 9.6-10.8 ms per call). Replay 47-51 against 40-42 ms per call.
 """
 
 from __future__ import annotations
