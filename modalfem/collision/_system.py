@@ -239,7 +239,7 @@ class System:
         With ``dirty`` ((n_total,) bool), only the pairs holding at least one flagged vertex. Without it, the
         self pairs are expanded inside the traversal, chunk by chunk (:meth:`BroadPhaseBVH.self_primitive_pairs`):
         a full search of the 64x64 pile (120k triangle pairs) 15.9 -> 15.1 ms on one thread, same pairs."""
-        dtri = None if dirty is None else dirty[self.tris].any(axis=1)
+        dtri = None if dirty is None else _flagged_triangles(dirty, self.tris)
         n = self.n_cloth
         if self.cloth_bvh is None:
             self.build_cloth_bvh(X0[:n])
@@ -295,7 +295,7 @@ class System:
         by a traversal of the tree against itself pruned to subtrees holding one; the cost follows the
         dirty set."""
         n, m = self.n_cloth, self.m_cloth
-        dtri = dirty[self.tris[:m]].any(axis=1)
+        dtri = _flagged_triangles(dirty, self.tris[:m])
         ids = np.flatnonzero(dtri)
         bvh = self.cloth_bvh
         bvh.refit_triangles(ids, vlo[:n], vhi[:n])
@@ -339,6 +339,13 @@ class System:
 
 
 _NO_DIAG = np.zeros((0, 8))
+
+
+def _flagged_triangles(flags: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(m,) bool: triangles ``tris`` (m, 3) holding a vertex flagged in ``flags`` ((N,) bool); ``flags[tris].any(axis=1)``
+    without numpy's slow reduction along a length-3 axis (8192 triangles: 122 -> 25 us with numpy 1.24, 608 -> 66
+    with numpy 2.4, Intel Xeon)."""
+    return flags[tris[:, 0]] | flags[tris[:, 1]] | flags[tris[:, 2]]
 
 
 def diagonal_test(vlo: np.ndarray, vhi: np.ndarray) -> tuple[np.ndarray, float]:
