@@ -58,6 +58,7 @@ from modalfem.world._tet_stage import FRICTION_SLIP, _TetStage  # noqa: F401 (re
 from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
+from modalfem.world.substeps import merged_report, substep_count
 
 __all__ = ["Stage", "StepReport", "World", "WorldControl", "WorldState"]
 
@@ -127,12 +128,14 @@ class StepReport:
         exchanged: list of ``(body_a, body_b, impulse (3,) [N s], torque impulse (3,) [N m s])``: what body a
             received from body b in this step (body b received the opposite).
         sweeps: sequential-impulse sweeps of the solid solve.
+        substeps: how many equal sub-steps the step was taken in (``world.substeps``; 1: not divided).
     """
 
     seconds: dict = field(default_factory=dict)
     contacts: dict = field(default_factory=dict)
     exchanged: list = field(default_factory=list)
     sweeps: int = 0
+    substeps: int = 1
 
 
 class World(_TetStage, _SolidStage, _ClothStage):
@@ -424,6 +427,19 @@ class World(_TetStage, _SolidStage, _ClothStage):
                 raise SimulationError(f"scripted vertices need a tet body, {body!r} is not one")
         if self._solo is not None and not control.impulses and self._solo in state_out.bodies:
             return self._step_solo(state_in, state_out, dt)
+        n = 1 if control.scripted else substep_count(self, state_in, dt)
+        if n > 1:  # a modal body travelling far against a nearby tet body's surface (``world.substeps``)
+            s = state_in.copy()
+            reports = [self._step_plan(s, s, control if k == 0 else _NO_CONTROL, dt / n) for k in range(n)]
+            self._hand_over(s.bodies, state_out)
+            state_out.contacts = s.contacts
+            state_out.time = state_in.time + dt
+            return merged_report(reports)
+        return self._step_plan(state_in, state_out, control, dt)
+
+    def _step_plan(self, state_in: WorldState, state_out: WorldState, control: WorldControl, dt: float
+                   ) -> StepReport:
+        """One pass of the step plan (``step`` after its checks)."""
         ctx = _StepContext(state_in, WorldState(state_in.time, {}), control, dt)
         report = StepReport()
         ctx.report = report
@@ -434,10 +450,17 @@ class World(_TetStage, _SolidStage, _ClothStage):
         for b in self.bodies:  # bodies no stage moved (none today; kept for completeness)
             if b.name not in ctx.done:
                 raise SimulationError(f"body {b.name!r} was not stepped (internal plan error)")
-        # all stages succeeded: only now does state_out change (a modal body's scratch state is copied into
-        # the caller's state object; the other kinds' new states are handed over)
+        # all stages succeeded: only now does state_out change
+        self._hand_over(ctx.out.bodies, state_out)
+        state_out.contacts = ctx.contacts
+        state_out.time = state_in.time + dt
+        return report
+
+    def _hand_over(self, new_bodies: dict, state_out: WorldState) -> None:
+        """Put a step's new body states into ``state_out``: a modal body's copied into the caller's state object,
+        the other kinds' handed over."""
         bodies = dict(state_out.bodies)
-        for name, new in ctx.out.bodies.items():
+        for name, new in new_bodies.items():
             old = bodies.get(name)
             if name in self._modal and old is not None and old is not new:
                 old.assign(new)
@@ -445,9 +468,6 @@ class World(_TetStage, _SolidStage, _ClothStage):
             else:
                 bodies[name] = new
         state_out.bodies = bodies
-        state_out.contacts = ctx.contacts
-        state_out.time = state_in.time + dt
-        return report
 
     def _step_solo(self, state_in: WorldState, state_out: WorldState, dt: float) -> StepReport:
         """The step of a world of one modal body whose plan is its step alone, without strikes: the solver steps

@@ -1,0 +1,79 @@
+"""``modalfem.world.substeps``: a World step in which a modal body near a tet body would travel more than
+``TRAVEL_SHARE`` of the tet's smallest rest surface edge is taken as equal sub-steps (the scene that needs it:
+test_tet_squeeze.py at 10-50 ms). Expected counts come from the scene's numbers (speed, dt, the cube's 2 cm cells)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from modalfem import world as mw
+from modalfem.effects import Contact
+from modalfem.mesh import box
+from modalfem.world.substeps import TRAVEL_SHARE
+
+CELL = 0.02  # [m] the cube's cells: its smallest surface edge
+
+
+@pytest.fixture(scope="module")
+def cube():
+    from modalfem import tet
+    from modalfem.material import Material
+
+    return tet.tet_model(box(size=(3 * CELL, 3 * CELL, 3 * CELL), cells=(3, 3, 3)),
+                         Material(E=1e6, nu=0.3, rho=1000.0))
+
+
+def _world(bar_model, cube, speed, height=0.1):
+    """The bar (no gravity, no spin) moving down at ``speed`` [m/s] with its centre ``height`` [m] over the cube's
+    top face."""
+    bar = mw.Modal(bar_model, name="bar", position=(0.0, 0.0, 3 * CELL + height), velocity=(0.0, 0.0, -speed))
+    return mw.World(bodies=[bar, mw.Tet(cube, name="cube", position=(-1.5 * CELL, -1.5 * CELL, 0.0))],
+                    effects=[Contact()])
+
+
+@pytest.mark.parametrize("speed, dt", [(0.1, 1e-3), (2.1, 2e-2), (0.9, 5e-2)])
+def test_the_step_is_divided_so_the_bar_travels_at_most_half_a_cube_cell_per_sub_step(bar_model, cube, speed, dt):
+    w = _world(bar_model, cube, speed)
+    s = w.state()
+    r = w.step(s, s, None, dt)
+    assert r.substeps == max(1, math.ceil(speed * dt / (TRAVEL_SHARE * CELL)))
+    assert s.time == pytest.approx(dt, abs=1e-15)
+
+
+def test_a_divided_step_is_its_sub_steps_taken_one_by_one(bar_model, cube):
+    """The bar landing on the cube in a 20 ms step at 1.4 m/s (3 sub-steps): the same states, bit for bit, as three
+    6.67 ms steps, and what the bar received from the cube summed over them."""
+    dt, speed = 2e-2, 1.4
+    n = math.ceil(speed * dt / (TRAVEL_SHARE * CELL))
+    a = _world(bar_model, cube, speed, height=0.04)  # the bar's bottom 1.5 cm over the cube: it lands in the step
+    b = _world(bar_model, cube, speed, height=0.04)
+    sa, sb = a.state(), b.state()
+    r = a.step(sa, sa, None, dt)
+    assert r.substeps == n == 3
+    ex = {}
+    for _ in range(n):
+        rb = b.step(sb, sb, None, dt / n)
+        assert rb.substeps == 1
+        for x, y, J, _ in rb.exchanged:
+            ex[(x, y)] = ex.get((x, y), 0.0) + J
+    assert np.array_equal(sa["cube"].x, sb["cube"].x) and np.array_equal(sa["cube"].v, sb["cube"].v)
+    assert np.array_equal(sa["bar"].position, sb["bar"].position)
+    assert np.array_equal(sa["bar"].velocity, sb["bar"].velocity)
+    got = {(x, y): J for x, y, J, _ in r.exchanged}
+    assert set(got) == set(ex) and ("bar", "cube") in got  # (it landed)
+    for k in ex:
+        assert np.allclose(got[k], ex[k], rtol=1e-12, atol=0.0)
+
+
+def test_a_bar_far_from_the_tet_or_a_step_with_scripted_vertices_is_not_divided(bar_model, cube):
+    w = _world(bar_model, cube, 2.0, height=1.0)  # 1 m over the cube: out of reach within 20 ms
+    s = w.state()
+    assert w.step(s, s, None, 2e-2).substeps == 1
+    w = _world(bar_model, cube, 2.0)
+    s = w.state()
+    top = np.flatnonzero(np.isclose(cube.rest_points[:, 2], 0.0))
+    ctl = w.control().script("cube", top, s["cube"].x[top])
+    assert w.step(s, s, ctl, 2e-2).substeps == 1
