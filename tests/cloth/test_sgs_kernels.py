@@ -98,16 +98,33 @@ def test_eisenstat_product_is_the_sgs_preconditioned_operator(order):
     Q = np.linalg.svd(S)[0][:, : int(round(np.trace(S)))]  # orthonormal basis of range(S)
     inv_lower = Q @ np.linalg.inv(Q.T @ (D + L) @ Q) @ Q.T
     inv_upper = Q @ np.linalg.inv(Q.T @ (D + L.T) @ Q) @ Q.T
-    c = (S @ rng.standard_normal(3 * n)).reshape(n, 3)
+    rb = (S @ rng.standard_normal(3 * n)).reshape(n, 3)
     P = _kernels._preconditioner(data, o.diag, kind, normal)
+    # one iteration in the sweeps (_cg_sweeps, the first colour's tasks doing both sweeps) without the update step:
+    # c = D rbar (projected), then q = Abar c by the same row operations as the backward and the forward sweep
+    c, t2, f2, q2 = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    p0, v0, xb = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    rc, rr, cq2 = _sgs_kernels._cg_sweeps(o.indptr, o.indices, data, o.diag, P, kind, normal, c, t2, f2, q2, p0, v0, xb,
+                                          rb, 0.0, 0.0, False, o.cptr, o.tptr)
+    assert np.allclose(c.reshape(-1), D @ rb.reshape(-1), rtol=0, atol=1e-12 * np.abs(D @ rb.reshape(-1)).max())
+    assert np.isclose(rc, rb.reshape(-1) @ c.reshape(-1), rtol=1e-12) and np.isclose(rr, np.sum(rb**2), rtol=1e-12)
+    assert not (p0.any() or v0.any() or xb.any())
     t, u, q = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
     _sgs_kernels._backward(o.indptr, o.indices, data, o.diag, P, c, t, c, 0.0, False, o.cptr, o.tptr)
     cq = _sgs_kernels._forward(o.indptr, o.indices, data, o.diag, P, c, t, u, q, True, o.cptr, o.tptr)
-    # the fused call (first colour's tasks doing both sweeps) performs the same row operations
-    t2, u2, q2 = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
-    cq2 = _sgs_kernels._eisenstat(o.indptr, o.indices, data, o.diag, P, c.copy(), t2, c, 0.0, False, u2, q2, o.cptr,
-                                  o.tptr)
     assert cq2 == cq and np.array_equal(q2, q) and np.array_equal(t2, t)
+    # with the update step: each row's p = c + beta p, v = q + beta v, xbar += alpha p, rbar -= alpha v first
+    alpha, beta = 0.7, 0.3
+    p1, v1, xb1, rb1 = (rng.standard_normal((n, 3)) * (kind == 0)[:, None] for _ in range(4))
+    p, v, xb, rb2 = p1.copy(), v1.copy(), xb1.copy(), rb1.copy()
+    c1, q1 = c.copy(), q.copy()
+    _sgs_kernels._cg_sweeps(o.indptr, o.indices, data, o.diag, P, kind, normal, c1, t2, f2, q1, p, v, xb, rb2, alpha,
+                            beta, True, o.cptr, o.tptr)
+    for got, want in ((p, c + beta * p1), (v, q + beta * v1)):
+        assert np.allclose(got, want, rtol=1e-14, atol=1e-14 * np.abs(want).max())
+    for got, want in ((xb, xb1 + alpha * p), (rb2, rb1 - alpha * v)):
+        assert np.allclose(got, want, rtol=1e-14, atol=1e-14 * np.abs(want).max())
+    assert np.allclose(c1.reshape(-1), D @ rb2.reshape(-1), rtol=0, atol=1e-12 * np.abs(D @ rb2.reshape(-1)).max())
     tref = inv_upper @ c.reshape(-1)
     ref = inv_lower @ As @ tref
     scale = np.abs(ref).max()
