@@ -380,6 +380,36 @@ def obstacle_vertex_hits(sphere: bool, X0: np.ndarray, V: np.ndarray, dt: float,
     return hit, out
 
 
+@numba.njit(cache=True, inline="always")
+def _ccd_frames_range(vf, X0, V, quads, toi, dt, thickness, eta, start, stop, W, N, T):
+    """``ccd_frames`` of the pairs ``start..stop-1``."""
+    m = stop - start
+    Xl, Xr = np.empty((4 * m, 3)), np.empty((4 * m, 3))
+    ql = np.empty((m, 4), np.int64)
+    for j in range(m):
+        f = min(max(toi[start + j], 0.0), 1.0) * dt
+        for v in range(4):
+            i = quads[start + j, v]
+            ql[j, v] = 4 * j + v
+            for c in range(3):
+                Xr[4 * j + v, c] = X0[i, c]
+                Xl[4 * j + v, c] = X0[i, c] + f * V[i, c]
+    Wl, Nl, Dl = np.empty((m, 4)), np.empty((m, 3)), np.empty(m)
+    _frames_range(vf, Xl, ql, Xr, 0, m, Wl, Nl, Dl)
+    for j in range(m):
+        d0 = 0.0
+        for c in range(3):
+            s = 0.0
+            for v in range(4):
+                s += Wl[j, v] * Xr[4 * j + v, c]
+            d0 += s * Nl[j, c]
+        for v in range(4):
+            W[start + j, v] = Wl[j, v]
+        for c in range(3):
+            N[start + j, c] = Nl[j, c]
+        T[start + j] = (min(max(0.5 * d0, 2.0 * eta), thickness) - d0) / dt
+
+
 @numba.njit(cache=True, parallel=True)
 def ccd_frames(vf: bool, X0: np.ndarray, V: np.ndarray, quads: np.ndarray, toi: np.ndarray, dt: float,
                thickness: float, eta: float) -> tuple:
@@ -391,33 +421,12 @@ def ccd_frames(vf: bool, X0: np.ndarray, V: np.ndarray, quads: np.ndarray, toi: 
     k = len(quads)
     W, N, T = np.empty((k, 4)), np.empty((k, 3)), np.empty(k)
     chunks = chunk_count(k, FRAME_CHUNK)
+    if chunks == 1:  # a few hits (most passes): a parallel launch would cost more than the pass
+        _ccd_frames_range(vf, X0, V, quads, toi, dt, thickness, eta, 0, k, W, N, T)
+        return W, N, T
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
-        m = stop - start
-        Xl, Xr = np.empty((4 * m, 3)), np.empty((4 * m, 3))
-        ql = np.empty((m, 4), np.int64)
-        for j in range(m):
-            f = min(max(toi[start + j], 0.0), 1.0) * dt
-            for v in range(4):
-                i = quads[start + j, v]
-                ql[j, v] = 4 * j + v
-                for c in range(3):
-                    Xr[4 * j + v, c] = X0[i, c]
-                    Xl[4 * j + v, c] = X0[i, c] + f * V[i, c]
-        Wl, Nl, Dl = np.empty((m, 4)), np.empty((m, 3)), np.empty(m)
-        _frames_range(vf, Xl, ql, Xr, 0, m, Wl, Nl, Dl)
-        for j in range(m):
-            d0 = 0.0
-            for c in range(3):
-                s = 0.0
-                for v in range(4):
-                    s += Wl[j, v] * Xr[4 * j + v, c]
-                d0 += s * Nl[j, c]
-            for v in range(4):
-                W[start + j, v] = Wl[j, v]
-            for c in range(3):
-                N[start + j, c] = Nl[j, c]
-            T[start + j] = (min(max(0.5 * d0, 2.0 * eta), thickness) - d0) / dt
+        _ccd_frames_range(vf, X0, V, quads, toi, dt, thickness, eta, start, stop, W, N, T)
     return W, N, T
 
 
@@ -491,6 +500,38 @@ def obstacle_repulsion(sphere: bool, X0: np.ndarray, V: np.ndarray, invm: np.nda
     return total
 
 
+@numba.njit(cache=True, inline="always")
+def _obstacle_impulses_range(sphere, X0, V, invm, ids, toi, dt, a, off, radius, lin, ang, thickness, eta, dV, start,
+                             stop):
+    """``obstacle_impulses`` of the vertices ``ids[start:stop]``."""
+    for j in range(start, stop):
+        i = ids[j]
+        s = min(max(toi[j], 0.0), 1.0)
+        x0, x1, x2 = X0[i, 0] + dt * s * V[i, 0], X0[i, 1] + dt * s * V[i, 1], X0[i, 2] + dt * s * V[i, 2]
+        n0, n1, n2 = a[0], a[1], a[2]
+        if sphere:  # from the centre at the time of impact (a vertex at the centre: no normal)
+            f = dt * s
+            r0, r1, r2 = x0 - (a[0] + f * lin[0]), x1 - (a[1] + f * lin[1]), x2 - (a[2] + f * lin[2])
+            rn = max(math.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-300)
+            n0, n1, n2 = r0 / rn, r1 / rn, r2 / rn
+        if not sphere:
+            d0 = X0[i, 0] * a[0] + X0[i, 1] * a[1] + X0[i, 2] * a[2] - off
+        else:
+            d0 = math.sqrt((X0[i, 0] - a[0]) ** 2 + (X0[i, 1] - a[1]) ** 2 + (X0[i, 2] - a[2]) ** 2) - radius
+        u0, u1, u2 = lin[0], lin[1], lin[2]
+        if sphere:  # the material's velocity at the point of impact, about the centre at the step start
+            r0, r1, r2 = x0 - a[0], x1 - a[1], x2 - a[2]
+            u0 += ang[1] * r2 - ang[2] * r1
+            u1 += ang[2] * r0 - ang[0] * r2
+            u2 += ang[0] * r1 - ang[1] * r0
+        vn = (V[i, 0] - u0) * n0 + (V[i, 1] - u1) * n1 + (V[i, 2] - u2) * n2
+        want = (min(max(0.5 * d0, 2.0 * eta), thickness) - d0) / dt
+        dvn = max(want - vn, 0.0) if invm[i] > 0 else 0.0
+        dV[i, 0] += dvn * n0
+        dV[i, 1] += dvn * n1
+        dV[i, 2] += dvn * n2
+
+
 @numba.njit(cache=True, parallel=True)
 def obstacle_impulses(sphere: bool, X0: np.ndarray, V: np.ndarray, invm: np.ndarray, ids: np.ndarray, toi: np.ndarray,
                       dt: float, a: np.ndarray, off: float, radius: float, lin: np.ndarray, ang: np.ndarray,
@@ -502,31 +543,10 @@ def obstacle_impulses(sphere: bool, X0: np.ndarray, V: np.ndarray, invm: np.ndar
     where the vertex is slower and movable. Obstacle arguments as :func:`obstacle_repulsion` (at the step start)."""
     k = len(ids)
     chunks = chunk_count(k, 256)
+    if chunks == 1:  # a few hits (most passes): a parallel launch would cost more than the pass
+        _obstacle_impulses_range(sphere, X0, V, invm, ids, toi, dt, a, off, radius, lin, ang, thickness, eta, dV, 0, k)
+        return
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
-        for j in range(start, stop):
-            i = ids[j]
-            s = min(max(toi[j], 0.0), 1.0)
-            x0, x1, x2 = X0[i, 0] + dt * s * V[i, 0], X0[i, 1] + dt * s * V[i, 1], X0[i, 2] + dt * s * V[i, 2]
-            n0, n1, n2 = a[0], a[1], a[2]
-            if sphere:  # from the centre at the time of impact (a vertex at the centre: no normal)
-                f = dt * s
-                r0, r1, r2 = x0 - (a[0] + f * lin[0]), x1 - (a[1] + f * lin[1]), x2 - (a[2] + f * lin[2])
-                rn = max(math.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-300)
-                n0, n1, n2 = r0 / rn, r1 / rn, r2 / rn
-            if not sphere:
-                d0 = X0[i, 0] * a[0] + X0[i, 1] * a[1] + X0[i, 2] * a[2] - off
-            else:
-                d0 = math.sqrt((X0[i, 0] - a[0]) ** 2 + (X0[i, 1] - a[1]) ** 2 + (X0[i, 2] - a[2]) ** 2) - radius
-            u0, u1, u2 = lin[0], lin[1], lin[2]
-            if sphere:  # the material's velocity at the point of impact, about the centre at the step start
-                r0, r1, r2 = x0 - a[0], x1 - a[1], x2 - a[2]
-                u0 += ang[1] * r2 - ang[2] * r1
-                u1 += ang[2] * r0 - ang[0] * r2
-                u2 += ang[0] * r1 - ang[1] * r0
-            vn = (V[i, 0] - u0) * n0 + (V[i, 1] - u1) * n1 + (V[i, 2] - u2) * n2
-            want = (min(max(0.5 * d0, 2.0 * eta), thickness) - d0) / dt
-            dvn = max(want - vn, 0.0) if invm[i] > 0 else 0.0
-            dV[i, 0] += dvn * n0
-            dV[i, 1] += dvn * n1
-            dV[i, 2] += dvn * n2
+        _obstacle_impulses_range(sphere, X0, V, invm, ids, toi, dt, a, off, radius, lin, ang, thickness, eta, dV,
+                                 start, stop)

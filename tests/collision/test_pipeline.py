@@ -347,7 +347,8 @@ def test_vertex_hits_on_planes_and_spheres_match_their_definitions_on_one_and_tw
         np.testing.assert_array_equal(b, d)
 
 
-def test_ccd_frames_are_the_contact_frames_at_the_time_of_impact_on_one_and_two_threads():
+@pytest.mark.parametrize("pairs", [300, 1500])  # one chunk (serial) and parallel chunks (FRAME_CHUNK)
+def test_ccd_frames_are_the_contact_frames_at_the_time_of_impact_on_one_and_two_threads(pairs):
     """The CCD impulses' frames and targets in one compiled pass against their definition: contact frames at
     ``X0 + toi dt V`` oriented by ``X0``, start separation ``d0`` along the normal, target end separation
     ``clip(d0 / 2, 2 eta, h)``."""
@@ -362,7 +363,7 @@ def test_ccd_frames_are_the_contact_frames_at_the_time_of_impact_on_one_and_two_
     V = rng.normal(0.0, 1.0, (400, 3))
     dt, h, eta = 0.01, 0.004, 4e-6
     for kind in ("vf", "ee"):
-        q = np.array([rng.choice(400, 4, replace=False) for _ in range(1500)])
+        q = np.array([rng.choice(400, 4, replace=False) for _ in range(pairs)])
         toi = rng.uniform(-0.2, 1.2, len(q))  # clipped to [0, 1]
         Pq = X0[q] + (dt * np.clip(toi, 0.0, 1.0))[:, None, None] * V[q]
         w, n, _ = contact_frames(Pq.reshape(-1, 3), np.arange(4 * len(q)).reshape(-1, 4), kind, X0[q].reshape(-1, 3))
@@ -408,7 +409,9 @@ def _obstacle_reference(ob, X0, V, invm, dt, t, h, mu, eta, ids, s):
     return rep, len(near), imp
 
 
-@pytest.mark.parametrize("n", [5000, 20000])  # the serial pass and the parallel chunks (``OBSTACLE_CHUNK``)
+# 1,000 vertices: the impulses of their few hundred hits in one chunk (serial); 5,000 and 20,000: below and above two
+# chunks of the repulsion pass (``OBSTACLE_CHUNK``)
+@pytest.mark.parametrize("n", [1000, 5000, 20000])
 def test_obstacle_repulsion_and_impulses_match_their_definitions_on_one_and_two_threads(n):
     """Stage (a) against a moving plane and a spinning, moving sphere, and the CCD impulses of the vertices that hit
     them (compiled parallel passes), against the numpy definitions; the same bits on 1 and 2 threads."""
