@@ -23,7 +23,10 @@ class _SolidStage:
         """Modal bodies against each other and against moving and mesh obstacles (a tet body meets modal bodies and
         other tet bodies in its implicit step): one compiled sequential-impulse solve (see the module docstring).
         Modal bodies against each other and static planes are found and written by ``modal_contacts.ModalContacts``
-        (compiled); the rest by ``_ContactBuilder``."""
+        (compiled); the rest by ``_ContactBuilder``, with a box's edges under a body's faces as contacts of their own
+        (``_box_edges``, the runtime's). Known limit: the impulses act at the step start and may not add energy, so a
+        body at rest falls ``g dt^2 / 2`` within a step before the next step's impulse holds it (49 mm at dt = 0.1 s:
+        through a narrow box's top; tests/world/test_world_box_edges.py)."""
         dt = ctx.dt
         t0 = ctx.state_in.time
         # the modal bodies with contact, all of them in the compiled modal contacts (``self._fast``, made at build
