@@ -219,35 +219,71 @@ class _ClothStage:
         """Give the solid bodies back the momentum the pipeline gave the cloth vertices next to them: equal and
         opposite impulses at the closest points of their end surfaces (a modal body's rigid motion only: the
         pipeline saw its vibrating surface at the step's two ends, and feeding impulses into modes faster than
-        the step pumps energy between the aliased vibration and the cloth)."""
+        the step pumps energy between the aliased vibration and the cloth). Each moved vertex kicks the body whose
+        surface is closest (ties: the first body), in the order of the first body each vertex is near, then by
+        vertex; every sum runs in that order."""
         d = self._deform
         moved = np.flatnonzero(np.any(dv != 0.0, axis=1) & np.isfinite(d["masses"]))
-        total = 0
-        if len(moved):
-            reach = 2.0 * d["thickness"]
-            best = {}
-            for n in d["motions"]:
-                xs = self._surface_now(ctx, n)
-                prox = self._surf[n] if n in self._modal else self._tet[n]["proximity"]
-                tri_all = self._modal[n]["body"].triangles if n in self._modal else self._tet[n]["triangles"]
-                h = prox.query(x1[moved], xs, reach)
-                for i, tri, w, g in zip(h.point, h.triangle, h.bary, h.gap):
-                    if i not in best or abs(g) < best[i][3]:
-                        best[i] = (n, tri_all[tri], w, abs(g), np.einsum("j,jd->d", w, xs[tri_all[tri]]))
-            owner = {m: d["offsets"][m] for m in d["members"]}
-            per = {}
-            for i, (n, tri, w, _, pt) in best.items():
-                v = moved[i]
-                J = -d["masses"][v] * dv[v]  # what the solid receives
-                kind = "modal" if n in self._modal else "tet"
-                self._kick(ctx, kind, n, (tri, w, pt), J)
-                src = next(m for m, (a, k) in owner.items() if a <= v < a + k)
-                J0, L0 = per.get((n, src), (np.zeros(3), np.zeros(3)))
-                per[(n, src)] = (J0 + J, L0 + np.cross(pt, J))
-                total += 1
-            for (n, src), (J, L) in per.items():
-                ctx.report.exchanged.append((n, src, J, L))
-        ctx.report.contacts["reaction"] = total
+        ctx.report.contacts["reaction"] = 0
+        if not len(moved):
+            return
+        reach = 2.0 * d["thickness"]
+        names = list(d["motions"])
+        hits = []  # per body: (vertex (k,), body (k,), |gap| (k,), triangle (k, 3), weights (k, 3), point (k, 3))
+        for b, n in enumerate(names):
+            xs = self._surface_now(ctx, n)
+            prox = self._surf[n] if n in self._modal else self._tet[n]["proximity"]
+            tri_all = self._modal[n]["body"].triangles if n in self._modal else self._tet[n]["triangles"]
+            h = prox.query(x1[moved], xs, reach)
+            T = tri_all[h.triangle]
+            hits.append((h.point, np.full(len(h.point), b), np.abs(h.gap), T, h.bary,
+                         np.einsum("kj,kjd->kd", h.bary, xs[T])))
+        i, body, gap, tri, w, pt = (np.concatenate(a) for a in zip(*hits))
+        if not len(i):
+            return
+        # the closest body of each vertex (ties: the first), in the order (first body near it, vertex)
+        order = np.lexsort((body, gap, i))
+        win = order[np.r_[True, i[order][1:] != i[order][:-1]]]  # by vertex
+        first = np.minimum.reduceat(body[order], np.flatnonzero(np.r_[True, i[order][1:] != i[order][:-1]]))
+        win = win[np.lexsort((i[win], first))]
+        i, body, tri, w, pt = i[win], body[win], tri[win], w[win], pt[win]
+        v = moved[i]
+        J = -d["masses"][v][:, None] * dv[v]  # what each solid receives
+        src = np.zeros(len(v), np.int64)
+        members = list(d["members"])
+        for m, name in enumerate(members):
+            o, k = d["offsets"][name]
+            src[(v >= o) & (v < o + k)] = m
+        for b in np.unique(body):
+            sel = np.flatnonzero(body == b)
+            self._kicks(ctx, names[b], tri[sel], w[sel], pt[sel], J[sel])
+        key = body * len(members) + src
+        _, at = np.unique(key, return_index=True)
+        L = np.cross(pt, J)
+        for k in key[np.sort(at)]:
+            sel = np.flatnonzero(key == k)
+            Js = np.cumsum(np.concatenate([np.zeros((1, 3)), J[sel]]), axis=0)[-1]
+            Ls = np.cumsum(np.concatenate([np.zeros((1, 3)), L[sel]]), axis=0)[-1]
+            ctx.report.exchanged.append((names[k // len(members)], members[k % len(members)], Js, Ls))
+        ctx.report.contacts["reaction"] = len(v)
+
+    def _kicks(self, ctx, other: str, tri: np.ndarray, w: np.ndarray, pt: np.ndarray, J: np.ndarray) -> None:
+        """Impulses ``J`` (k, 3) [N s] on solid body ``other`` at its surface points ``pt`` (k, 3) [m] (triangles
+        ``tri`` (k, 3) of its surface, weights ``w`` (k, 3)), at its step end, added in order: a modal body's rigid
+        motion, a tet body's vertices by their weights."""
+        if other in self._modal:
+            st = ctx.out.bodies[other]
+            mass = self._modal[other]["body"].mass
+            st.velocity[...] = np.cumsum(np.concatenate([st.velocity[None], J / mass]), axis=0)[-1]
+            st.angular_momentum[...] = np.cumsum(np.concatenate([st.angular_momentum[None],
+                                                                 np.cross(pt - st.position, J)]), axis=0)[-1]
+            return
+        t = self._tet[other]
+        vid = t["surface"][tri]  # surface-local -> mesh vertex ids (k, 3)
+        m = t["masses"][vid]
+        ok = np.isfinite(m)
+        dv = np.where(ok, 1.0, 0.0)[:, :, None] * (w / np.where(ok, m, 1.0))[:, :, None] * J[:, None, :]
+        np.add.at(ctx.out.bodies[other].v, vid.reshape(-1), dv.reshape(-1, 3))
 
 
 class _ObstacleMotion:

@@ -1,8 +1,8 @@
 """The tet stage of ``World`` (a mixin): each tet body's build and implicit step with its contacts as penalty terms
 (retried stiffer when too deep, never ending with more energy), groups of tet bodies stepped together, what the next
-step reads, the impulses of the deformable pipeline on solid bodies (``_kick``), tet self-collision and tet wind (see
-``modalfem.world.world``). The contacts are set in ``_tet_contacts`` (``_TetContacts``); the reactions, friction and
-restitution after the step are in ``_tet_response`` (``_TetResponse``)."""
+step reads, the surfaces the deformable pipeline's reaction meets (``_surface_now``), tet self-collision and tet wind
+(see ``modalfem.world.world``). The contacts are set in ``_tet_contacts`` (``_TetContacts``); the reactions,
+friction and restitution after the step are in ``_tet_response`` (``_TetResponse``)."""
 
 from __future__ import annotations
 
@@ -265,21 +265,6 @@ class _TetStage(_TetContacts, _TetResponse):
             return False
         pen.stiffen(np.where(over, depth / (0.25 * pen.dhat), 1.0))
         return True
-
-    def _kick(self, ctx, kind: str, other: str, data, J: np.ndarray) -> None:
-        """Impulse ``J`` (3,) [N s] on solid body ``other`` at its contact point, at its step end (see
-        ``_reaction``): a modal body's rigid motion, a tet body's vertices by their weights."""
-        ids, w, pt = data
-        if kind == "modal":
-            st = ctx.out.bodies[other]
-            st.velocity += J / self._modal[other]["body"].mass
-            st.angular_momentum += np.cross(pt - st.position, J)
-            return
-        t = self._tet[other]
-        vid = t["surface"][np.asarray(ids)]  # surface-local -> mesh vertex ids
-        m = t["masses"][vid]
-        dv = np.where(np.isfinite(m), 1.0, 0.0)[:, None] * (w / np.where(np.isfinite(m), m, 1.0))[:, None] * J
-        ctx.out.bodies[other].v[vid] += dv
 
     def _stage_tet_self(self, ctx) -> None:
         dt = ctx.dt
