@@ -10,7 +10,8 @@ import numpy as np
 
 from modalfem.errors import SimulationError
 from modalfem.world._shared import _REACTION_KEY
-from modalfem.world.obstacles import Plane, TriangleMesh
+from modalfem.world._solid_stage import _box_edges
+from modalfem.world.obstacles import Box, TriangleMesh
 from modalfem.world.tetcontact import STIFFNESS
 
 #: a tet body's penalty contacts with one modal body hold its approach within a 1 / DEPTH_SHARE part of the skin
@@ -243,33 +244,54 @@ class _TetContacts:
 
     def _modal_planes(self, ctx, b: str, index: int, xs: tuple, end, travel: float, dhat: float, k: float):
         """Contacts of modal body ``b`` (its ``index`` among the moving bodies of a tet step) with the static
-        planes (the ground), solved in the tet step with its rigid displacement: its surface ``xs`` (start, free
-        end) within ``travel`` [m] plus twice ``dhat`` [m] of a plane at the free end, each held ``dhat`` off it
-        (or at its start gap, when inside the skin then) with stiffness ``k`` [N/m]. Without them a bar landing on
-        a tet cube and the ground in one 10 ms step took the ground's impulse (5.7 rad/s) after the tet step had
-        placed it on the cube: it ended turned 3.6 degrees, 7.4 mm from that pose, across the cube. Returns
-        ``((b, index), vertex ids, plane rows' p, n, k, arms)`` or None (``PenaltyContacts`` rows without tet
-        vertices: the depth is ``target gap - gap - a . u``)."""
+        obstacles (the ground and planes, spheres, boxes, triangle meshes), solved in the tet step with its rigid
+        displacement: its surface ``xs`` (start, free end) vertices within ``travel`` [m] plus twice ``dhat`` [m] of
+        an obstacle at the free end, each on the obstacle's tangent plane there (its signed distance and normal; a
+        mesh's closest triangle), held ``dhat`` off it (or at its start gap, when inside the skin then) with
+        stiffness ``k`` [N/m]. Without them a bar landing on a tet cube and the ground in one 10 ms step took the
+        ground's impulse (5.7 rad/s) after the tet step had placed it on the cube: it ended turned 3.6 degrees, 7.4
+        mm from that pose, across the cube; across a tet cube and a box, alike (the box's edges under the body's
+        faces too, as the solid solve's: ``_solid_stage._box_edges``). Moving obstacles still act after the step.
+        Returns ``((b, index), body point vertex ids (r, 3), plane rows' p, n, k, arms, body point weights (r, 3))``
+        or None (``PenaltyContacts`` rows without tet vertices: the depth is ``target gap - gap - a . u``)."""
         x0, x1 = xs
         t0, t1 = ctx.state_in.time, ctx.state_in.time + ctx.dt
-        ids, P, N = [], [], []
-        for o in self.obstacles:
-            if not isinstance(o, Plane) or o.moving:
+        ids, w, P, N = [], [], [], []
+        for i, o in enumerate(self.obstacles):
+            if o.moving:
                 continue
-            gap, n = o.signed_distance(x1, t1)
-            idx = np.flatnonzero(gap < travel + 2.0 * dhat)
+            if isinstance(o, TriangleMesh):  # each vertex on its closest triangle's plane (the same at the start)
+                h = self._obstacle_surf[i].query(x1, o.vertices, travel + 2.0 * dhat)
+                idx, gap, n = h.point, h.gap, h.normal
+                gap0 = gap + np.einsum("kd,kd->k", x0[idx] - x1[idx], n)
+            else:
+                gap, n = o.signed_distance(x1, t1)
+                idx = np.flatnonzero(gap < travel + 2.0 * dhat)
+                gap, n = gap[idx], np.broadcast_to(np.asarray(n, np.float64), x1.shape)[idx]
+                gap0 = o.signed_distance(x0[idx], t0)[0] if len(idx) else gap
+            if isinstance(o, Box):  # its edges under the body's faces at the free end, as the solid solve's
+                edges = _box_edges(self._modal[b]["body"], end, o, t1, x1, idx, travel + 2.0 * dhat, dhat)
+                if edges is not None:
+                    if edges[0] is not None:  # (vertex contacts left to the edge contacts)
+                        idx, gap, n, gap0 = idx[edges[0]], gap[edges[0]], n[edges[0]], gap0[edges[0]]
+                    _, ev, ew, en, eg, _ = edges  # body points sum_a w_a X_a against the edge's plane
+                    ids.append(ev)
+                    w.append(ew)
+                    P.append((eg + dhat - np.clip(eg + np.einsum("kd,kd->k", np.einsum(
+                        "ka,kad->kd", ew, x0[ev] - x1[ev]), en), 0.0, dhat))[:, None] * en)
+                    N.append(-en)
             if not len(idx):
                 continue
-            n = np.broadcast_to(np.asarray(n, np.float64), x1.shape)[idx]
-            target = np.clip(o.signed_distance(x0[idx], t0)[0], 0.0, dhat)  # (inside the skin: held there)
-            ids.append(idx)
-            P.append((gap[idx] + dhat - target)[:, None] * n)  # d = dhat + p . (-n) = target - gap
+            target = np.clip(gap0, 0.0, dhat)  # (inside the skin: held there)
+            ids.append(np.repeat(idx[:, None], 3, 1))
+            w.append(np.tile([1.0, 0.0, 0.0], (len(idx), 1)))
+            P.append((gap + dhat - target)[:, None] * n)  # d = dhat + p . (-n) = target - gap
             N.append(-n)
         if not ids:
             return None
-        ids, P, N = np.concatenate(ids), np.concatenate(P), np.concatenate(N)
-        arms = np.column_stack([N, np.cross(x1[ids] - end.position, N)])
-        return (b, index), ids, P, N, np.full(len(ids), float(k)), arms
+        ids, w, P, N = np.concatenate(ids), np.concatenate(w), np.concatenate(P), np.concatenate(N)
+        arms = np.column_stack([N, np.cross(np.einsum("ka,kad->kd", w, x1[ids]) - end.position, N)])
+        return (b, index), ids, P, N, np.full(len(ids), float(k)), arms, w
 
     def _tet_pair_contacts(self, t: dict, s, r: float, u: np.ndarray) -> tuple:
         """The contacts of a group's tet bodies with each other within ``r`` [m] at the start ``s`` (stacked), ``u``

@@ -46,7 +46,7 @@ class _TetResponse:
                 self._modal_impulses(ctx, b, ids, w, J[part], src, t.get("modal_ends", {}).get(b))
 
     def _modal_planes_reaction(self, ctx, t: dict, out) -> None:
-        """The static planes' impulses on the modal bodies from their rows in a tet step (``_modal_planes``), at
+        """The static obstacles' impulses on the modal bodies from their rows in a tet step (``_modal_planes``), at
         the end positions ``out.x``, given as the tet reaction is (at the step start, arms at the free end); the
         rows are then dropped from the penalty (its depths and the bodies' displacements kept), so what follows
         sees the tet's own contacts alone (the planes' rows hold no tet vertex)."""
@@ -56,14 +56,12 @@ class _TetResponse:
         pen = t["penalty"]
         f = pen.forces(out.x)
         o = n0
-        for (b, _), ids, _, N, _, _ in rows:
+        for (b, _), ids, _, N, _, _, w in rows:
             ff, o = f[o:o + len(ids)], o + len(ids)
             on = ff > 0
             if on.any():
-                one = np.tile([1.0, 0.0, 0.0], (int(on.sum()), 1))
                 J = -(ff[on] * ctx.dt)[:, None] * N[on]
-                self._modal_impulses(ctx, b, np.repeat(ids[on][:, None], 3, 1), one, J, "", t["modal_ends"].get(b),
-                                     report=False)
+                self._modal_impulses(ctx, b, ids[on], w[on], J, "", t["modal_ends"].get(b), report=False)
         pen.keep_first(n0, out.x)
         t["modal_planes"] = (n0, [])
 
