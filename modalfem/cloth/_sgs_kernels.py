@@ -23,7 +23,9 @@ loops per iteration (``2 colours - 1`` loops), where the textbook order needed a
 after the product (one more parallel loop, and the vectors read again). The same iterations in exact arithmetic;
 on the 64x64 pile's step-61/62 implicit systems the same iteration counts (35, 34), solutions within 8e-15 of the
 textbook order's (relative to their largest entry), and a solve 12.86 -> 11.97 ms on one thread (CPU, fastest of 30
-interleaved, Intel Xeon, load ~5); with two threads one parallel launch less per iteration (4 -> 3).
+interleaved, Intel Xeon, load ~5); with two threads one parallel launch less per iteration (4 -> 3): measured only
+while this process got both cores (400 such moments, both orders and thread counts interleaved, fastest of each,
+Intel Xeon) 12.05 / 8.02 ms (1 / 2 threads, 1.50x) before, 11.30 / 6.81 ms (1.66x) after.
 
 Why: block SGS propagates a correction across the whole sheet in one sweep, which block Jacobi plus the additive
 aggregation levels cannot: on the 64x64 pile's step-60 systems CG takes 31 iterations instead of 51 (implicit step,
