@@ -74,7 +74,9 @@ class _ClothStage:
                            smoothing=0.0, linear_solver=b.linear_solver, x0=x0, v0=b.v0)
         masses = model.masses.copy()
         masses[model.handle_indices] = np.inf
-        return {"scene": scene, "effects": tuple(names), "masses": masses}
+        # the start state (``World.state``): the scene's positions change with every step
+        start = ClothState(scene.x.copy(), scene.v.copy(), scene._released.copy())
+        return {"scene": scene, "effects": tuple(names), "masses": masses, "start": start}
 
     def _thickness(self, name: str) -> float:
         sc, c = self._one(name, fx.SelfCollision), self._one(name, fx.Contact)

@@ -55,7 +55,7 @@ from modalfem.world._cloth_stage import _ClothStage
 from modalfem.world._shared import _REACTION_KEY, BOUNCE_THRESHOLD, PUSH_OUT, SLOW  # noqa: F401 (re-exported)
 from modalfem.world._solid_stage import _SolidStage
 from modalfem.world._tet_stage import FRICTION_SLIP, _TetStage  # noqa: F401 (re-exported)
-from modalfem.world.bodies import Cloth, ClothState, Modal, Tet
+from modalfem.world.bodies import Cloth, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
 from modalfem.world.substeps import merged_report, substep_count
@@ -381,8 +381,7 @@ class World(_TetStage, _SolidStage, _ClothStage):
                     s.v[:] = b.velocity
                 out[b.name] = s
             else:
-                sc = self._cloth[b.name]["scene"]
-                out[b.name] = ClothState(sc.x.copy(), sc.v.copy(), sc._released.copy())
+                out[b.name] = self._cloth[b.name]["start"].copy()
         return WorldState(0.0, out)
 
     def control(self) -> WorldControl:
