@@ -1,8 +1,9 @@
 """The World's modal bodies stepped in one compiled call (numba, cached on disk): what ``ModalSolver.step`` does for
 a body whose only load is gravity, with no static obstacles, control or strikes (the solid solve's impulses taken
-at the step start), for all such bodies at once on packed arrays. The same arithmetic in the same order as
-``ModalSolver.advance_free``, ``runtime.rotation.free_rotation_step`` and ``ModalIntegrator.step``; a body that
-needs anything else goes through its solver.
+at the step start; the part holding the step's load at the middle: ``ctx.lift``), for all such bodies at once on
+packed arrays. The same arithmetic in the same order as ``ModalSolver.advance_free``,
+``runtime.rotation.free_rotation_step`` and ``ModalIntegrator.step``; a body that needs anything else goes through
+its solver.
 """
 
 from __future__ import annotations
@@ -142,6 +143,8 @@ class ModalBatch:
         dvoff = np.zeros(len(names), dtype=np.int64)
         parts, o = [np.zeros(0)], 0
         for i, n in enumerate(names):
+            if n in ctx.lift:  # the part of the solid solve's dv holding the load (``_solid_stage.gravity_lift``)
+                pos[i] += ctx.lift[n]
             d = ctx.dV.get(n)
             if d is not None:
                 kick[i], dvoff[i] = True, o

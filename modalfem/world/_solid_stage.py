@@ -24,9 +24,8 @@ class _SolidStage:
         other tet bodies in its implicit step): one compiled sequential-impulse solve (see the module docstring).
         Modal bodies against each other and static planes are found and written by ``modal_contacts.ModalContacts``
         (compiled); the rest by ``_ContactBuilder``, with a box's edges under a body's faces as contacts of their own
-        (``_box_edges``, the runtime's). Known limit: the impulses act at the step start and may not add energy, so a
-        body at rest falls ``g dt^2 / 2`` within a step before the next step's impulse holds it (49 mm at dt = 0.1 s:
-        through a narrow box's top; tests/world/test_world_box_edges.py)."""
+        (``_box_edges``, the runtime's). The part of an impulse that holds the step's load acts at the step's middle
+        (``_solve``), so a body at rest holds its place at any dt (tests/world/test_world_resting_dt.py)."""
         dt = ctx.dt
         t0 = ctx.state_in.time
         # the modal bodies with contact, all of them in the compiled modal contacts (``self._fast``, made at build
@@ -114,8 +113,10 @@ class _SolidStage:
         tn = np.sqrt(np.einsum("ij,ij->i", t, t))
         lim = data["mu"] * lam_n
         lam_t[:] = t * np.where(tn <= lim, 1.0, lim / np.where(tn > 0, tn, 1.0))[:, None]
+        # a body the tet step moved (a tet body's reaction in ``ctx.dV``) was placed by it: no lift (``_solve``)
+        lifted = np.array([name not in ctx.dV for name in fast.names])
         lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, None if driven else
-                                     self._inverse_mass_blocks(ctx, seg))
+                                     self._inverse_mass_blocks(ctx, seg), lifted)
         ctx.report.sweeps = sweeps
         ctx.contacts.update({key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0})
         if fdata is not None:
@@ -126,6 +127,10 @@ class _SolidStage:
         dV = data["dV"]
         for name, (o, nd) in seg.items():
             ctx.dV[name] = dV[o:o + nd] + ctx.dV.get(name, 0.0)  # taken at the step start by the modal step
+            # the part of the solve's dv that holds the step's load acts at the step's middle (``_solve``)
+            lift = gravity_lift(dV[o:o + 3], self._modal[name]["g"], dt) if lifted[fast.names.index(name)] else None
+            if lift is not None:
+                ctx.lift[name] = lift
         # what each body received from each other body (the other received the opposite), per pair
         uniq, J, L = _kernels.exchanged(data["body"], data["other"], data["point"], lam, len(names))
         if len(uniq):  # per pair sums in contact order
@@ -147,7 +152,8 @@ class _SolidStage:
         inertias [kg m^2] (modal coordinates have unit mass) and shifts ``g dt`` (3,) [m/s], which the solve's
         velocities hold but the energy must not count: a velocity change dv at the step start moves the body by
         ``dv dt`` in the gravity field, which costs ``-m g . dv dt``, so the energy change is
-        ``dv . M (V - g dt) + 0.5 dv . M dv``."""
+        ``dv . M (V - g dt) + 0.5 dv . M dv`` (and the part of dv that holds the step's load, acting at the step's
+        middle, lowers the body: ``gravity_lift``, counted by ``_solve``)."""
         fast = self._fast
         return (np.array([seg[n][0] for n in fast.names], dtype=np.int64), 6 + fast.nm, fast.mass,
                 fast.rotations, fast.inertia, np.array([self._modal[n]["g"] for n in fast.names]) * ctx.dt)
@@ -224,12 +230,34 @@ def _box_edges(body, s, box: Box, t: float, x: np.ndarray, idx: np.ndarray, reac
 VELOCITY_STOP = 1e-2
 
 
-def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None):
+def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None,
+           lifted: np.ndarray | None = None):
     """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
     kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
     ``_SolidStage._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 by scaling
     every impulse back (equal and opposite impulses stay so). Returns ``(lam (k, 3), bounce (k,), sweeps)`` and
-    leaves ``data["dV"]``."""
+    leaves ``data["dV"]``.
+
+    The impulses act at the step start and target the end velocity ``vn`` that closes the gap to the skin (or pushes
+    out) in a step, ``gap + vn dt`` (``V`` holds the end-of-step velocities ``v + g dt``). That would leave a body
+    held against gravity ``g dt^2 / 2`` above the target: the part of a body's dv against gravity up to ``|g| dt``
+    (the step's load) acts at the step's middle instead, like a contact force held over the step (as the runtime's
+    sustained step, ``runtime.contact``): the modal step moves the body back by ``dt / 2`` of it (``gravity_lift``),
+    so a body at rest ends where it began, holding ``m g dt``, and an impact (more than the load) still ends at its
+    target. The energy change is then exact: ``f(s) = s work + s^2 quad / 2 - sum_b m_b |g_b| dt / 2 min(max(s a_b,
+    0), |g_b| dt)`` for the impulses scaled by s (``a_b`` body b's dv against gravity; the last term the lift's
+    potential energy), 0 at rest; f is convex with f(0) = 0, so when f(1) > 1e-12 quad the impulses are scaled to
+    the largest s with f(s) <= 0 (bisection on an interval whose lower end always satisfies it). ``lifted`` (bodies
+    of ``blocks``, bool; None: all): the bodies that take the lift (not those a tet body's implicit step placed this
+    step, whose positions it computed with the reaction at the start: lifted, a bar landing across a tet cube and a
+    sphere crossed the cube).
+
+    Known limit: restitution still acts on the end-of-step approach ``vn``, which holds the step's ``g dt``: a
+    resting contact with e > 0 is taken as bouncing once ``g dt`` > ``BOUNCE_THRESHOLD`` (dt > 5 ms), and the
+    no-gain rule, scaling every impulse, then lets the body sink (a bar at e = 0.3 went 0.11 m into the ground at dt
+    = 1 s). Deciding and aiming the bounce on the start approach ``vn - g_n dt`` fixes that
+    (tests/world/test_world_resting_dt.py passes at e = 0.3) but moved tests/world/test_tet_squeeze.py at 50 ms or
+    test_tet_box_landing.py's sphere case onto paths where the tet step lets the bar cross: left for later."""
     ptr, off, nd, jptr, J, WJt = (data[key] for key in ("ptr", "off", "nd", "jptr", "J", "WJt"))
     K = data.get("K")  # the compiled modal contacts' come with their entries
     if K is None:
@@ -250,16 +278,44 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
                                           int(data["iterations"]), lam_n, lam_t, vtol)
     lam = lam_n[:, None] * n + lam_t
     dV = V - V0
-    work = quad = 0.0
-    if blocks is not None:
+    if blocks is not None:  # the energy change (see above); the lift's: per body m |g| dt / 2 and the cap |g| dt
         work, quad = _kernels.modal_energy_change(dV, V0, *blocks)
-    if blocks is not None and work + 0.5 * quad > 1e-12 * quad:  # the impulses would add energy: scale them back (never below 0)
-        scale = min(1.0, -2.0 * (1.0 - 1e-9) * work / quad) if work < 0.0 and quad > 0.0 else 0.0
+        off_b, mass, shift = blocks[0], blocks[2], blocks[5]
+        gn = np.sqrt(np.einsum("ij,ij->i", shift, shift))  # |g| dt
+        up = -shift / np.where(gn > 0.0, gn, 1.0)[:, None]
+        a = np.einsum("ij,ij->i", dV[off_b[:, None] + np.arange(3)], up)
+        coef = mass * gn * 0.5 if lifted is None else mass * gn * 0.5 * lifted
+
+        def gain(s):
+            return s * work + 0.5 * s * s * quad - float(np.sum(coef * np.minimum(np.maximum(s * a, 0.0), gn)))
+
+    if blocks is not None and gain(1.0) > 1e-12 * quad:  # the impulses would add energy: scale them back
+        lo, hi = 0.0, 1.0  # gain(lo) <= 0 (gain(0) = 0), gain(hi) > 0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if gain(mid) <= 0.0:
+                lo = mid
+            else:
+                hi = mid
+        scale = lo
         dV *= scale
         lam *= scale
         V[:] = V0 + dV
     data["dV"] = dV
     return lam, bounce, sweeps
+
+
+def gravity_lift(dv: np.ndarray, g: np.ndarray, dt: float) -> np.ndarray | None:
+    """The position change [m] of a modal body at the step start for the part of its solve's velocity change
+    ``dv`` (3,) [m/s] that holds the step's load (gravity ``g`` (3,) [m/s^2], step ``dt`` [s]): that part,
+    ``min(max(dv . up, 0), |g| dt)`` along ``up = -g / |g|``, acts at the step's middle, so the body moves
+    ``-dt / 2`` of it (None: none; see ``_solve``)."""
+    gn = float(np.sqrt(g @ g)) * dt
+    if gn == 0.0:
+        return None
+    up = -np.asarray(g) * dt / gn
+    c = min(max(float(dv @ up), 0.0), gn)
+    return None if c == 0.0 else (-0.5 * dt * c) * up
 
 
 class _ContactBuilder:

@@ -524,6 +524,8 @@ class World(_TetStage, _SolidStage, _ClothStage):
                 R = s.rotation()
                 s.angular_momentum += R @ (body.inertia @ (R.T @ dV[3:6]))
                 s.qdot += dV[6:]
+                if name in ctx.lift:
+                    s.position += ctx.lift[name]
             strikes = self._strikes(ctx, name)
             ctl = self._strike_control(ctx, name)
             out = m["scratch"]  # reused every step; the caller's state receives a copy at the end of the step
@@ -641,6 +643,7 @@ class _StepContext:
         self.start = {}
         self.done = set()
         self.dV = {}
+        self.lift = {}  # position changes [m] at the step start (``_solid_stage.gravity_lift``)
         self.cloth_dv = {}
         self.impacts = {}
         self.contacts = dict(state_in.contacts)  # kept unless the solid solve runs

@@ -1,0 +1,55 @@
+"""A modal body resting on the ground in a ``World`` whose solid solve holds it (a second body in the world, so the
+ground's contacts are the compiled modal contacts' and the one solve's, not the body's own runtime contacts) stays
+where it rests at any dt, with no energy gained (issue 17).
+
+The solve's contacts hold a body at the skin, half the contact margin above the ground. Before the translation's
+velocity change acted at the step's middle (``_solid_stage._solve``), it acted at the step start and the no-gain rule
+stopped the impulse that would hold a body at rest (lifting it at the start costs ``m (g dt)^2 / 2``): the body fell
+``g dt^2 / 2`` within the step before the next one held it. With these tests on 7217f04: the bottom went 16 um below
+the ground at dt = 10 ms, 49 mm at 0.1 s and 4.9 m at 1 s (fell through), and 6.5 um below the skin at 1 ms.
+
+Tolerance: the sequential-impulse solve stops once a sweep changes no contact's velocity by more than
+``VELOCITY_STOP`` of the velocity that closes the skin in one step (``skin / dt``), which leaves an end gap within
+``VELOCITY_STOP * skin`` of its target in that step; so the bottom must stay within that of the skin (5 um here),
+never below the ground (``World.penetrations`` at tolerance 0), and the total energy never above its start.
+
+Restitution 0: with e > 0 the solve still takes a resting contact as bouncing once the step's ``g dt`` exceeds
+``BOUNCE_THRESHOLD`` (its approach is the end-of-step velocity), and its no-gain rule then lets the body sink (e = 0.3:
+5 um below the skin at 10 ms, 0.11 m into the ground at 1 s); see ``_solid_stage._solve``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import modalfem
+from modalfem import world as mw
+from modalfem.effects import Contact, Gravity
+from modalfem.world._solid_stage import VELOCITY_STOP
+
+G = 9.81  # [m/s^2]
+
+
+@pytest.mark.parametrize("dt", [1e-3, 1e-2, 0.1, 1.0])
+def test_a_modal_body_resting_on_the_ground_in_a_world_stays_at_any_dt(bar_model, dt):
+    contact = Contact(restitution=0.0)  # with e > 0 the bounce rule still kicks a resting body (module docstring)
+    skin = 0.5 * contact.margin
+    w0 = mw.World(bodies=[mw.Modal(bar_model, name="bar")], effects=[])
+    s0 = w0.state()
+    zmin = w0.surface(s0, "bar")[0][:, 2].min() - s0.bodies["bar"].position[2]
+    w = mw.World(bodies=[mw.Modal(bar_model, name="bar", position=(0.0, 0.0, skin - zmin)),
+                         mw.Modal(bar_model, name="far", position=(0.0, 1.0, 1.0))],
+                 obstacles=[mw.Ground()], effects=[Gravity(bodies=["bar"]), contact])
+    assert "bar" in w._fast.names  # the ground's contacts are the solid solve's
+    s = w.state()
+    e0 = w.energy(s, "bar")["total"] + w.energy(s, "far")["total"]
+    tol = VELOCITY_STOP * skin
+    mass = w._modal["bar"]["body"].mass
+    for i in range(max(20, int(round(1.0 / dt)))):
+        w.step(s, s, None, dt)
+        low = float(w.surface(s, "bar")[0][:, 2].min())
+        assert abs(low - skin) <= tol, f"step {i}: bottom {low:.6e} m, skin {skin:.1e} m"
+        assert w.penetrations(s, tolerance=0.0) == []
+        # no gain: the solve's rule admits 1e-12 of its quadratic term; the free rotation keeps 1e-9 of m g r
+        assert w.energy(s, "bar")["total"] + w.energy(s, "far")["total"] <= e0 + 1e-9 * mass * G * 0.1
+    assert np.linalg.norm(s.bodies["bar"].velocity) < 1e-2 * G * dt  # at rest, not holding a step's g dt
