@@ -36,8 +36,10 @@ for is never called. In order:
    opposite impulses at the closest surface points: ``StepReport.exchanged``);
 6. ``sound``: the impacts of sounding modal bodies are recorded (``world.sound(name)``).
 
-Where the stages live (``World`` mixes them in): ``_tet_stage`` (1, and tet self-collision), ``_cloth_stage`` (the
-cloth build, 2 and 5), ``_solid_stage`` (3); construction, the plan, the step, 4, 6 and the reports here.
+Where the stages live (``World`` mixes them in): ``_tet_stage`` (1, and tet self-collision; its contacts in
+``_tet_contacts``, reactions, friction and restitution in ``_tet_response``), ``_cloth_stage`` (the cloth build, 2 and
+5), ``_solid_stage`` (3); sub-steps of a step near tet bodies in ``substeps``; construction, the plan, the step, 4, 6
+and the reports here.
 """
 
 from __future__ import annotations
