@@ -8,7 +8,7 @@ the boxes at the state's time (``signed_distance``: negative inside); a vertex c
 What depth the World's contacts allow is stated where they are made: a tet body's penalty contacts redo a step
 whose contacts end deeper than ``MAX_DEPTH`` of the contact's margin (0.5 mm with the default 1 mm margin) and rest
 about ``margin / DEPTH_SHARE`` deep under a heavy load (``_tet_contacts``); a modal body at rest in the solid solve
-(restitution 0) stays within ``VELOCITY_STOP`` of its contact skin at any dt, its lift against gravity acting at the
+(restitution 0) stays within ``VELOCITY_STOP`` times its contact skin of it at any dt (5 um with a 1 mm margin), its lift against gravity acting at the
 step's middle (``_solid_stage.gravity_lift``; tests/world/test_world_resting_dt.py); with restitution > 0 at steps
 above ~5 ms a resting contact is still taken for a bounce and can sink (``_solid_stage._solve``'s known limit).
 """
