@@ -4,7 +4,7 @@
   tetrahedron and 0 for a flat one (slivers, needles and caps all go to 0).
 * ``improve_quality(points, cells, bound=...)``: raises the worst radius ratio without moving the
   boundary: (1) flat tetrahedra lying on the boundary (two or three boundary faces, quality below
-  the bound) are removed when the boundary stays a closed 2-manifold, (2) interior vertices of bad
+  the bound) are removed when that makes no boundary edge open or non-manifold, (2) interior vertices of bad
   tetrahedra are moved towards the centroid of their neighbours (full, half or quarter step),
   then, if that is not enough, uphill on the worst quality of the tetrahedra around the vertex
   (finite-difference gradient, backtracking); a move is kept only when it raises the worst
@@ -51,17 +51,20 @@ def boundary_faces(cells: np.ndarray) -> np.ndarray:
     return faces[counts[inv.ravel()] == 1]
 
 
-def _closed_manifold(faces: np.ndarray) -> bool:
-    """Every edge of the triangles ``faces`` is used by exactly two of them."""
-    if len(faces) == 0:
-        return False
+def _bad_edges(faces: np.ndarray) -> set:
+    """Edges of the triangles ``faces`` not used by exactly two of them (boundary or non-manifold edges)."""
     e = np.sort(faces[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(e, axis=0, return_counts=True)
-    return bool(np.all(counts == 2))
+    u, counts = np.unique(e, axis=0, return_counts=True)
+    return {(int(a), int(b)) for a, b in u[counts != 2]}
 
 
 def _remove_boundary_slivers(points, cells, bound):
-    """Drop bad tetrahedra with two or more boundary faces if the boundary stays closed and manifold."""
+    """Drop bad tetrahedra with two or more boundary faces where that adds no open or non-manifold boundary edge.
+
+    The check is relative to the mesh's own boundary: fTetWild may return a boundary that is not a closed
+    manifold already (two parts meeting along an edge, used by four boundary faces); a sliver elsewhere is
+    still removed as long as its removal makes no edge bad that was not bad before.
+    """
     faces = cells[:, _FACES].reshape(-1, 3)
     _, inv, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
     on_boundary = (counts[inv.ravel()] == 1).reshape(-1, 4).sum(axis=1)
@@ -69,14 +72,20 @@ def _remove_boundary_slivers(points, cells, bound):
     drop = (q < bound) & (on_boundary >= 2)
     if not drop.any():
         return cells, 0
+    before = _bad_edges(boundary_faces(cells))
     kept = cells[~drop]
-    if len(kept) and _closed_manifold(boundary_faces(kept)):
-        return kept, int(drop.sum())
+    if len(kept):
+        after = boundary_faces(kept)
+        if len(after) and _bad_edges(after) <= before:
+            return kept, int(drop.sum())
     # one at a time (worst first) when removing them all at once breaks the boundary
     removed = 0
     for c in np.flatnonzero(drop)[np.argsort(q[drop])]:
         trial = np.delete(cells, np.flatnonzero((cells == cells[c]).all(axis=1))[:1], axis=0)
-        if len(trial) and _closed_manifold(boundary_faces(trial)):
+        if not len(trial):
+            continue
+        after = boundary_faces(trial)
+        if len(after) and _bad_edges(after) <= before:
             cells, removed = trial, removed + 1
     return cells, removed
 

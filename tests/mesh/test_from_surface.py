@@ -11,7 +11,7 @@ import pytest
 from modalfem.errors import MeshError
 from modalfem.mesh import box, from_surface, read, tetrahedralize
 from modalfem.mesh.solid import QUALITY_BOUND, read_surface, signed_volumes
-from modalfem.mesh.tet_quality import improve_quality, radius_ratio, surface_distances
+from modalfem.mesh.tet_quality import boundary_faces, improve_quality, radius_ratio, surface_distances
 from modalfem.meshes import path as shipped
 
 
@@ -123,6 +123,34 @@ def test_improve_quality_climbs_where_the_centroid_does_not_help():
     assert np.all(signed_volumes(new, cells) > 0)
     assert info["moved_vertices"] == 1
     assert info["worst_after"] == pytest.approx(radius_ratio(new, cells).min())
+    assert info["worst_after"] >= 0.1
+
+
+def test_boundary_sliver_is_removed_when_the_boundary_is_not_a_closed_manifold_elsewhere():
+    # fTetWild can return two parts meeting along an edge (that edge used by four boundary faces); a flat cap
+    # standing on the boundary elsewhere must still be removed (CI run: a raw scan's worst element stayed 0.068)
+    a = box(size=(1.0, 1.0, 1.0), cells=(1, 1, 1))
+    b = box(size=(1.0, 1.0, 1.0), cells=(1, 1, 1), origin=(1.0, 1.0, 0.0))  # touches a along x = y = 1
+    pts = np.vstack([a.points, b.points])
+    cells = np.vstack([a.cells, b.cells + a.point_count])
+    pts, index = np.unique(pts, axis=0, return_inverse=True)  # the shared edge's two vertices merged
+    cells = index.ravel()[cells]
+    faces = boundary_faces(cells)
+    e = np.sort(faces[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
+    _, uses = np.unique(e, axis=0, return_counts=True)
+    assert uses.max() == 4  # the shared edge: not a closed 2-manifold
+    # a cap on a's bottom face (z = 0): apex just outside the face, three new boundary faces, quality ~0.03
+    bottom = next(f for f in faces if np.all(pts[f, 2] == 0.0) and np.all(pts[f, :2] <= 1.0))
+    apex = pts[bottom].mean(axis=0) - np.array([0.0, 0.0, 0.01])
+    pts = np.vstack([pts, apex])
+    cap = np.array([[*bottom, len(pts) - 1]])
+    if signed_volumes(pts, cap)[0] < 0:
+        cap = cap[:, [0, 2, 1, 3]]
+    cells = np.vstack([cells, cap])
+    assert radius_ratio(pts, cap)[0] < 0.1
+    new, kept, info = improve_quality(pts, cells, bound=0.1)
+    assert info["removed_slivers"] == 1
+    assert len(kept) == len(cells) - 1 and not (kept == len(pts) - 1).any()
     assert info["worst_after"] >= 0.1
 
 
