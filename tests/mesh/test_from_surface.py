@@ -213,6 +213,61 @@ def test_ftetwild_leaves_nothing_in_the_working_directory(tmp_path, monkeypatch)
     assert list(tmp_path.iterdir()) == []
 
 
+def _fake_ftetwild(monkeypatch, results):
+    """solid._ftetwild replaced by one returning ``results`` in turn; the stop energies it was called with
+    (None: fTetWild's default)."""
+    from modalfem.mesh import solid
+
+    calls = []
+
+    def fake(v, f, h, envelope, stop_energy=None):
+        calls.append(stop_energy)
+        return results[len(calls) - 1]
+
+    monkeypatch.setattr(solid, "_ftetwild", fake)
+    return calls
+
+
+def _cube_surface():
+    from modalfem.mesh.surface import boundary_surface
+
+    skin = boundary_surface(box(size=(1.0, 1.0, 1.0), cells=(2, 2, 2)))
+    return skin.vertices, skin.triangles
+
+
+def test_ftetwild_is_run_again_when_its_mesh_misses_the_quality_bound(monkeypatch):
+    import warnings
+
+    from modalfem.mesh import solid
+
+    # first run: a slab 1/50 thick with vertices only on its boundary: every tetrahedron flat (quality << 0.1),
+    # none of them can be lifted by moving vertices; second run: a good cube mesh
+    slab, cube = box(size=(1.0, 1.0, 0.02), cells=(2, 2, 1)), box(size=(1.0, 1.0, 1.0), cells=(2, 2, 2))
+    calls = _fake_ftetwild(monkeypatch, [(slab.points, slab.cells), (cube.points, cube.cells)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", solid.QualityWarning)
+        r = tetrahedralize(_cube_surface(), method="ftetwild")
+    assert calls == [None, solid.RETRY_STOP_ENERGY] and solid.RETRY_STOP_ENERGY < solid.STOP_ENERGY
+    assert r.report.worst_quality == pytest.approx(radius_ratio(cube.points, cube.cells).min(), rel=1e-12)
+    assert r.report.worst_quality >= QUALITY_BOUND and r.mesh.cell_count == cube.cell_count
+    assert any("fTetWild run again" in line and "the second kept" in line for line in r.report.repairs)
+    assert "ftetwild.retry" in r.report.timings
+
+
+def test_ftetwild_rerun_keeps_the_better_of_two_bad_meshes_and_warns(monkeypatch):
+    from modalfem.mesh import solid
+
+    # slabs 1/100 and 1/200 thick, vertices only on the boundary: worst quality ~0.04 and ~0.02 however optimised
+    thin, thinner = box(size=(1.0, 1.0, 0.01), cells=(2, 2, 1)), box(size=(1.0, 1.0, 0.005), cells=(2, 2, 1))
+    calls = _fake_ftetwild(monkeypatch, [(thin.points, thin.cells), (thinner.points, thinner.cells)])
+    with pytest.warns(solid.QualityWarning):
+        r = tetrahedralize(_cube_surface(), method="ftetwild")
+    assert len(calls) == 2
+    assert r.report.worst_quality < QUALITY_BOUND
+    assert r.mesh.points[:, 2].max() - r.mesh.points[:, 2].min() == 0.01  # the thicker slab, the better one, kept
+    assert any("the first kept" in line for line in r.report.repairs)
+
+
 # ------------------------------------------------------------------ raw scans
 @pytest.mark.slow
 def test_scan_with_holes_nonmanifold_edges_flips_and_a_spike_becomes_solid():
