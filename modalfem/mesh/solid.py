@@ -22,7 +22,10 @@ surface``, BENCHMARKS.md):
    child process (it holds the GIL for its whole run: the CLI's progress line and Ctrl-C stay alive).
 5. **Optimise** (``modalfem.mesh.tet_quality.improve_quality``): boundary slivers removed, interior
    vertices smoothed, until the worst radius ratio ``3 r_in / R_circ`` reaches ``quality_bound``
-   (0.1 by default); a mesh that still misses it gets a ``QualityWarning`` and says so in the report.
+   (0.1 by default). fTetWild's output varies from run to run: when its optimised mesh misses the
+   bound, fTetWild runs once more asking for better elements (AMIPS stop energy ``RETRY_STOP_ENERGY``
+   instead of 10; slower) and the better of the two meshes is kept. A mesh that still misses the bound
+   gets a ``QualityWarning`` and says so in the report.
 
 The report gives tets, worst quality, the volume against the surface's own (signed volume of the
 closed surface; not defined for a surface with holes) and the sampled Hausdorff distance between the
@@ -288,7 +291,7 @@ def tetrahedralize(source, *, h: float | None = None, unit_scale: float = 1.0, m
         BackendUnavailableError: fTetWild needed but ``pytetwild`` not installed.
 
     Warns:
-        QualityWarning: the worst tetrahedron stays below ``quality_bound``.
+        QualityWarning: the worst tetrahedron stays below ``quality_bound`` (for fTetWild: after a second run).
     """
     say = progress or (lambda msg: None)
     if method not in ("auto", "gmsh", "ftetwild"):
