@@ -234,9 +234,11 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
            lifted: np.ndarray | None = None):
     """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
     kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
-    ``_SolidStage._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 by scaling
-    every impulse back (equal and opposite impulses stay so). Returns ``(lam (k, 3), bounce (k,), sweeps)`` and
-    leaves ``data["dV"]``.
+    ``_SolidStage._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 per island
+    (``islands``: bodies linked by body-body contacts; an obstacle links nothing) by scaling the island's impulses back
+    (equal and opposite impulses stay so), so no energy moves between bodies that do not touch (one factor for the
+    whole solve let a body at rest gain 1.1e-6 J from a drop elsewhere: tests/world/test_world_islands.py). Returns
+    ``(lam (k, 3), bounce (k,), sweeps)`` and leaves ``data["dV"]``.
 
     The impulses act at the step start and target the end velocity ``vn`` that closes the gap to the skin (or pushes
     out) in a step, ``gap + vn dt`` (``V`` holds the end-of-step velocities ``v + g dt``). That would leave a body
@@ -246,11 +248,12 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     so a body at rest ends where it began, holding ``m g dt``, and an impact (more than the load) still ends at its
     target. The energy change is then exact: ``f(s) = s work + s^2 quad / 2 - sum_b m_b |g_b| dt / 2 min(max(s a_b,
     0), |g_b| dt)`` for the impulses scaled by s (``a_b`` body b's dv against gravity; the last term the lift's
-    potential energy), 0 at rest; f is convex with f(0) = 0, so when f(1) > 1e-12 quad the impulses are scaled to
-    the largest s with f(s) <= 0 (bisection on an interval whose lower end always satisfies it). ``lifted`` (bodies
-    of ``blocks``, bool; None: all): the bodies that take the lift (not those a tet body's implicit step placed this
-    step, whose positions it computed with the reaction at the start: lifted, a bar landing across a tet cube and a
-    sphere crossed the cube).
+    potential energy), 0 at rest; f is convex with f(0) = 0, so when f(1) > 1e-12 quad an island's impulses are scaled
+    to the largest s with f(s) <= 0 (``_no_gain_scale``: bisection on an interval whose lower end always satisfies it;
+    f is piecewise quadratic with a break where each body's lift reaches its cap, bisection keeps that simple).
+    ``lifted`` (bodies of ``blocks``, bool; None: all): the bodies that take the lift (not those a tet body's implicit
+    step placed this step, whose positions it computed with the reaction at the start: lifted, a bar landing across a
+    tet cube and a sphere crossed the cube).
 
     Known limit: restitution still acts on the end-of-step approach ``vn``, which holds the step's ``g dt``: a
     resting contact with e > 0 is taken as bouncing once ``g dt`` > ``BOUNCE_THRESHOLD`` (dt > 5 ms), and the
@@ -278,31 +281,68 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
                                           int(data["iterations"]), lam_n, lam_t, vtol)
     lam = lam_n[:, None] * n + lam_t
     dV = V - V0
-    if blocks is not None:  # the energy change (see above); the lift's: per body m |g| dt / 2 and the cap |g| dt
-        work, quad = _kernels.modal_energy_change(dV, V0, *blocks)
-        off_b, mass, shift = blocks[0], blocks[2], blocks[5]
-        gn = np.sqrt(np.einsum("ij,ij->i", shift, shift))  # |g| dt
-        up = -shift / np.where(gn > 0.0, gn, 1.0)[:, None]
-        a = np.einsum("ij,ij->i", dV[off_b[:, None] + np.arange(3)], up)
-        coef = mass * gn * 0.5 if lifted is None else mass * gn * 0.5 * lifted
-
-        def gain(s):
-            return s * work + 0.5 * s * s * quad - float(np.sum(coef * np.minimum(np.maximum(s * a, 0.0), gn)))
-
-    if blocks is not None and gain(1.0) > 1e-12 * quad:  # the impulses would add energy: scale them back
-        lo, hi = 0.0, 1.0  # gain(lo) <= 0 (gain(0) = 0), gain(hi) > 0
-        for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            if gain(mid) <= 0.0:
-                lo = mid
-            else:
-                hi = mid
-        scale = lo
-        dV *= scale
-        lam *= scale
-        V[:] = V0 + dV
+    if blocks is not None:  # the energy change (see above), per island (``islands``)
+        scale = np.ones(len(blocks[0]))
+        for ids in islands(data["body"], data["other"], len(blocks[0])):
+            scale[ids] = _no_gain_scale(dV, V0, tuple(b[ids] for b in blocks),
+                                        None if lifted is None else lifted[ids])
+        if np.any(scale < 1.0):  # some island's impulses would add energy: scale them back
+            body_scale = np.repeat(scale, blocks[1])  # per velocity (blocks in order, contiguous)
+            dV *= body_scale
+            lam *= scale[data["body"]][:, None]
+            V[:] = V0 + dV
     data["dV"] = dV
     return lam, bounce, sweeps
+
+
+def islands(body: np.ndarray, other: np.ndarray, m: int) -> list:
+    """The islands of a solve's contacts (``body``, ``other`` (k,): body indices, ``other`` -1 for an obstacle) among
+    ``m`` bodies: the connected components of the graph whose edges are the body-body contacts (an obstacle links
+    nothing), as sorted int64 index arrays, in order of their first body; bodies with no contact are left out."""
+    parent = np.arange(m)
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    pairs = np.unique(np.stack([body, other], axis=1)[other >= 0], axis=0) if np.any(other >= 0) else ()
+    for a, b in pairs:
+        ra, rb = root(int(a)), root(int(b))
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    touched = np.zeros(m, dtype=bool)
+    touched[body] = True
+    touched[other[other >= 0]] = True
+    roots = np.array([root(i) for i in range(m)], dtype=np.int64)
+    return [np.flatnonzero(touched & (roots == r)) for r in np.unique(roots[touched])]
+
+
+def _no_gain_scale(dV: np.ndarray, V0: np.ndarray, blocks: tuple, lifted: np.ndarray | None) -> float:
+    """The factor in [0, 1] of one island's impulses (its bodies' ``blocks``, as
+    ``_SolidStage._inverse_mass_blocks``; ``lifted`` as ``_solve``'s) that keeps its energy change ``f(s)`` <= 0: 1
+    when ``f(1)`` <= 1e-12 of the quadratic term, else the largest s with f(s) <= 0 (``_solve``)."""
+    work, quad = _kernels.modal_energy_change(dV, V0, *blocks)
+    off_b, mass, shift = blocks[0], blocks[2], blocks[5]
+    gn = np.sqrt(np.einsum("ij,ij->i", shift, shift))  # |g| dt
+    up = -shift / np.where(gn > 0.0, gn, 1.0)[:, None]
+    a = np.einsum("ij,ij->i", dV[off_b[:, None] + np.arange(3)], up)
+    coef = mass * gn * 0.5 if lifted is None else mass * gn * 0.5 * lifted
+
+    def gain(s):
+        return s * work + 0.5 * s * s * quad - float(np.sum(coef * np.minimum(np.maximum(s * a, 0.0), gn)))
+
+    if gain(1.0) <= 1e-12 * quad:
+        return 1.0
+    lo, hi = 0.0, 1.0  # gain(lo) <= 0 (gain(0) = 0), gain(hi) > 0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if gain(mid) <= 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return lo
 
 
 def gravity_lift(dv: np.ndarray, g: np.ndarray, dt: float) -> np.ndarray | None:
