@@ -14,6 +14,7 @@ import numba
 import numpy as np
 
 from modalfem.runtime._contact_step_kernels import _free_rotation
+from modalfem.world._solid_stage import apply_lift
 
 @numba.njit(cache=True)
 def free_steps(pos, vel, L, quat, q, qdot, qoff, nm, dV, dvoff, kick, inertia, mass, g, axes, moments, coef, h,
@@ -143,8 +144,7 @@ class ModalBatch:
         dvoff = np.zeros(len(names), dtype=np.int64)
         parts, o = [np.zeros(0)], 0
         for i, n in enumerate(names):
-            if n in ctx.lift:  # the part of the solid solve's dv holding the load (``_solid_stage.gravity_lift``)
-                pos[i] += ctx.lift[n]
+            apply_lift(ctx.lift, n, pos[i])  # the part of the solid solve's dv holding the load (``gravity_lift``)
             d = ctx.dV.get(n)
             if d is not None:
                 kick[i], dvoff[i] = True, o

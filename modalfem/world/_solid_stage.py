@@ -358,6 +358,15 @@ def gravity_lift(dv: np.ndarray, g: np.ndarray, dt: float) -> np.ndarray | None:
     return None if c == 0.0 else (-0.5 * dt * c) * up
 
 
+def apply_lift(lift: dict, name: str, position: np.ndarray) -> None:
+    """Adds body ``name``'s lift (``lift``: ``_StepContext.lift``, position changes [m] from ``gravity_lift``) to its
+    start ``position`` (3,) [m] in place, if it has one: the one place both modal steps (the batch's and the
+    per-body one) take it."""
+    d = lift.get(name)
+    if d is not None:
+        position += d
+
+
 class _ContactBuilder:
     """Entries of the compiled solve (see ``modalfem.world._kernels``) for modal bodies' surface vertices against
     moving and mesh obstacles (the compiled ``modal_contacts.ModalContacts`` writes the contacts between bodies), built

@@ -55,7 +55,7 @@ from modalfem import effects as fx
 from modalfem.errors import InputError, SimulationError
 from modalfem.world._cloth_stage import _ClothStage
 from modalfem.world._shared import _REACTION_KEY, BOUNCE_THRESHOLD, PUSH_OUT, SLOW  # noqa: F401 (re-exported)
-from modalfem.world._solid_stage import _SolidStage
+from modalfem.world._solid_stage import _SolidStage, apply_lift
 from modalfem.world._tet_stage import FRICTION_SLIP, _TetStage  # noqa: F401 (re-exported)
 from modalfem.world.bodies import Cloth, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
@@ -526,8 +526,7 @@ class World(_TetStage, _SolidStage, _ClothStage):
                 R = s.rotation()
                 s.angular_momentum += R @ (body.inertia @ (R.T @ dV[3:6]))
                 s.qdot += dV[6:]
-                if name in ctx.lift:
-                    s.position += ctx.lift[name]
+                apply_lift(ctx.lift, name, s.position)  # the part of dV holding the load (``gravity_lift``)
             strikes = self._strikes(ctx, name)
             ctl = self._strike_control(ctx, name)
             out = m["scratch"]  # reused every step; the caller's state receives a copy at the end of the step
