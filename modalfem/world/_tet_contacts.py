@@ -80,19 +80,26 @@ class _TetContacts:
             touched.extend(o.points() if isinstance(o, _ModalSurface) else [o] * len(p))
 
         for o in self.obstacles:
-            r = reach + (0.0 if not o.moving else float(np.linalg.norm(o.path.velocity(ctx.state_in.time, dt))) * dt)
+            # a moving obstacle's tangent planes are found where the vertices are relative to it at the step start
+            # and carried by its travel ``d`` in the step (a vertex at rest on it is then pushed along with it): read
+            # at the step end, a box rising half its height in a step (1 m/s, 50 ms) put a tet cube resting on it
+            # under its middle, its bottom face the closest, and the cube fell through it
+            d = o.offset(t1) - o.offset(ctx.state_in.time) if o.moving else None
+            te = t1 if d is None else ctx.state_in.time
+            r = reach + (0.0 if d is None else float(np.linalg.norm(d)))
             if isinstance(o, TriangleMesh):
-                Vo = o.vertices + o.offset(t1)
+                Vo = o.vertices + o.offset(te)
                 h = self._obstacle_surf[self.obstacles.index(o)].query(xs, Vo, r)
                 if len(h.point):
                     p = np.einsum("kj,kjd->kd", h.bary, Vo[o.triangles[h.triangle]])
-                    add(sv[h.point][:, None], np.ones((len(p), 1)), p, h.normal, None, o)
+                    add(sv[h.point][:, None], np.ones((len(p), 1)), p if d is None else p + d, h.normal, None, o)
             else:
-                gap, n = o.signed_distance(xs, t1)
+                gap, n = o.signed_distance(xs, te)
                 idx = np.flatnonzero(gap < r)
                 if len(idx):
                     n = np.asarray(n)[idx]
-                    add(sv[idx][:, None], np.ones((len(idx), 1)), xs[idx] - gap[idx, None] * n, n, None, o)
+                    p = xs[idx] - gap[idx, None] * n
+                    add(sv[idx][:, None], np.ones((len(idx), 1)), p if d is None else p + d, n, None, o)
         n_obstacle = len(touched)
         modal = []  # per modal contact: (body, modal vertex ids (3,), weights (3,))
         ends = {}  # modal body -> (its free end state, how far its surface travels in the step [m])
@@ -251,16 +258,26 @@ class _TetContacts:
         stiffness ``k`` [N/m]. Without them a bar landing on a tet cube and the ground in one 10 ms step took the
         ground's impulse (5.7 rad/s) after the tet step had placed it on the cube: it ended turned 3.6 degrees, 7.4
         mm from that pose, across the cube; across a tet cube and a box, alike (the box's edges under the body's
-        faces too, as the solid solve's: ``_solid_stage._box_edges``). Moving obstacles still act after the step.
+        faces too, as the solid solve's: ``_solid_stage._box_edges``). A moving obstacle's rows are found where the body
+        is relative to it at the step start and carried by its travel in the step (vertex rows; no box edges).
         Returns ``((b, index), body point vertex ids (r, 3), plane rows' p, n, k, arms, body point weights (r, 3))``
         or None (``PenaltyContacts`` rows without tet vertices: the depth is ``target gap - gap - a . u``)."""
         x0, x1 = xs
         t0, t1 = ctx.state_in.time, ctx.state_in.time + ctx.dt
         ids, w, P, N = [], [], [], []
         for i, o in enumerate(self.obstacles):
-            if o.moving:
-                continue
-            if isinstance(o, TriangleMesh):  # each vertex on its closest triangle's plane (the same at the start)
+            if o.moving:  # found where the body is relative to it at the step start, carried by its travel d
+                d = o.offset(t1) - o.offset(t0)
+                r = travel + float(np.linalg.norm(d)) + 2.0 * dhat
+                if isinstance(o, TriangleMesh):
+                    h = self._obstacle_surf[i].query(x0, o.vertices + o.offset(t0), r)
+                    idx, gap0, n = h.point, h.gap, h.normal
+                else:
+                    gap0, n = o.signed_distance(x0, t0)
+                    idx = np.flatnonzero(gap0 < r)
+                    gap0, n = gap0[idx], np.broadcast_to(np.asarray(n, np.float64), x0.shape)[idx]
+                gap = gap0 + np.einsum("kd,kd->k", x1[idx] - x0[idx] - d, n)  # at the free end
+            elif isinstance(o, TriangleMesh):  # each vertex on its closest triangle's plane (the same at the start)
                 h = self._obstacle_surf[i].query(x1, o.vertices, travel + 2.0 * dhat)
                 idx, gap, n = h.point, h.gap, h.normal
                 gap0 = gap + np.einsum("kd,kd->k", x0[idx] - x1[idx], n)
@@ -269,7 +286,8 @@ class _TetContacts:
                 idx = np.flatnonzero(gap < travel + 2.0 * dhat)
                 gap, n = gap[idx], np.broadcast_to(np.asarray(n, np.float64), x1.shape)[idx]
                 gap0 = o.signed_distance(x0[idx], t0)[0] if len(idx) else gap
-            if isinstance(o, Box):  # its edges under the body's faces at the free end, as the solid solve's
+            if isinstance(o, Box) and not o.moving:  # its edges under the body's faces at the free end, as the solid
+                # solve's (a moving box's vertex rows alone)
                 edges = _box_edges(self._modal[b]["body"], end, o, t1, x1, idx, travel + 2.0 * dhat, dhat)
                 if edges is not None:
                     if edges[0] is not None:  # (vertex contacts left to the edge contacts)
