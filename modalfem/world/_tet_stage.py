@@ -128,7 +128,12 @@ class _TetStage(_TetContacts, _TetResponse):
                 pen = t["penalty"]
                 if attempt == TET_RETRIES or not (pen.depths(out.x) > MAX_DEPTH * pen.dhat).any():
                     break
-                kept = (out, pen.k.copy(), self._tet_end_energy(ctx, name, t, out) if energy is None else energy)
+                # (plus the work its too-deep contacts' forces do holding their points a quarter skin deep instead: a
+                # body its first attempt sank into the ground ends higher, and heavier by that, when held)
+                d = pen.depths(out.x)
+                lift = float(np.sum(np.where(d > MAX_DEPTH * pen.dhat, pen.forces(out.x) * (d - 0.25 * pen.dhat), 0.0)))
+                e_end = self._tet_end_energy(ctx, name, t, out) if energy is None else energy
+                kept = (out, pen.k.copy(), lift + e_end)
                 self._tet_too_deep(pen, out.x)
                 out = s.copy()
             if obstacles is not None:
