@@ -115,8 +115,10 @@ class _SolidStage:
         lam_t[:] = t * np.where(tn <= lim, 1.0, lim / np.where(tn > 0, tn, 1.0))[:, None]
         # a body the tet step moved (a tet body's reaction in ``ctx.dV``) was placed by it: no lift (``_solve``)
         lifted = np.array([name not in ctx.dV for name in fast.names])
+        start = (np.array([seg[n][0] for n in fast.names], dtype=np.int64),
+                 np.array([self._modal[n]["g"] for n in fast.names]) * dt)
         lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, None if driven else
-                                     self._inverse_mass_blocks(ctx, seg), lifted)
+                                     self._inverse_mass_blocks(ctx, seg), lifted, start)
         ctx.report.sweeps = sweeps
         ctx.contacts.update({key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0})
         if fdata is not None:
@@ -231,7 +233,7 @@ VELOCITY_STOP = 1e-2
 
 
 def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None,
-           lifted: np.ndarray | None = None):
+           lifted: np.ndarray | None = None, start: tuple | None = None):
     """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
     kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
     ``_SolidStage._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 per island
@@ -255,12 +257,11 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     step placed this step, whose positions it computed with the reaction at the start: lifted, a bar landing across a
     tet cube and a sphere crossed the cube).
 
-    Known limit: restitution still acts on the end-of-step approach ``vn``, which holds the step's ``g dt``: a
-    resting contact with e > 0 is taken as bouncing once ``g dt`` > ``BOUNCE_THRESHOLD`` (dt > 5 ms), and the
-    no-gain rule, scaling every impulse, then lets the body sink (a bar at e = 0.3 went 0.11 m into the ground at dt
-    = 1 s). Deciding and aiming the bounce on the start approach ``vn - g_n dt`` fixes that
-    (tests/world/test_world_resting_dt.py passes at e = 0.3) but moved tests/world/test_tet_squeeze.py at 50 ms or
-    test_tet_box_landing.py's sphere case onto paths where the tet step lets the bar cross: left for later."""
+    Restitution acts on the approach at the step start (``start``: per body its velocity offset and ``g dt``, taken
+    off ``V``; None: the end-of-step approach), as ``runtime.contact``: the end-of-step approach holds the step's ``g
+    dt``, so a resting contact with e > 0 was taken as bouncing once ``g dt`` > ``BOUNCE_THRESHOLD`` (dt > 5 ms) and
+    the body sank (e = 0.3: 0.11 m into the ground at dt = 1 s; tests/world/test_world_restitution_dt.py).
+    """
     ptr, off, nd, jptr, J, WJt = (data[key] for key in ("ptr", "off", "nd", "jptr", "J", "WJt"))
     K = data.get("K")  # the compiled modal contacts' come with their entries
     if K is None:
@@ -272,8 +273,15 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     skin = 0.5 * data["margin"]
     target = np.where(gap > skin, -(gap - skin) / dt, PUSH_OUT * (skin - gap) / dt)
     e = data["restitution"]
-    bounce = (vn < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
-    target = np.where(bounce, np.maximum(target, -e * vn), target) + data["vobs_n"]
+    v_in = vn
+    if start is not None:  # the approach at the step start (without the step's g dt)
+        off_b, gdt = start
+        V_s = V.copy()
+        for i in range(len(off_b)):
+            V_s[off_b[i]:off_b[i] + 3] -= gdt[i]
+        v_in = np.einsum("ij,ij->i", _kernels.contact_velocities(V_s, ptr, off, nd, jptr, J), n) - data["vobs_n"]
+    bounce = (v_in < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
+    target = np.where(bounce, np.maximum(target, -e * v_in), target) + data["vobs_n"]
     V0 = V.copy()
     _kernels.apply_impulses(V, ptr, off, nd, jptr, WJt, lam_n[:, None] * n + lam_t)
     vtol = VELOCITY_STOP * float(np.min(skin)) / dt

@@ -9,8 +9,8 @@ What depth the World's contacts allow is stated where they are made: a tet body'
 whose contacts end deeper than ``MAX_DEPTH`` of the contact's margin (0.5 mm with the default 1 mm margin) and rest
 about ``margin / DEPTH_SHARE`` deep under a heavy load (``_tet_contacts``); a modal body at rest in the solid solve
 (restitution 0) stays within ``VELOCITY_STOP`` times its contact skin of it at any dt (5 um with a 1 mm margin), its lift against gravity acting at the
-step's middle (``_solid_stage.gravity_lift``; tests/world/test_world_resting_dt.py); with restitution > 0 at steps
-above ~5 ms a resting contact is still taken for a bounce and can sink (``_solid_stage._solve``'s known limit).
+step's middle (``_solid_stage.gravity_lift``; tests/world/test_world_resting_dt.py), with restitution > 0 too (the
+bounce decided on the approach at the step start: tests/world/test_world_restitution_dt.py).
 """
 
 from __future__ import annotations

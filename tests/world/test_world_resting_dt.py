@@ -13,9 +13,7 @@ Tolerance: the sequential-impulse solve stops once a sweep changes no contact's 
 ``VELOCITY_STOP * skin`` of its target in that step; so the bottom must stay within that of the skin (5 um here),
 never below the ground (``World.penetrations`` at tolerance 0), and the total energy never above its start.
 
-Restitution 0: with e > 0 the solve still takes a resting contact as bouncing once the step's ``g dt`` exceeds
-``BOUNCE_THRESHOLD`` (its approach is the end-of-step velocity), and its no-gain rule then lets the body sink (e = 0.3:
-5 um below the skin at 10 ms, 0.11 m into the ground at 1 s); see ``_solid_stage._solve``."""
+Restitution 0 here; e > 0: tests/world/test_world_restitution_dt.py."""
 
 from __future__ import annotations
 
@@ -32,7 +30,7 @@ G = 9.81  # [m/s^2]
 
 @pytest.mark.parametrize("dt", [1e-3, 1e-2, 0.1, 1.0])
 def test_a_modal_body_resting_on_the_ground_in_a_world_stays_at_any_dt(bar_model, dt):
-    contact = Contact(restitution=0.0)  # with e > 0 the bounce rule still kicks a resting body (module docstring)
+    contact = Contact(restitution=0.0)  # e > 0: test_world_restitution_dt.py
     skin = 0.5 * contact.margin
     w0 = mw.World(bodies=[mw.Modal(bar_model, name="bar")], effects=[])
     s0 = w0.state()
