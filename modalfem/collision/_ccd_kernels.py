@@ -29,7 +29,7 @@ from modalfem._threads import apply as _apply_threads
 from modalfem.collision._distance_kernels import edge_edge_lb, point_triangle_lb
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["ccd_batch", "ccd_block", "ccd_candidates", "diagonal_gap", "diagonal_intervals"]
+__all__ = ["ccd_batch", "ccd_block", "ccd_candidates", "diagonal_gap", "diagonal_intervals", "spread_order"]
 
 _apply_threads()
 
@@ -265,6 +265,31 @@ def ccd_candidates(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, 
                      diagonal_intervals(X0, X1), diagonal_gap(X0, X1, eta))
 
 
+@numba.njit(cache=True)
+def spread_order(chunks: int) -> np.ndarray:
+    """(chunks,) the order in which a parallel loop visits its ``chunks`` chunks: the chunk indices by their
+    bit-reversed value over the next power of two (0, 4, 2, 6, 1, 5, 3, 7 for 8), so that every contiguous range of
+    the order, the share numba's static schedule gives one thread, takes chunks from all over the items (a range of
+    ``chunks / T`` iterations starting at a multiple of it, ``chunks`` and T powers of two, takes every T-th
+    chunk). It depends on ``chunks`` only, never on the thread count."""
+    p = 1
+    while p < chunks:
+        p *= 2
+    out = np.empty(chunks, dtype=np.int64)
+    n = 0
+    for j in range(p):
+        r, bit, x = 0, p >> 1, j
+        while bit > 0:
+            if x & 1:
+                r |= bit
+            x >>= 1
+            bit >>= 1
+        if r < chunks:
+            out[n] = r
+            n += 1
+    return out
+
+
 @numba.njit(cache=True, parallel=True)
 def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone: np.ndarray, only: np.ndarray,
               movable: np.ndarray, roots: np.ndarray, eta: float, max_depth: int, max_intervals: int,
@@ -282,6 +307,13 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
     one thread, Intel Xeon, shared machine), the same hits; the six face diagonals ``(1, +-1, 0)``... too
     (rejecting 76 %) cost more than they saved (401-423 ms).
 
+    The chunks run in :func:`spread_order` (numba hands each thread a contiguous range of the loop's iterations, and
+    the store's pairs come in the search's spatial order, so a thread's contiguous chunks would hold one region of
+    the cloth, e.g. most of a dense fold's subdivisions); each chunk writes its own slots, so the answer is the same.
+    Per-chunk CPU times of the 64x64 pile's 272 calls of steps 59-62 (one thread, fastest of 3, Intel Xeon, load
+    11): 33.0 ms per step in all; the busiest of two threads' shares 18.4 ms contiguous (1.79x), 17.1 spread
+    (1.93x); of four 10.0 (3.29x) and 9.3 (3.56x).
+
     Returns:
         ``(idx, toi)``: (h,) indices into ``quads`` (ascending) and times in [0, 1].
     """
@@ -291,7 +323,9 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
     code = _vertex_codes(gone, only, movable)
     chunks = chunk_count(k, CCD_CHUNK)
     counts = np.zeros(chunks, dtype=np.int64)
-    for ch in numba.prange(chunks):
+    order = spread_order(chunks)
+    for j in numba.prange(chunks):
+        ch = order[j]
         start, stop = chunk_bounds(k, chunks, ch)
         counts[ch] = _ccd_range(vf, X0, X1, quads, code, roots, eta, max_depth, max_intervals, start, stop, idx,
                                 tois, diag, gap)
