@@ -431,7 +431,7 @@ class World(_TetStage, _SolidStage, _ClothStage):
             return self._step_solo(state_in, state_out, dt)
         self._restart_caches(state_in)
         n = 1 if control.scripted else substep_count(self, state_in, dt)
-        if n > 1:  # a modal body travelling far against a nearby tet body's surface (``world.substeps``)
+        if n > 1:  # a modal or tet body travelling far against a nearby tet body's surface (``world.substeps``)
             s = state_in.copy()
             reports = [self._step_plan(s, s, control if k == 0 else _NO_CONTROL, dt / n) for k in range(n)]
             self._hand_over(s.bodies, state_out)
