@@ -19,10 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _world import assert_stays_resting, resting_bar
 
-import modalfem
-from modalfem import world as mw
-from modalfem.effects import Contact, Gravity
+from modalfem.effects import Contact
 from modalfem.world._solid_stage import VELOCITY_STOP
 
 G = 9.81  # [m/s^2]
@@ -31,23 +30,6 @@ G = 9.81  # [m/s^2]
 @pytest.mark.parametrize("dt", [1e-3, 1e-2, 0.1, 1.0])
 def test_a_modal_body_resting_on_the_ground_in_a_world_stays_at_any_dt(bar_model, dt):
     contact = Contact(restitution=0.0)  # e > 0: test_world_restitution_dt.py
-    skin = 0.5 * contact.margin
-    w0 = mw.World(bodies=[mw.Modal(bar_model, name="bar")], effects=[])
-    s0 = w0.state()
-    zmin = w0.surface(s0, "bar")[0][:, 2].min() - s0.bodies["bar"].position[2]
-    w = mw.World(bodies=[mw.Modal(bar_model, name="bar", position=(0.0, 0.0, skin - zmin)),
-                         mw.Modal(bar_model, name="far", position=(0.0, 1.0, 1.0))],
-                 obstacles=[mw.Ground()], effects=[Gravity(bodies=["bar"]), contact])
-    assert "bar" in w._fast.names  # the ground's contacts are the solid solve's
-    s = w.state()
-    e0 = w.energy(s, "bar")["total"] + w.energy(s, "far")["total"]
-    tol = VELOCITY_STOP * skin
-    mass = w._modal["bar"]["body"].mass
-    for i in range(max(20, int(round(1.0 / dt)))):
-        w.step(s, s, None, dt)
-        low = float(w.surface(s, "bar")[0][:, 2].min())
-        assert abs(low - skin) <= tol, f"step {i}: bottom {low:.6e} m, skin {skin:.1e} m"
-        assert w.penetrations(s, tolerance=0.0) == []
-        # no gain: the solve's rule admits 1e-12 of its quadratic term; the free rotation keeps 1e-9 of m g r
-        assert w.energy(s, "bar")["total"] + w.energy(s, "far")["total"] <= e0 + 1e-9 * mass * G * 0.1
+    w, skin = resting_bar(bar_model, contact)
+    s = assert_stays_resting(w, skin, dt, VELOCITY_STOP * skin, G)
     assert np.linalg.norm(s.bodies["bar"].velocity) < 1e-2 * G * dt  # at rest, not holding a step's g dt

@@ -10,41 +10,23 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _world import assert_stays_resting, resting_bar
 
-from modalfem import world as mw
-from modalfem.effects import Contact, Gravity
+from modalfem.effects import Contact
 from modalfem.world._solid_stage import VELOCITY_STOP
 
 G = 9.81  # [m/s^2]
 
 
 def _scene(bar_model, e, height):
-    contact = Contact(restitution=e)
-    skin = 0.5 * contact.margin
-    w0 = mw.World(bodies=[mw.Modal(bar_model, name="b")], effects=[])
-    s0 = w0.state()
-    zmin = w0.surface(s0, "b")[0][:, 2].min() - s0.bodies["b"].position[2]
-    w = mw.World(bodies=[mw.Modal(bar_model, name="bar", position=(0.0, 0.0, skin - zmin + height)),
-                         mw.Modal(bar_model, name="far", position=(0.0, 1.0, 1.0))],
-                 obstacles=[mw.Ground()], effects=[Gravity(bodies=["bar"]), contact])
-    assert "bar" in w._fast.names  # the ground's contacts are the solid solve's
-    return w, skin
+    return resting_bar(bar_model, Contact(restitution=e), height)
 
 
 @pytest.mark.parametrize("e", [0.3, 0.8])
 @pytest.mark.parametrize("dt", [1e-3, 1e-2, 0.1, 1.0])
 def test_a_body_resting_with_restitution_stays_at_any_dt(bar_model, e, dt):
     w, skin = _scene(bar_model, e, 0.0)
-    s = w.state()
-    e0 = w.energy(s, "bar")["total"] + w.energy(s, "far")["total"]
-    tol = VELOCITY_STOP * skin
-    mass = w._modal["bar"]["body"].mass
-    for i in range(max(20, int(round(1.0 / dt)))):
-        w.step(s, s, None, dt)
-        low = float(w.surface(s, "bar")[0][:, 2].min())
-        assert abs(low - skin) <= tol, f"step {i}: bottom {low:.6e} m, skin {skin:.1e} m"
-        assert w.penetrations(s, tolerance=0.0) == []
-        assert w.energy(s, "bar")["total"] + w.energy(s, "far")["total"] <= e0 + 1e-9 * mass * G * 0.1
+    assert_stays_resting(w, skin, dt, VELOCITY_STOP * skin, G)
 
 
 def test_a_dropped_body_still_bounces_to_e_squared_of_its_height(bar_model):
