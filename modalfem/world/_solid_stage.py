@@ -54,7 +54,9 @@ class _SolidStage:
             return x
 
         builder = _ContactBuilder(self, ctx, seg, names)
-        driven = False  # a moving obstacle in contact: it may do work on the bodies (no energy rule then)
+        # the bodies a moving obstacle touches: it may do work on them, so their islands are exempt from the no-gain
+        # rule (``_solve``); the other islands keep it
+        driven = np.zeros(len(names), dtype=bool)
         for name, obs in self._world_obstacles.items():  # modal bodies: moving obstacles and meshes (all if shared)
             c = None
             for o in obs:
@@ -82,13 +84,13 @@ class _SolidStage:
                         idx, gap, nrm = idx[edges[0]], gap[edges[0]], nrm[edges[0]]
                 if len(idx):
                     builder.obstacle(name, idx, gap, nrm, np.asarray(o.velocity(x[idx], t0, dt)), c, tag=tag)
-                    driven |= o.moving
+                    driven[names.index(name)] |= o.moving
                 if edges is not None:
                     _, verts, w, e_nrm, e_gap, key = edges
                     p = np.einsum("ka,kad->kd", w, x[verts])
                     builder.obstacle(name, verts, e_gap, e_nrm, np.asarray(o.velocity(p, t0, dt)), c, tag=tag,
                                      weights=w, keys=[(name, "edge", tag) + tuple(k) for k in key.tolist()])
-                    driven |= o.moving
+                    driven[names.index(name)] |= o.moving
         # modal bodies against each other and static planes (None: no such contact)
         fdata = fast.collect(ctx.state_in.bodies, {n: seg[n][0] for n in fast.names}, speed, dt,
                              {n: names.index(n) for n in fast.names}, ctx.state_in.contacts.get(_FAST_KEY))
@@ -117,8 +119,8 @@ class _SolidStage:
         lifted = np.array([name not in ctx.dV for name in fast.names])
         start = (np.array([seg[n][0] for n in fast.names], dtype=np.int64),
                  np.array([self._modal[n]["g"] for n in fast.names]) * dt)
-        lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, None if driven else
-                                     self._inverse_mass_blocks(ctx, seg), lifted, start)
+        lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, self._inverse_mass_blocks(ctx, seg), lifted, start,
+                                     driven=driven)
         ctx.report.sweeps = sweeps
         ctx.contacts.update({key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0})
         if fdata is not None:
@@ -233,13 +235,15 @@ VELOCITY_STOP = 1e-2
 
 
 def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None,
-           lifted: np.ndarray | None = None, start: tuple | None = None):
+           lifted: np.ndarray | None = None, start: tuple | None = None, driven: np.ndarray | None = None):
     """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
     kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
-    ``_SolidStage._inverse_mass_blocks``; None: no energy rule, a moving obstacle may do work) is made <= 0 per island
-    (``islands``: bodies linked by body-body contacts; an obstacle links nothing) by scaling the island's impulses back
-    (equal and opposite impulses stay so), so no energy moves between bodies that do not touch (one factor for the
-    whole solve let a body at rest gain 1.1e-6 J from a drop elsewhere: tests/world/test_world_islands.py). Returns
+    ``_SolidStage._inverse_mass_blocks``; None: no energy rule) is made <= 0 per island (``islands``: bodies linked by
+    body-body contacts; an obstacle links nothing) by scaling the island's impulses back (equal and opposite impulses
+    stay so), so no energy moves between bodies that do not touch (one factor for the whole solve let a body at rest
+    gain 1.1e-6 J from a drop elsewhere: tests/world/test_world_islands.py). An island holding a body of ``driven``
+    (bool per body of ``blocks``: a moving obstacle touches it, and may do work on it) is exempt; the others keep the
+    rule (tests/world/test_world_driven_islands.py). Returns
     ``(lam (k, 3), bounce (k,), sweeps)`` and leaves ``data["dV"]``.
 
     The impulses act at the step start and target the end velocity ``vn`` that closes the gap to the skin (or pushes
@@ -292,6 +296,8 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     if blocks is not None:  # the energy change (see above), per island (``islands``)
         scale = np.ones(len(blocks[0]))
         for ids in islands(data["body"], data["other"], len(blocks[0])):
+            if driven is not None and driven[ids].any():  # a moving obstacle may do work on this island
+                continue
             scale[ids] = _no_gain_scale(dV, V0, tuple(b[ids] for b in blocks),
                                         None if lifted is None else lifted[ids])
         if np.any(scale < 1.0):  # some island's impulses would add energy: scale them back
