@@ -23,7 +23,7 @@ from modalfem.collision._contour_kernels import contour_ok
 from modalfem.collision._pair_kernels import _concat4, _primitive_range
 from modalfem._threads import MAX_CHUNKS, chunk_bounds, chunk_count
 
-__all__ = ["query", "refit", "refit_boxes", "refit_triangles", "traverse", "traverse_primitives"]
+__all__ = ["query", "refit", "refit_boxes", "refit_triangles", "traverse", "traverse_dirty", "traverse_primitives"]
 
 _HALF_PI = 0.5 * math.pi - 1e-9
 
@@ -287,6 +287,132 @@ def traverse_primitives(culling: bool, P: int, lo, hi, ne, slot, slo, shi, conne
         vbufs[ch], ebufs[ch] = _primitive_range(tp, 0, len(tp), tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
                                                 ehi, none, diag, fdiag, gap)
     return _concat4(vbufs), _concat4(ebufs), tests.sum()
+
+
+@numba.njit(cache=True)
+def _dirty_boxes(P: int, slot_tri, slo, shi, dirty_tris):
+    """Node boxes (2P, 3) [m] of the flagged triangles only: per node the union of the slot boxes of its flagged
+    triangles (empty, +inf / -inf, where it holds none)."""
+    L = slot_tri.shape[1]
+    dlo, dhi = np.full((2 * P, 3), np.inf), np.full((2 * P, 3), -np.inf)
+    for leaf in range(P):
+        node = P + leaf
+        for r in range(L):
+            f = slot_tri[leaf, r]
+            if f >= 0 and dirty_tris[f]:
+                for c in range(3):
+                    dlo[node, c] = min(dlo[node, c], slo[c, leaf, r])
+                    dhi[node, c] = max(dhi[node, c], shi[c, leaf, r])
+    for a in range(P - 1, 0, -1):
+        for c in range(3):
+            dlo[a, c] = min(dlo[2 * a, c], dlo[2 * a + 1, c])
+            dhi[a, c] = max(dhi[2 * a, c], dhi[2 * a + 1, c])
+    return dlo, dhi
+
+
+@numba.njit(cache=True)
+def _dirty_walk(a0: int, b0: int, split: int, P: int, dlo, dhi, lo, hi):
+    """Depth-first walk of the node pairs (a, b) whose boxes overlap, a's box that of its flagged triangles only
+    (``dlo``/``dhi``), b's its whole box (``lo``/``hi``), from ``(a0, b0)``: the leaf pairs reached (node
+    indices), or with ``split`` >= 0 the pairs reached at that depth and the leaf pairs above it (as
+    :func:`_walk`)."""
+    stack = np.empty((256, 3), dtype=np.int64)
+    stack[0, 0], stack[0, 1], stack[0, 2] = a0, b0, 0
+    top = 1
+    out = np.empty((1024, 2), dtype=np.int64)
+    count = 0
+    while top:
+        top -= 1
+        a, b, depth = stack[top, 0], stack[top, 1], stack[top, 2]
+        # (an a without flagged triangles has an empty box and never overlaps)
+        if (dlo[a, 0] > hi[b, 0] or lo[b, 0] > dhi[a, 0] or dlo[a, 1] > hi[b, 1] or lo[b, 1] > dhi[a, 1]
+                or dlo[a, 2] > hi[b, 2] or lo[b, 2] > dhi[a, 2]):
+            continue
+        leaf_a, leaf_b = a >= P, b >= P
+        if (split >= 0 and depth >= split) or (leaf_a and leaf_b):
+            if count == len(out):
+                out = _grow(out, count)
+            out[count, 0], out[count, 1] = a, b
+            count += 1
+            continue
+        size_a = (dhi[a, 0] - dlo[a, 0]) + (dhi[a, 1] - dlo[a, 1]) + (dhi[a, 2] - dlo[a, 2])
+        size_b = (hi[b, 0] - lo[b, 0]) + (hi[b, 1] - lo[b, 1]) + (hi[b, 2] - lo[b, 2])
+        if top + 2 > len(stack):
+            stack = _grow(stack, top + 2)
+        if not leaf_a and (leaf_b or size_a >= size_b):
+            stack[top, 0], stack[top, 1], stack[top, 2] = 2 * a, b, depth + 1
+            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = 2 * a + 1, b, depth + 1
+        else:
+            stack[top, 0], stack[top, 1], stack[top, 2] = a, 2 * b, depth + 1
+            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, 2 * b + 1, depth + 1
+        top += 2
+    return out[:count]
+
+
+@numba.njit(cache=True)
+def _dirty_leaf_pairs(leaves, P: int, slot_tri, slo, shi, dirty_tris):
+    """Triangle pairs (flagged ta of leaf a, tb of leaf b) of the leaf pairs ``leaves`` (node indices) whose boxes
+    overlap, without ta == tb, and a pair of two flagged triangles only as (smaller, larger)."""
+    L = slot_tri.shape[1]
+    out = np.empty((len(leaves) * L * L, 2), dtype=np.int64)
+    ok = np.empty(L, dtype=np.bool_)
+    n = 0
+    for p in range(len(leaves)):
+        ia, ib = leaves[p, 0] - P, leaves[p, 1] - P
+        for r in range(L):
+            ta = slot_tri[ia, r]
+            if ta < 0 or not dirty_tris[ta]:
+                continue
+            alo0, alo1, alo2 = slo[0, ia, r], slo[1, ia, r], slo[2, ia, r]
+            ahi0, ahi1, ahi2 = shi[0, ia, r], shi[1, ia, r], shi[2, ia, r]
+            for c in range(L):
+                ok[c] = ((alo0 <= shi[0, ib, c]) & (slo[0, ib, c] <= ahi0) & (alo1 <= shi[1, ib, c])
+                         & (slo[1, ib, c] <= ahi1) & (alo2 <= shi[2, ib, c]) & (slo[2, ib, c] <= ahi2))
+            # written always, kept by the count (empty slots have empty boxes: their -1 is never kept)
+            for c in range(L):
+                tb = slot_tri[ib, c]
+                out[n, 0], out[n, 1] = ta, tb
+                n += ok[c] & (tb != ta) & ((not dirty_tris[max(tb, 0)]) | (ta < tb))
+    return out[:n].copy()
+
+
+@numba.njit(cache=True)
+def _dirty_tasks(tasks, start: int, stop: int, P: int, dlo, dhi, lo, hi, slot_tri, slo, shi, dirty_tris):
+    """Triangle pairs of the walks from ``tasks[start:stop]`` (:func:`_dirty_walk`), in task order."""
+    leaves = np.empty((0, 2), dtype=np.int64)
+    for t in range(start, stop):
+        got = _dirty_walk(tasks[t, 0], tasks[t, 1], -1, P, dlo, dhi, lo, hi)
+        if len(leaves) == 0:
+            leaves = got
+        elif len(got):
+            both = np.empty((len(leaves) + len(got), 2), dtype=np.int64)
+            both[:len(leaves)] = leaves
+            both[len(leaves):] = got
+            leaves = both
+    return _dirty_leaf_pairs(leaves, P, slot_tri, slo, shi, dirty_tris)
+
+
+@numba.njit(cache=True, parallel=True)
+def traverse_dirty(P: int, lo, hi, slot_tri, slo, shi, dirty_tris):
+    """Triangle pairs of a tree whose boxes overlap and that hold a triangle flagged in ``dirty_tris`` (m,): each
+    unordered pair once (a flagged triangle first; two flagged ones as (smaller, larger)), no triangle paired with
+    itself, no culling. The same pairs as :func:`traverse` of the tree against itself with that dirty filter, but
+    a walk of the flagged triangles' own boxes (a node's box the union of its flagged triangles' boxes only,
+    :func:`_dirty_boxes`) against the whole tree: a node holding one flagged triangle among clean ones is not
+    tested with its whole box, and only the flagged triangles' rows are tested at the leaves.
+
+    Parallel as :func:`traverse`: a serial walk to depth ``SPLIT_DEPTH`` lists node pairs, chunks of them are
+    walked in parallel and their pairs concatenated in order (the same pairs in the same order on any number of
+    threads)."""
+    dlo, dhi = _dirty_boxes(P, slot_tri, slo, shi, dirty_tris)
+    tasks = _dirty_walk(1, 1, SPLIT_DEPTH, P, dlo, dhi, lo, hi)
+    T = len(tasks)
+    chunks = max(1, min(MAX_CHUNKS, -(-T // TASK_CHUNK)))
+    bufs = [np.empty((0, 2), dtype=np.int64) for _ in range(chunks)]
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(T, chunks, ch)
+        bufs[ch] = _dirty_tasks(tasks, start, stop, P, dlo, dhi, lo, hi, slot_tri, slo, shi, dirty_tris)
+    return _concat(bufs)
 
 
 @numba.njit(cache=True)

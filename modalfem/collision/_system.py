@@ -32,10 +32,6 @@ from modalfem.errors import InputError
 
 __all__ = ["Candidates", "PairStore", "System", "check_triangles", "count_intersections", "diagonal_test", "edges_of"]
 
-#: dirty triangles above which the dirty search traverses the tree against itself instead of querying
-#: one box per dirty triangle (measured on the 64x64 pile: about even at 300)
-DUAL_SEARCH = 300
-
 
 def check_triangles(triangles) -> np.ndarray:
     tri = np.asarray(triangles)
@@ -291,25 +287,23 @@ class System:
         """The candidate pairs holding a ``dirty`` vertex ((n_total,) bool), searched again with the vertex
         boxes ``vlo``/``vhi`` ((n_total, 3) [m]; a clean vertex keeps the box of the last search). Only
         the dirty triangles' boxes are refitted and searched (no culling: a superset of what a full
-        traversal would give for them), by one box query each, or, above ``DUAL_SEARCH`` dirty triangles,
-        by a traversal of the tree against itself pruned to subtrees holding one; the cost follows the
-        dirty set."""
+        traversal would give for them), by one walk of the dirty triangles' own boxes against the tree
+        (:meth:`BroadPhaseBVH.dirty_pairs`); the cost follows the dirty set.
+
+        Replayed 64x64 pile (80 steps, 680 dirty searches, one thread, CPU time, fastest of 2 per search, Intel
+        Xeon, load ~5): the triangle-pair search 9.3-10.5 -> 4.9-5.6 ms per step against the earlier one box query
+        per dirty triangle (a traversal of the tree against itself pruned to subtrees holding a dirty triangle
+        above 300 of them, whose node boxes were the whole nodes'); the same pairs in every search."""
         n, m = self.n_cloth, self.m_cloth
         dtri = _flagged_triangles(dirty, self.tris[:m])
         ids = np.flatnonzero(dtri)
         bvh = self.cloth_bvh
         bvh.refit_triangles(ids, vlo[:n], vhi[:n])
-        qlo, qhi = bvh.tri_lo[ids], bvh.tri_hi[ids]
         parts = []
-        if self_collision and len(ids) > DUAL_SEARCH:
-            # many dirty triangles: one traversal of the tree against itself, pruned to subtrees holding
-            # one, shares the descent that separate queries would repeat (same pairs)
-            parts.append(bvh.self_pairs(culling=False, dirty=dtri)[0])
-        elif self_collision:
-            qi, other = bvh.query(qlo, qhi)
-            parts.append(_pair_kernels.dirty_self_pairs(ids, qi, other, dtri))
+        if self_collision:
+            parts.append(bvh.dirty_pairs(dtri))
         if self.obstacle_bvh is not None:
-            qi, other = self.obstacle_bvh.query(qlo, qhi)
+            qi, other = self.obstacle_bvh.query(bvh.tri_lo[ids], bvh.tri_hi[ids])
             parts.append(np.stack([ids[qi], other + m], axis=1))
         tp = np.concatenate(parts) if parts else np.zeros((0, 2), dtype=np.int64)
         vf, ee = self._primitive_pairs(tp, vlo, vhi, dirty, diagonal_test(vlo, vhi) if diagonals else (_NO_DIAG, 0.0))

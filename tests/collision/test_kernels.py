@@ -113,9 +113,7 @@ def test_culled_pairs_hold_every_intersecting_pair_of_crumpled_sheets():
     assert total_hits > 20 and removed > 100  # both the property and the culling are exercised
 
 
-def test_dirty_search_by_queries_and_by_pruned_traversal_agree(monkeypatch):
-    from modalfem.collision import _system
-
+def test_dirty_search_equals_brute_force_primitive_pairs():
     pts, tri = stacked_sheets(3, 6, gap=0.02, seed=6)
     rng = np.random.default_rng(7)
     x0 = pts + 0.01 * rng.standard_normal(pts.shape)
@@ -123,14 +121,13 @@ def test_dirty_search_by_queries_and_by_pruned_traversal_agree(monkeypatch):
     system = System(tri, ())
     system.candidates(x0, x1, margin=0.01, self_collision=True, culling=True)
     vlo, vhi = system.vertex_boxes(x0, x1, 0.01)
-    dirty = np.zeros(len(pts), dtype=bool)
-    dirty[rng.choice(len(pts), 30, replace=False)] = True
-    found = []
-    for threshold in (10**9, 0):  # queries, then the traversal
-        monkeypatch.setattr(_system, "DUAL_SEARCH", threshold)
+    vf_all, ee_all = _brute_primitive_pairs(tri, vlo, vhi)
+    for count in (3, 30, 120):  # a few dirty vertices, then most of them
+        dirty = np.zeros(len(pts), dtype=bool)
+        dirty[rng.choice(len(pts), count, replace=False)] = True
         c = system.dirty_candidates(vlo, vhi, dirty, self_collision=True)
-        ee = {tuple(sorted(((int(q[0]), int(q[1])), (int(q[2]), int(q[3]))))) for q in c.ee}
-        found.append(({tuple(map(int, q)) for q in c.vf}, ee))
-    assert found[0] == found[1] and len(found[0][0]) > 20
-    vf, _ = _brute_primitive_pairs(tri, vlo, vhi)
-    assert found[0][0] == {q for q in vf if dirty[list(q)].any()}
+        vf = [tuple(map(int, q)) for q in c.vf]
+        ee = [tuple(sorted(((int(q[0]), int(q[1])), (int(q[2]), int(q[3]))))) for q in c.ee]
+        assert len(set(vf)) == len(vf) and len(set(ee)) == len(ee)  # each pair once
+        assert set(vf) == {q for q in vf_all if dirty[list(q)].any()} and len(vf) > 3
+        assert set(ee) == {q for q in ee_all if dirty[[*q[0], *q[1]]].any()}
