@@ -11,6 +11,8 @@ every value is computed by one thread in a fixed order, so results are bit-ident
 * ``gather_sum``: element forces summed per vertex DOF as a gather; ``assemble_upper``: the assembly's scatter of element upper triangles written as a gather per upper
   position (no write conflicts), symmetrised in the same pass; ``galerkin`` the two-level
   preconditioner's coarse matrix ``P^T A P``, groups of rows in parallel.
+* ``svd_of_positions`` / ``svd_rv``: the rotation-variant SVD by one-sided Jacobi, ``SVD_LANES`` elements of a
+  chunk swept side by side (vectorised; the bits of one element at a time).
 """
 
 from __future__ import annotations
@@ -206,45 +208,211 @@ def assemble_upper(ptr, order, values, owner, mirror, out) -> None:
             out[mirror[k]] = t
 
 
+#: elements whose Jacobi sweeps run side by side (SIMD lanes; see :func:`_svd_lanes`)
+SVD_LANES = 16
+
+
 @numba.njit(cache=True, parallel=True)
-def svd_rv(Ft, V0t, warm: bool, U, s, V) -> None:
+def svd_rv(Ft, V0t, warm: bool, U, s, V, lanes: int = SVD_LANES) -> None:
     """Rotation-variant SVD of every element (:func:`modalfem.tet.kinematics.svd_rv_t`), elements in
     parallel chunks: ``Ft`` (3, 3, m), warm start ``V0t`` (3, 3, m) if ``warm``; outputs ``U`` (3, 3, m),
-    ``s`` (m, 3), ``V`` (3, 3, m)."""
+    ``s`` (m, 3), ``V`` (3, 3, m). ``lanes`` (1..``SVD_LANES``): elements swept together
+    (:func:`_svd_lanes`; the same bits for any value)."""
     m = Ft.shape[2]
     chunks = chunk_count(m, ELEMENT_CHUNK)
+    nl = max(1, min(lanes, SVD_LANES))
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(m, chunks, ch)
         AV = np.empty((6, 3))
         F = np.empty((3, 3))
-        for e in range(start, stop):
-            for i in range(3):
-                for j in range(3):
-                    F[i, j] = Ft[i, j, e]
-            _svd_element(e, F, V0t, warm, U, s, V, AV)
+        AVl = np.empty((6, 3, SVD_LANES))
+        Fl = np.empty((3, 3, SVD_LANES))
+        flags = np.empty((2, SVD_LANES), dtype=np.bool_)
+        for e0 in range(start, stop, nl):
+            k = min(nl, stop - e0)
+            for l in range(k):
+                for i in range(3):
+                    for j in range(3):
+                        Fl[i, j, l] = Ft[i, j, e0 + l]
+            _svd_lanes(Fl, V0t, warm, e0, k, U, s, V, AVl, AV, F, flags)
 
 
 @numba.njit(cache=True, parallel=True)
-def svd_of_positions(x, cells, grad_t, V0t, warm: bool, U, s, V) -> None:
+def svd_of_positions(x, cells, grad_t, V0t, warm: bool, U, s, V, lanes: int = SVD_LANES) -> None:
     """:func:`svd_rv` of the deformation gradients ``F = sum_a x_a grad_a^T`` of positions ``x`` (n, 3) [m],
     ``cells`` (m, 4), shape gradients ``grad_t`` (4, 3, m) [1/m] (the sums in the order of
     :func:`modalfem.tet.kinematics.deformation_gradient_t`: the same F), formed per element inside."""
     m = cells.shape[0]
     chunks = chunk_count(m, ELEMENT_CHUNK)
+    nl = max(1, min(lanes, SVD_LANES))
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(m, chunks, ch)
         AV = np.empty((6, 3))
         F = np.empty((3, 3))
-        for e in range(start, stop):
-            c0, c1, c2, c3 = cells[e, 0], cells[e, 1], cells[e, 2], cells[e, 3]
+        AVl = np.empty((6, 3, SVD_LANES))
+        Fl = np.empty((3, 3, SVD_LANES))
+        flags = np.empty((2, SVD_LANES), dtype=np.bool_)
+        for e0 in range(start, stop, nl):
+            k = min(nl, stop - e0)
+            for l in range(k):
+                e = e0 + l
+                c0, c1, c2, c3 = cells[e, 0], cells[e, 1], cells[e, 2], cells[e, 3]
+                for i in range(3):
+                    for j in range(3):
+                        t = x[c0, i] * grad_t[0, j, e]
+                        t += x[c1, i] * grad_t[1, j, e]
+                        t += x[c2, i] * grad_t[2, j, e]
+                        t += x[c3, i] * grad_t[3, j, e]
+                        Fl[i, j, l] = t
+            _svd_lanes(Fl, V0t, warm, e0, k, U, s, V, AVl, AV, F, flags)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _svd_lanes(Fl, V0t, warm, e0, nl, U, s, V, AVl, AV, F, flags) -> None:
+    """:func:`_svd_element` of elements ``e0 .. e0 + nl - 1`` (their F in lanes ``0 .. nl - 1`` of ``Fl``
+    (3, 3, lanes)), their sweeps side by side: every lane takes each sweep's three rotations with the same
+    operations as :func:`_svd_element`, a lane whose pair needs no rotation keeps its columns (selected, not
+    multiplied by 1), and the sweeps stop when no lane rotated (a lane whose sweep rotated nothing is
+    converged and stays unchanged): the same bits as one element at a time, with independent lanes the
+    compiler vectorises (and the CPU overlaps: the sweeps are chains of square roots and divisions). A
+    batch in which a rotation needs ``math.hypot`` (squares out of range) is redone element by element.
+    ``nl`` is a run-time value (a constant trip count is unrolled instead of vectorised); ``flags``
+    (2, lanes) scratch, ``AV`` (6, 3) and ``F`` (3, 3) the element-wise path's scratch."""
+    for i in range(3):
+        for j in range(3):
+            for l in range(nl):
+                AVl[3 + i, j, l] = V0t[i, j, e0 + l] if warm else (1.0 if i == j else 0.0)
+    for i in range(3):
+        for j in range(3):
+            for l in range(nl):
+                if warm:
+                    AVl[i, j, l] = Fl[i, 0, l] * AVl[3, j, l] + Fl[i, 1, l] * AVl[4, j, l] + Fl[i, 2, l] * AVl[5, j, l]
+                else:
+                    AVl[i, j, l] = Fl[i, j, l]
+    for l in range(nl):
+        flags[1, l] = False
+    for _ in range(12):
+        r0 = _rotate_lanes(AVl, 0, 1, nl, flags)
+        r1 = _rotate_lanes(AVl, 0, 2, nl, flags)
+        r2 = _rotate_lanes(AVl, 1, 2, nl, flags)
+        if not (r0 or r1 or r2):
+            break
+    extreme = False
+    for l in range(nl):
+        extreme |= flags[1, l]
+    if extreme:
+        for l in range(nl):
             for i in range(3):
                 for j in range(3):
-                    t = x[c0, i] * grad_t[0, j, e]
-                    t += x[c1, i] * grad_t[1, j, e]
-                    t += x[c2, i] * grad_t[2, j, e]
-                    t += x[c3, i] * grad_t[3, j, e]
-                    F[i, j] = t
-            _svd_element(e, F, V0t, warm, U, s, V, AV)
+                    F[i, j] = Fl[i, j, l]
+            _svd_element(e0 + l, F, V0t, warm, U, s, V, AV)
+        return
+    _finish_lanes(AVl, e0, nl, U, s, V, flags)
+    for l in range(nl):
+        if flags[0, l]:  # a (near) rank-one F: its second column of U by the element-wise path
+            for r in range(6):
+                for j in range(3):
+                    AV[r, j] = AVl[r, j, l]
+            _svd_finish(e0 + l, AV, U, s, V)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _finish_lanes(AVl, e0, nl, U, s, V, flags) -> None:
+    """:func:`_svd_finish` of lanes ``0 .. nl - 1`` of ``AVl`` into elements ``e0 ..`` (the same operations,
+    branches as selects; ``AVl`` is not changed). A lane whose second column of ``U`` needs the
+    cross-product fallback (``F`` of rank <= 1) is marked in ``flags[0]`` (its outputs then wrong: the caller
+    redoes it with :func:`_svd_finish`)."""
+    for l in range(nl):
+        a0, a1, a2, a3, a4, a5 = AVl[0, 0, l], AVl[1, 0, l], AVl[2, 0, l], AVl[3, 0, l], AVl[4, 0, l], AVl[5, 0, l]
+        b0, b1, b2, b3, b4, b5 = AVl[0, 1, l], AVl[1, 1, l], AVl[2, 1, l], AVl[3, 1, l], AVl[4, 1, l], AVl[5, 1, l]
+        c0, c1, c2, c3, c4, c5 = AVl[0, 2, l], AVl[1, 2, l], AVl[2, 2, l], AVl[3, 2, l], AVl[4, 2, l], AVl[5, 2, l]
+        n0 = math.sqrt(a0 ** 2 + a1 ** 2 + a2 ** 2)
+        n1 = math.sqrt(b0 ** 2 + b1 ** 2 + b2 ** 2)
+        n2 = math.sqrt(c0 ** 2 + c1 ** 2 + c2 ** 2)
+        # the sorting network of _svd_finish: columns (0, 1), (1, 2), (0, 1)
+        sw = n1 > n0
+        a0, b0 = (b0, a0) if sw else (a0, b0)
+        a1, b1 = (b1, a1) if sw else (a1, b1)
+        a2, b2 = (b2, a2) if sw else (a2, b2)
+        a3, b3 = (b3, a3) if sw else (a3, b3)
+        a4, b4 = (b4, a4) if sw else (a4, b4)
+        a5, b5 = (b5, a5) if sw else (a5, b5)
+        n0, n1 = (n1, n0) if sw else (n0, n1)
+        sw = n2 > n1
+        b0, c0 = (c0, b0) if sw else (b0, c0)
+        b1, c1 = (c1, b1) if sw else (b1, c1)
+        b2, c2 = (c2, b2) if sw else (b2, c2)
+        b3, c3 = (c3, b3) if sw else (b3, c3)
+        b4, c4 = (c4, b4) if sw else (b4, c4)
+        b5, c5 = (c5, b5) if sw else (b5, c5)
+        n1, n2 = (n2, n1) if sw else (n1, n2)
+        sw = n1 > n0
+        a0, b0 = (b0, a0) if sw else (a0, b0)
+        a1, b1 = (b1, a1) if sw else (a1, b1)
+        a2, b2 = (b2, a2) if sw else (a2, b2)
+        a3, b3 = (b3, a3) if sw else (a3, b3)
+        a4, b4 = (b4, a4) if sw else (a4, b4)
+        a5, b5 = (b5, a5) if sw else (a5, b5)
+        n0, n1 = (n1, n0) if sw else (n0, n1)
+        det = a3 * (b4 * c5 - b5 * c4) + a4 * (b5 * c3 - b3 * c5) + a5 * (b3 * c4 - b4 * c3)
+        neg = det < 0
+        c0 = -c0 if neg else c0
+        c1 = -c1 if neg else c1
+        c2 = -c2 if neg else c2
+        c3 = -c3 if neg else c3
+        c4 = -c4 if neg else c4
+        c5 = -c5 if neg else c5
+        e = e0 + l
+        V[0, 0, e], V[0, 1, e], V[0, 2, e] = a3, b3, c3
+        V[1, 0, e], V[1, 1, e], V[1, 2, e] = a4, b4, c4
+        V[2, 0, e], V[2, 1, e], V[2, 2, e] = a5, b5, c5
+        tiny = n0 <= 1e-300
+        u00 = 1.0 if tiny else a0 / n0
+        u01 = 0.0 if tiny else a1 / n0
+        u02 = 0.0 if tiny else a2 / n0
+        d = u00 * b0 + u01 * b1 + u02 * b2
+        w0, w1, w2 = b0 - u00 * d, b1 - u01 * d, b2 - u02 * d
+        s1 = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        flags[0, l] = not s1 > 1e-14 * max(n0, 1e-300)
+        w0, w1, w2 = w0 / s1, w1 / s1, w2 / s1
+        u20, u21, u22 = u01 * w2 - u02 * w1, u02 * w0 - u00 * w2, u00 * w1 - u01 * w0
+        U[0, 0, e], U[1, 0, e], U[2, 0, e] = u00, u01, u02
+        U[0, 1, e], U[1, 1, e], U[2, 1, e] = w0, w1, w2
+        U[0, 2, e], U[1, 2, e], U[2, 2, e] = u20, u21, u22
+        s[e, 0] = n0
+        s[e, 1] = w0 * b0 + w1 * b1 + w2 * b2
+        s[e, 2] = u20 * c0 + u21 * c1 + u22 * c2
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rotate_lanes(AVl, p, q, nl, flags) -> bool:
+    """The rotation of columns ``p``, ``q`` of :func:`_svd_element`'s sweep in lanes ``0 .. nl - 1`` of
+    ``AVl`` (6, 3, lanes); ``flags[0]`` the lanes that rotated, ``flags[1]`` or-ed with the lanes whose
+    rotation needs ``math.hypot``. Returns whether any lane rotated."""
+    for l in range(nl):
+        a0p, a1p, a2p = AVl[0, p, l], AVl[1, p, l], AVl[2, p, l]
+        a0q, a1q, a2q = AVl[0, q, l], AVl[1, q, l], AVl[2, q, l]
+        al = a0p * a0p + a1p * a1p + a2p * a2p
+        be = a0q * a0q + a1q * a1q + a2q * a2q
+        ga = a0p * a0q + a1p * a1q + a2p * a2q
+        rot = abs(ga) > 1e-15 * math.sqrt(al * be)
+        tau, g2 = be - al, 2.0 * ga
+        big = max(abs(tau), abs(g2))
+        flags[1, l] |= rot and not (1e-140 < big < 1e140)
+        hyp = math.sqrt(tau * tau + g2 * g2)
+        t = math.copysign(1.0, tau) * g2 / (abs(tau) + hyp)  # inf or nan where rot is False: not used
+        c = 1.0 / math.sqrt(1.0 + t * t)
+        for r in range(6):
+            mp, mq = AVl[r, p, l], AVl[r, q, l]
+            np_ = c * (mp - t * mq)
+            nq = c * (mq + t * mp)
+            AVl[r, p, l] = np_ if rot else mp
+            AVl[r, q, l] = nq if rot else mq
+        flags[0, l] = rot
+    anyrot = False
+    for l in range(nl):
+        anyrot |= flags[0, l]
+    return anyrot
 
 
 @numba.njit(cache=True)
@@ -288,6 +456,14 @@ def _svd_element(e, F, V0t, warm, U, s, V, AV) -> None:
                 AV[r, q] = c * (mq + t * mp)
         if done:
             break
+    _svd_finish(e, AV, U, s, V)
+
+
+@numba.njit(cache=True)
+def _svd_finish(e, AV, U, s, V) -> None:
+    """The end of :func:`_svd_element` after its sweeps (``AV`` rows 0..2 = F V, 3..5 = V): columns sorted by
+    norm, a reflection moved onto the last, ``U`` from the normalised columns (Gram-Schmidt, the third a
+    cross product), the signed singular values; into element ``e`` of ``U``, ``s``, ``V``."""
     n0 = math.sqrt(AV[0, 0] ** 2 + AV[1, 0] ** 2 + AV[2, 0] ** 2)
     n1 = math.sqrt(AV[0, 1] ** 2 + AV[1, 1] ** 2 + AV[2, 1] ** 2)
     n2 = math.sqrt(AV[0, 2] ** 2 + AV[1, 2] ** 2 + AV[2, 2] ** 2)
