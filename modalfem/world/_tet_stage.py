@@ -121,7 +121,7 @@ class _TetStage(_TetContacts, _TetResponse):
                 # wedged between contacts pushing it opposite ways (foam between the ground and a heavy bar's
                 # tilted face), stiffening them in turn flung it ~9 cm in one 5 ms step and stored +23 J in them
                 energy = self._tet_end_energy(ctx, name, t, out) if kept is not None else None
-                if kept is not None and energy > kept[2]:
+                if kept is not None and energy - self._tet_step_work(t, out) > kept[2]:
                     out, t["penalty"].k = kept[0], kept[1]
                     t["penalty"].stiffen(np.ones(len(kept[1])))  # (drops the cached depths)
                     break
@@ -133,7 +133,7 @@ class _TetStage(_TetContacts, _TetResponse):
                 d = pen.depths(out.x)
                 lift = float(np.sum(np.where(d > MAX_DEPTH * pen.dhat, pen.forces(out.x) * (d - 0.25 * pen.dhat), 0.0)))
                 e_end = self._tet_end_energy(ctx, name, t, out) if energy is None else energy
-                kept = (out, pen.k.copy(), lift + e_end)
+                kept = (out, pen.k.copy(), lift + e_end - self._tet_step_work(t, out))
                 self._tet_too_deep(pen, out.x)
                 out = s.copy()
             if obstacles is not None:
@@ -181,6 +181,20 @@ class _TetStage(_TetContacts, _TetResponse):
             V = V + u / ctx.dt
             e += 0.5 * ctx.dt**2 * float(V @ S @ V)
         return e
+
+    @staticmethod
+    def _tet_step_work(t: dict, out) -> float:
+        """The work [J] the moving obstacles do on a tet step ``out`` of body or group ``t``: each obstacle contact's
+        penalty force at the step end (held over the step) along its normal times the obstacle's travel in the step
+        (``t["obstacle_travel"]``, set by ``_tet_contacts``). A retry is compared with the attempt it redoes by its end
+        energy less this work: a box pushing harder on the retry does more work on it."""
+        pen = t["penalty"]
+        d = t.get("obstacle_travel")
+        if d is None or not len(d) or not d.any():
+            return 0.0
+        n = len(d)
+        f = pen.forces(out.x)[:n]
+        return float(f @ np.einsum("cd,cd->c", pen.nrm[:n], d))
 
     def _tet_groups(self, ctx, starts: dict) -> list:
         """The tet bodies in groups stepped together (``tetgroup.touching``): those with contact whose surfaces'
