@@ -524,3 +524,168 @@ def velocity_blocks(quat, vel, L, qdot, qoff, nm, inertia_inv, g, radius, phi, p
         speed[b] = sp
         o += 6 + r
     return V, speed
+
+
+@numba.njit(cache=True)
+def island_labels(body, other, m):
+    """The islands of a solve's contacts (``body``, ``other`` (k,) body indices, ``other`` -1 for an obstacle) among
+    ``m`` bodies: per body the smallest body index of its island (the connected component of the graph whose edges
+    are the body-body contacts; an obstacle links nothing), -1 for a body with no contact."""
+    parent = np.arange(m)
+    for c in range(body.shape[0]):
+        a, b = body[c], other[c]
+        if b < 0:
+            continue
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        while parent[b] != b:
+            parent[b] = parent[parent[b]]
+            b = parent[b]
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    touched = np.zeros(m, dtype=np.bool_)
+    for c in range(body.shape[0]):
+        touched[body[c]] = True
+        if other[c] >= 0:
+            touched[other[c]] = True
+    label = np.full(m, -1, dtype=np.int64)
+    for i in range(m):  # a root is the smallest index of its tree (links point to the smaller root)
+        if touched[i]:
+            r = i
+            while parent[r] != r:
+                r = parent[r]
+            label[i] = r
+    return label
+
+
+@numba.njit(cache=True, inline="always")
+def _gain(s, work, quad, coef, a, gn, ids, n):
+    """An island's energy change [J] for its impulses scaled by ``s`` (``no_gain_scales``)."""
+    lift = 0.0
+    for j in range(n):
+        i = ids[j]
+        lift += coef[i] * min(max(s * a[i], 0.0), gn[i])
+    return s * work + 0.5 * s * s * quad - lift
+
+
+@numba.njit(cache=True)
+def no_gain_scales(dV, V0, body, other, off, size, mass, R, inertia, shift, lifted, exempt):
+    """The no-gain factor of every body's impulses (see ``_solid_stage._solve``): per island (``island_labels`` of
+    the contacts ``body``, ``other``) the largest s in [0, 1] with ``f(s) <= 0``, ``f(s) = s work + s^2 quad / 2 -
+    sum_b m_b |g_b dt| / 2 min(max(s a_b, 0), |g_b dt|)`` (``work``, ``quad`` as ``_kernels.modal_energy_change``
+    over the island's bodies, summed in the same order; ``a_b`` body b's dv against gravity; the lift term only for
+    ``lifted`` bodies); 1 when ``f(1) <= 1e-12 quad``, and for islands holding an ``exempt`` body (a moving obstacle
+    touches it) or bodies without contact.
+
+    f is convex and piecewise quadratic with a break where a body's lift reaches its cap (``s a_b = |g_b dt|``):
+    the breaks in (0, 1) are sorted, f is evaluated at each to find the piece where it turns positive, and that
+    piece's quadratic is solved (the root taken back, if rounding left f > 0 there, to where f <= 0 as evaluated).
+
+    Args: dV, V0: the solve's velocity change and start velocities; off, size, mass, R, inertia, shift: per body as
+    ``_SolidStage._inverse_mass_blocks``; lifted, exempt: (m,) bool. Returns (m,) factors."""
+    m = off.shape[0]
+    label = island_labels(body, other, m)
+    work = np.zeros(m)
+    quad = np.zeros(m)
+    Iw = np.empty((3, 3))
+    for i in range(m):  # as modal_energy_change, accumulated per island in body order
+        r = label[i]
+        if r < 0:
+            continue
+        o = off[i]
+        mi = mass[i]
+        for x in range(3):
+            for y in range(3):
+                s = 0.0
+                for c in range(3):
+                    for d in range(3):
+                        s += R[i, x, c] * inertia[i, c, d] * R[i, y, d]
+                Iw[x, y] = s
+        for x in range(3):
+            work[r] += mi * dV[o + x] * (V0[o + x] - shift[i, x])
+            quad[r] += mi * dV[o + x] * dV[o + x]
+        for x in range(3):
+            s0 = 0.0
+            s1 = 0.0
+            for y in range(3):
+                s0 += Iw[x, y] * V0[o + 3 + y]
+                s1 += Iw[x, y] * dV[o + 3 + y]
+            work[r] += dV[o + 3 + x] * s0
+            quad[r] += dV[o + 3 + x] * s1
+        for j in range(o + 6, o + size[i]):
+            work[r] += dV[j] * V0[j]
+            quad[r] += dV[j] * dV[j]
+    gn = np.empty(m)
+    a = np.zeros(m)
+    coef = np.zeros(m)
+    for i in range(m):
+        gn[i] = math.sqrt(shift[i, 0] ** 2 + shift[i, 1] ** 2 + shift[i, 2] ** 2)
+        if gn[i] > 0.0:
+            a[i] = -(dV[off[i]] * shift[i, 0] + dV[off[i] + 1] * shift[i, 1] + dV[off[i] + 2] * shift[i, 2]) / gn[i]
+            if lifted[i]:
+                coef[i] = mass[i] * gn[i] * 0.5
+    skip = np.zeros(m, dtype=np.bool_)
+    for i in range(m):
+        if label[i] >= 0 and exempt[i]:
+            skip[label[i]] = True
+    scale = np.ones(m)
+    ids = np.empty(m, dtype=np.int64)
+    brk = np.empty(m + 1)
+    for r in range(m):
+        if label[r] != r or skip[r]:
+            continue
+        n = 0
+        for i in range(r, m):
+            if label[i] == r:
+                ids[n] = i
+                n += 1
+        w, qd = work[r], quad[r]
+        if _gain(1.0, w, qd, coef, a, gn, ids, n) <= 1e-12 * qd:
+            continue
+        nb = 0
+        for j in range(n):  # the breaks in (0, 1)
+            i = ids[j]
+            if coef[i] > 0.0 and a[i] > gn[i]:  # s a_b = |g_b dt| at s = gn / a in (0, 1)
+                brk[nb] = gn[i] / a[i]
+                nb += 1
+        brk[nb] = 1.0
+        b = np.sort(brk[:nb + 1])
+        lo = 0.0  # f(lo) <= 0 (f(0) = 0); find the first break where f > 0 (f(1) > 0)
+        hi = 1.0
+        for k in range(nb + 1):
+            if _gain(b[k], w, qd, coef, a, gn, ids, n) > 0.0:
+                hi = b[k]
+                break
+            lo = b[k]
+        # on (lo, hi) no cap switches: f(s) = A s^2 + B s + C, with the bodies capped at the middle
+        mid = 0.5 * (lo + hi)
+        B = w
+        C = 0.0
+        for j in range(n):
+            i = ids[j]
+            if coef[i] > 0.0 and mid * a[i] > 0.0:
+                if mid * a[i] >= gn[i]:
+                    C -= coef[i] * gn[i]
+                else:
+                    B -= coef[i] * a[i]
+        A = 0.5 * qd
+        if A > 0.0:
+            disc = B * B - 4.0 * A * C
+            sq = math.sqrt(max(disc, 0.0))
+            # the larger root (f turns positive there), without cancellation
+            s = (-B + sq) / (2.0 * A) if B <= 0.0 else (2.0 * C) / (-B - sq)
+        elif B != 0.0:
+            s = -C / B
+        else:
+            s = lo
+        s = min(max(s, lo), hi)
+        step = 4e-16 * max(s, 1e-300)
+        for _ in range(64):  # rounding: step back until f(s) <= 0 as evaluated (f(lo) <= 0)
+            if s <= lo or _gain(s, w, qd, coef, a, gn, ids, n) <= 0.0:
+                break
+            s = max(lo, s - step)
+            step *= 2.0
+        for j in range(n):
+            scale[ids[j]] = s
+    return scale
