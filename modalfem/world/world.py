@@ -46,9 +46,11 @@ from __future__ import annotations
 
 import math
 import time
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from modalfem import effects as fx
@@ -70,14 +72,21 @@ class WorldState:
     """Changing state: ``time`` [s], one state per body (``bodies[name]``: ``runtime.State`` for a modal
     body, ``tet.TetState`` for a tet body, ``ClothState`` for a cloth) and ``contacts``, the impulses [N s] of the
     last step's solid contacts by contact (the next step's solve starts from them: resting contact converges in a
-    few sweeps, and a step from a copied state repeats exactly)."""
+    few sweeps, and a step from a copied state repeats exactly).
+
+    ``token``: set by the ``World`` step that wrote this state (its step and a CRC-32 of the time and the bodies'
+    arrays; kept by ``copy``), None for any other state. A world with tet bodies keeps its solvers' caches from step
+    to step only when a step starts from the state its last step ended in: the token names that step, and its
+    checksum, recomputed at the next step's start, tells a state whose arrays were edited in place since (any
+    edit but one in 2^32) from the one the step wrote (``World._restart_caches``)."""
 
     time: float
     bodies: dict
     contacts: dict = field(default_factory=dict)
+    token: tuple | None = field(default=None, repr=False, compare=False)
 
     def copy(self) -> WorldState:
-        return WorldState(self.time, {k: v.copy() for k, v in self.bodies.items()}, dict(self.contacts))
+        return WorldState(self.time, {k: v.copy() for k, v in self.bodies.items()}, dict(self.contacts), self.token)
 
     def __getitem__(self, name: str):
         return self.bodies[name]
@@ -249,7 +258,7 @@ class World(_TetStage, _SolidStage, _ClothStage):
         # the solid solve
         self._tet_modal = {n: list(self._modal_contact) for n, t in self._tet.items() if t["contact"] is not None}
         self._groups = {}  # tet bodies stepped together (``_tet_group``), made when first needed
-        self._last_end = None  # ``_fingerprint`` of the state the last step ended in (``_restart_caches``)
+        self._last_step = None  # what names the last step (``_restart_caches``, ``WorldState.token``)
         self._pairs = [(a, b) for i, a in enumerate(self._modal_contact) for b in self._modal_contact[i + 1:]]
         # the modal bodies' contacts with each other and with static planes: compiled search and entries
         self._fast = None
@@ -441,22 +450,25 @@ class World(_TetStage, _SolidStage, _ClothStage):
         else:
             report = self._step_plan(state_in, state_out, control, dt)
         if self._tet:
-            self._last_end = _fingerprint(state_out)
+            self._last_step = object()
+            state_out.token = (self._last_step, _checksum(state_out))
         return report
 
     def _restart_caches(self, state_in: WorldState) -> None:
         """A step that does not continue from the state the last step ended in (a run started again from
-        ``w.state()`` or any earlier state) first clears the tet solvers' caches (``TetSolver.reset_caches``: the
-        lagged coarse space, the SVD warm start, the previous step's velocity change), so a run from a given state
-        repeats bit for bit on the same ``World`` object as on a new one."""
+        ``w.state()`` or any earlier state, or that state edited in place since) first clears the tet solvers' caches
+        (``TetSolver.reset_caches``: the lagged coarse space, the SVD warm start, the previous step's velocity
+        change), so a run from a given state repeats bit for bit on the same ``World`` object as on a new one. It
+        continues when ``state_in.token`` names the last step and its checksum is the state's now (``WorldState``)."""
         if not self._tet:
             return
-        last = self._last_end
-        if last is not None and _same_fingerprint(last, state_in):
+        token = state_in.token
+        if token is not None and self._last_step is not None and token[0] is self._last_step and \
+                token[1] == _checksum(state_in):
             return
         for t in list(self._tet.values()) + list(self._groups.values()):
             t["solver"].reset_caches()
-        self._last_end = None
+        self._last_step = None
 
     def _step_plan(self, state_in: WorldState, state_out: WorldState, control: WorldControl, dt: float
                    ) -> StepReport:
@@ -658,28 +670,38 @@ class World(_TetStage, _SolidStage, _ClothStage):
         return obstacle_penetrations(self, state, tolerance)
 
 
-def _fingerprint(state: WorldState) -> tuple:
-    """``(time, every body state's arrays copied)``: what a step continuing from ``state`` starts from."""
-    arrays = []
+def _checksum(state: WorldState) -> int:
+    """A 64-bit checksum of a state's time and every body state's arrays (each attribute holding one, in name order;
+    read in place, nothing copied): ``WorldState.token``'s check that a state was not edited since the step that wrote
+    it. Per array ``sum_i (2 i + 1) w_i`` mod 2^64 of its 64-bit words ``w_i`` (``_word_sum``, compiled:
+    one pass; an edit of one word always changes it, several cancel one in ~2^64), chained FNV-style."""
+    h = 0xCBF29CE484222325
+    parts = [np.float64(state.time)]
     for name in sorted(state.bodies):
+        parts.append(name)
         b = state.bodies[name]
-        for f in ("x", "v", "q", "qdot", "position", "orientation", "velocity", "angular_momentum"):
-            a = getattr(b, f, None)
-            if isinstance(a, np.ndarray):
-                arrays.append((name, f, a.copy()))
-    return (state.time, arrays)
+        items = vars(b) if hasattr(b, "__dict__") else {f: getattr(b, f) for f in getattr(b, "__slots__", ())}
+        for f in sorted(items):
+            a = items[f]
+            if isinstance(a, (np.ndarray, float)):
+                parts += [f, np.asarray(a, dtype=np.float64) if isinstance(a, float) else a]
+    for a in parts:
+        if isinstance(a, str):
+            v = zlib.crc32(a.encode())
+        else:
+            a = np.ascontiguousarray(a).reshape(-1)
+            v = int(_word_sum(a.view(np.uint64))) if a.nbytes % 8 == 0 else zlib.crc32(a.view(np.uint8))
+        h = ((h ^ v) * 0x100000001B3) & 0xFFFFFFFFFFFFFFFF
+    return h
 
 
-def _same_fingerprint(fp: tuple, state: WorldState) -> bool:
-    time_, arrays = fp
-    if state.time != time_:
-        return False
-    for name, f, a in arrays:
-        b = state.bodies.get(name)
-        c = getattr(b, f, None) if b is not None else None
-        if not isinstance(c, np.ndarray) or not np.array_equal(a, c):
-            return False
-    return len({n for n, _, _ in arrays}) == len(state.bodies)
+@numba.njit(cache=True)
+def _word_sum(w: np.ndarray) -> np.uint64:
+    """``sum_i (2 i + 1) w_i`` mod 2^64 of 64-bit words ``w`` (n,) (``_checksum``)."""
+    acc = np.uint64(0)
+    for i in range(w.size):
+        acc += w[i] * np.uint64(2 * i + 1)
+    return acc
 
 
 class _StepContext:
