@@ -49,18 +49,17 @@ def _smallest_edge(world, name: str) -> float:
 def substep_count(world, state, dt: float) -> int:
     """How many equal sub-steps a step of ``dt`` [s] from ``state`` takes (1: not divided; see the module
     docstring)."""
-    count = _tet_pairs_count(world, state, dt)
+    ext = _extents(world, state)
+    count = _tet_pairs_count(world, state, dt, ext)
     tets = [n for n in world._tet if world._tet_modal.get(n)]  # (not the groups' keys)
     if not tets:
         return count
     g = max((float(np.linalg.norm(world._modal[m]["g"])) for m in world._modal_contact), default=0.0)
     boxes = {}
     for n in tets:
-        st, t = state.bodies[n], world._tet[n]
-        xs = st.x[t["surface"]]
-        vmax = float(np.sqrt(np.einsum("ij,ij->i", st.v, st.v)).max()) if len(st.v) else 0.0
-        r = vmax * dt + 0.5 * g * dt * dt + t["contact"].margin
-        boxes[n] = (xs.min(0) - r, xs.max(0) + r)
+        lo, hi, vmax = ext[n]
+        r = vmax * dt + 0.5 * g * dt * dt + world._tet[n]["contact"].margin
+        boxes[n] = (lo - r, hi + r)
     for m in world._modal_contact:
         body, st = world._modal[m]["body"], state.bodies[m]
         gm = float(np.linalg.norm(world._modal[m]["g"]))
@@ -84,22 +83,36 @@ def _gravity(world, name: str) -> float:
     return 0.0 if e is None else float(np.linalg.norm(e.g))
 
 
-def _tet_pairs_count(world, state, dt: float) -> int:
+def _extents(world, state) -> dict:
+    """Per tet body with contact: its surface's bounding box ``(lo, hi)`` (3,) [m] and its fastest vertex's speed
+    [m/s] at ``state``, computed once per step for both counts (``substep_count``, ``_tet_pairs_count``)."""
+    out = {}
+    for n, t in world._tet.items():
+        if t["contact"] is None:
+            continue
+        st = state.bodies[n]
+        xs = st.x[t["surface"]]
+        vmax = float(np.sqrt(np.einsum("ij,ij->i", st.v, st.v)).max()) if len(st.v) else 0.0
+        out[n] = (xs.min(0), xs.max(0), vmax)
+    return out
+
+
+def _tet_pairs_count(world, state, dt: float, ext: dict | None = None) -> int:
     """The sub-steps two tet bodies with contact closing on each other need: for each pair whose surfaces' boxes,
     each grown by its own travel bound and margin, overlap, their relative travel ``(vmax_a + vmax_b) dt + max(|g_a|,
     |g_b|) dt^2 / 2`` (the faster vertex of each; one body may be held while the other falls) against
-    ``TRAVEL_SHARE`` of the smaller of their smallest rest surface edges."""
+    ``TRAVEL_SHARE`` of the smaller of their smallest rest surface edges. ``ext``: ``_extents(world, state)``
+    (computed here when not given)."""
     tets = [n for n, t in world._tet.items() if t["contact"] is not None]
     if len(tets) < 2:
         return 1
+    ext = _extents(world, state) if ext is None else ext
     info = {}
     for n in tets:
-        st, t = state.bodies[n], world._tet[n]
-        xs = st.x[t["surface"]]
-        vmax = float(np.sqrt(np.einsum("ij,ij->i", st.v, st.v)).max()) if len(st.v) else 0.0
+        lo, hi, vmax = ext[n]
         g = _gravity(world, n)
-        r = vmax * dt + 0.5 * g * dt * dt + t["contact"].margin
-        info[n] = (xs.min(0) - r, xs.max(0) + r, vmax, g)
+        r = vmax * dt + 0.5 * g * dt * dt + world._tet[n]["contact"].margin
+        info[n] = (lo - r, hi + r, vmax, g)
     count = 1
     for i, a in enumerate(tets):
         alo, ahi, va, ga = info[a]

@@ -77,3 +77,32 @@ def test_a_bar_far_from_the_tet_or_a_step_with_scripted_vertices_is_not_divided(
     top = np.flatnonzero(np.isclose(cube.rest_points[:, 2], 0.0))
     ctl = w.control().script("cube", top, s["cube"].x[top])
     assert w.step(s, s, ctl, 2e-2).substeps == 1
+
+
+class _Counted(np.ndarray):
+    """Vertex positions that count how often they are gathered by an index array (``x[surface]``)."""
+
+    gathers = 0
+
+    def __getitem__(self, key):
+        if isinstance(key, np.ndarray):
+            _Counted.gathers += 1
+        return super().__getitem__(key)
+
+
+def test_the_sub_step_count_reads_each_tet_surface_once(bar_model, cube):
+    """Two tet cubes and a modal bar: ``substep_count`` gathers each tet's surface vertices once for both its counts
+    (bar against tet, tet against tet), not once per count (before: twice per tet and step)."""
+    from modalfem.world.substeps import substep_count
+
+    bar = mw.Modal(bar_model, name="bar", position=(0.0, 0.0, 3 * CELL + 0.1), velocity=(0.0, 0.0, -1.0))
+    w = mw.World(bodies=[bar, mw.Tet(cube, name="a", position=(-1.5 * CELL, -1.5 * CELL, 0.0)),
+                         mw.Tet(cube, name="b", position=(-1.5 * CELL, -1.5 * CELL, -3.5 * CELL))],
+                 effects=[Contact()])
+    s = w.state()
+    for n in ("a", "b"):
+        s.bodies[n].x = s.bodies[n].x.view(_Counted)
+    _Counted.gathers = 0
+    n = substep_count(w, s, 2e-2)
+    assert _Counted.gathers == 2
+    assert n >= 2  # (the bar, in reach, travels 2 cm in the step: at least twice half a 2 cm cell)
