@@ -339,7 +339,8 @@ class _TetContacts:
         ground's impulse (5.7 rad/s) after the tet step had placed it on the cube: it ended turned 3.6 degrees, 7.4
         mm from that pose, across the cube; across a tet cube and a box, alike (the box's edges under the body's
         faces too, as the solid solve's: ``_solid_stage._box_edges``). A moving obstacle's rows are found where the body
-        is relative to it at the step start and carried by its travel in the step (vertex rows; no box edges).
+        is relative to it at the step start and carried by its travel in the step (a box's edges too: acting after the
+        tet step, a box's edge rising 0.5 m/s between a bar's vertices tipped the bar through a tet cube at 20 ms).
         Returns ``((b, index), body point vertex ids (r, 3), plane rows' p, n, k, arms, body point weights (r, 3))``
         or None (``PenaltyContacts`` rows without tet vertices: the depth is ``target gap - gap - a . u``)."""
         x0, x1 = xs
@@ -377,6 +378,18 @@ class _TetContacts:
                     w.append(ew)
                     P.append((eg + dhat - np.clip(eg + np.einsum("kd,kd->k", np.einsum(
                         "ka,kad->kd", ew, x0[ev] - x1[ev]), en), 0.0, dhat))[:, None] * en)
+                    N.append(-en)
+            elif isinstance(o, Box):  # a moving box's edges: found where the body is relative to it at the step
+                # start (as its vertex rows), their gaps at the free end with the box carried by its travel d
+                edges = _box_edges(self._modal[b]["body"], ctx.state_in.bodies[b], o, t0, x0, idx, r, dhat)
+                if edges is not None:
+                    if edges[0] is not None:  # (vertex contacts left to the edge contacts)
+                        idx, gap, n, gap0 = idx[edges[0]], gap[edges[0]], n[edges[0]], gap0[edges[0]]
+                    _, ev, ew, en, eg, _ = edges  # eg: the gaps at the start
+                    end_gap = eg + np.einsum("kd,kd->k", np.einsum("ka,kad->kd", ew, x1[ev] - x0[ev]) - d, en)
+                    ids.append(ev)
+                    w.append(ew)
+                    P.append((end_gap + dhat - np.clip(eg, 0.0, dhat))[:, None] * en)
                     N.append(-en)
             if not len(idx):
                 continue

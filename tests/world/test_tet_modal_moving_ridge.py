@@ -1,0 +1,47 @@
+"""A modal body touching a tet body meets a moving box's edges inside the tet step (issue 17), found where the body
+is relative to the box at the step start and carried by the box's travel (``_tet_contacts._modal_planes``). Before,
+only the box's vertex rows were in the tet step and its edges acted after it: the 7.85 kg steel bar (conftest's)
+lying across a soft tet cube and a box turned 45 degrees about y (its top an edge along y, between two rows of the
+bar's vertices) rising at 0.5 m/s, 20 ms steps, was tipped into the cube: a cube vertex 2.5 mm inside the bar at
+step 0; after, 0.19 mm at most (margin 1 mm). Measured independently: the cube's surface vertices inside the bar's
+closed surface (winding number), as deep as their distance to it (tests/world/test_tet_box_edges.py's sampling)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_tet_box_edges import _depth_inside
+
+from modalfem import world as mw
+from modalfem.effects import Contact, Gravity
+from modalfem.mesh import box
+
+
+@pytest.fixture(scope="module")
+def cube():
+    from modalfem import tet
+    from modalfem.material import Material
+
+    return tet.tet_model(box(size=(0.06, 0.06, 0.06), cells=(3, 3, 3)), Material(E=1e6, nu=0.3, rho=1000.0))
+
+
+@pytest.mark.parametrize(("speed", "dt"), [(0.5, 2e-2)])
+def test_a_rising_ridge_tips_a_bar_off_a_tet_cube_without_pressing_the_cube_into_it(bar_model, cube, speed, dt):
+    contact = Contact(restitution=0.0, friction=0.5)
+    bar = mw.Modal(bar_model, name="bar", position=(0.09, 0.03, 0.06 + 0.025 + 1.5 * contact.margin))
+    c = np.cos(np.pi / 4)
+    R = np.array([[c, 0.0, c], [0.0, 1.0, 0.0], [-c, 0.0, c]])
+    h = 0.03
+    ridge = mw.Box((0.165, 0.03, 0.06 - h * np.sqrt(2.0)), (h, h, h), rotation=R,
+                   path=lambda t: (0.0, 0.0, speed * t))  # its top edge along y at x = 0.165, z = 0.06 at t = 0
+    w = mw.World(bodies=[bar, mw.Tet(cube, name="cube")], obstacles=[mw.Ground(0.0), ridge],
+                 effects=[Gravity(), contact])
+    s = w.state()
+    z0 = w.surface(s, "bar")[0][:, 2].max()
+    for i in range(int(round(0.3 / dt))):
+        w.step(s, s, None, dt)
+        X, F = w.surface(s, "bar")
+        depth = _depth_inside(w.surface(s, "cube")[0], X, F)
+        assert depth <= contact.margin, f"step {i}: a cube vertex {depth * 1e3:.2f} mm inside the bar"
+        assert w.penetrations(s, tolerance=contact.margin) == [], f"step {i}"
+    assert w.surface(s, "bar")[0][:, 2].max() > z0 + 0.05  # (the ridge did lift it)
