@@ -382,14 +382,18 @@ def test_blocks_dropped_on_each_other_do_not_interpenetrate(bar_model, dt):
     assert abs(s["b"].velocity[2]) < 0.05
 
 
-def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(bar_model, monkeypatch):
+@pytest.mark.parametrize("slack", [None, 0.5])
+def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(bar_model, monkeypatch, slack):
     """Temporal coherence (``_coherent_kernels.coherent_pairs``: a pair's tree walk reused while its bodies move less
     than a slack) changes nothing: at every step of five bars thrown at each other and ringing (their modal
     coordinates set each step to move vertices by up to ~2 mm, more than the slack, so shape changes alone must
     trigger new walks), the vertex-face and edge-edge contacts are exactly those of ``all_pairs`` (every pair's
-    trees walked afresh), in the same order; walks are reused and redone."""
+    trees walked afresh), in the same order; walks are reused and redone. At the World's slack (``slack`` None:
+    ``modal_contacts.SLACK``) and at 0.5 of the margin (its value before 2026-11), where this scene reuses a walk for
+    over half its pair searches."""
     from modalfem.world import _coherent_kernels as CK
     from modalfem.world import _solid_kernels as SK
+    from modalfem.world import modal_contacts as MC
 
     rng = np.random.default_rng(5)
     bodies = _thrown_bars(bar_model, rng, inward=0.5, jitter=0.02, spin=0.2)
@@ -414,22 +418,31 @@ def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(ba
         return out
 
     monkeypatch.setattr(CK, "coherent_pairs", checked)
+    if slack is not None:
+        monkeypatch.setattr(MC, "SLACK", slack)
     for k in range(200):
         for i, b in enumerate(bodies):  # ringing: each mode at its own phase, a period of ~600 steps
             s[b.name].q[:] = amp * np.sin(0.01 * k + phase[i])
         w.step(s, s, None, 1e-3)
     assert seen["contacts"] > 1000
-    assert 0 < seen["walks"] < 0.5 * seen["pairs"]
+    assert 0 < seen["walks"] < (seen["pairs"] if slack is None else 0.5 * seen["pairs"])
 
 
-def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the_bodies(bar_model, monkeypatch):
+@pytest.mark.parametrize("slack", [None, 0.5])
+def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the_bodies(bar_model, monkeypatch,
+                                                                                        slack):
     """Two crossed bars, 2 mm into each other's margin: first only ringing (their centres and axes fixed, modal
     coordinates moving vertices by up to ~6 mm), then only turning (b about its own centre, ~0.2 mm per step at its
     ends). Each alone is enough to bring features within reach that were beyond the last walk's radius: the
-    contacts found stay exactly those of a fresh walk at every step, and new walks happen in both phases."""
+    contacts found stay exactly those of a fresh walk at every step, and new walks happen in both phases (at the
+    World's slack, ``slack`` None, and at 0.5 of the margin, its value before 2026-11, where most walks are reused)."""
     from modalfem.runtime.rotation import quat_multiply
     from modalfem.world import _coherent_kernels as CK
     from modalfem.world import _solid_kernels as SK
+    from modalfem.world import modal_contacts as MC
+
+    if slack is not None:
+        monkeypatch.setattr(MC, "SLACK", slack)
 
     rng = np.random.default_rng(7)
     w, s = _pair_world(bar_model, rng, overlap=2e-3)
@@ -460,7 +473,7 @@ def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the
         found += 0 if data is None else len(data["gap"])
     assert len(walks) == 300 and found > 300
     assert sum(walks[1:150]) >= 3 and sum(walks[150:]) >= 3
-    assert sum(walks) < 150
+    assert sum(walks) < (300 if slack is None else 150)
 
 
 def test_speed_bound_holds_for_every_surface_point_whatever_its_direction(bar_model):
