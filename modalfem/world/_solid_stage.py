@@ -130,12 +130,14 @@ class _SolidStage:
             order = np.argsort(fk[held], kind="stable")
             ctx.contacts[_FAST_KEY] = (fk[held][order], lam[kp:][held][order])
         dV = data["dV"]
-        for name, (o, nd) in seg.items():
+        # the part of the solve's dv that holds the step's load acts at the step's middle (``_solve``)
+        lifts, has = gravity_lifts(dV[start[0][:, None] + np.arange(3)],
+                                   np.array([self._modal[n]["g"] for n in fast.names], dtype=float), dt)
+        for i, name in enumerate(fast.names):  # ``seg``'s bodies, in its order
+            o, nd = seg[name]
             ctx.dV[name] = dV[o:o + nd] + ctx.dV.get(name, 0.0)  # taken at the step start by the modal step
-            # the part of the solve's dv that holds the step's load acts at the step's middle (``_solve``)
-            lift = gravity_lift(dV[o:o + 3], self._modal[name]["g"], dt) if lifted[fast.names.index(name)] else None
-            if lift is not None:
-                ctx.lift[name] = lift
+            if lifted[i] and has[i]:
+                ctx.lift[name] = lifts[i]
         # what each body received from each other body (the other received the opposite), per pair
         uniq, J, L = _kernels.exchanged(data["body"], data["other"], data["point"], lam, len(names))
         if len(uniq):  # per pair sums in contact order
@@ -329,6 +331,15 @@ def gravity_lift(dv: np.ndarray, g: np.ndarray, dt: float) -> np.ndarray | None:
     up = -np.asarray(g) * dt / gn
     c = min(max(float(dv @ up), 0.0), gn)
     return None if c == 0.0 else (-0.5 * dt * c) * up
+
+
+def gravity_lifts(dv: np.ndarray, g: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``gravity_lift`` of m bodies at once (``dv``, ``g`` (m, 3)): their position changes (m, 3) [m] and (m,) bool,
+    whether each has one (``gravity_lift`` not None)."""
+    gn = np.sqrt(np.einsum("ij,ij->i", g, g)) * dt
+    up = -g * dt / np.where(gn > 0.0, gn, 1.0)[:, None]
+    c = np.minimum(np.maximum(np.einsum("ij,ij->i", dv, up), 0.0), gn)
+    return (-0.5 * dt * c)[:, None] * up, c != 0.0
 
 
 def apply_lift(lift: dict, name: str, position: np.ndarray) -> None:
