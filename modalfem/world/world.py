@@ -55,6 +55,7 @@ import numpy as np
 
 from modalfem import effects as fx
 from modalfem.errors import InputError, SimulationError
+from modalfem.runtime.state import restore, snapshot
 from modalfem.world._cloth_stage import _ClothStage
 from modalfem.world._shared import _REACTION_KEY, BOUNCE_THRESHOLD, PUSH_OUT, SLOW  # noqa: F401 (re-exported)
 from modalfem.world._solid_stage import _SolidStage, apply_lift
@@ -509,7 +510,20 @@ class World(_TetStage, _SolidStage, _ClothStage):
         name = self._solo
         report = StepReport()
         t0 = time.perf_counter()
-        self._modal_body_step(name, state_in.bodies[name], state_out.bodies[name], None, dt, report)
+        m = self._modal[name]
+        if m["static"]:
+            self._modal_body_step(name, state_in.bodies[name], state_out.bodies[name], None, dt, report)
+        else:  # ``ModalSolver.step`` without its checks of dt (done above), a control and contacts (none here)
+            s = state_out.bodies[name]
+            saved = snapshot(s)
+            try:
+                m["solver"]._step(state_in.bodies[name], s, (), (), None, None, dt)
+            except SimulationError as exc:
+                restore(s, saved)
+                raise SimulationError(f"modal body {name!r}: {exc}") from None
+            except BaseException:
+                restore(s, saved)
+                raise
         report.seconds["modal step"] = time.perf_counter() - t0
         if state_out is not state_in:
             state_out.contacts = dict(state_in.contacts)

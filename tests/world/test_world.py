@@ -492,3 +492,21 @@ def test_two_touching_cloths_without_self_collision_are_refused():
     w = mw.World(bodies=bodies, effects=[Gravity(), Contact(), SelfCollision()])
     assert [s.name for s in w.plan] == ["cloth step", "cloth collisions"]
     assert mw.World(bodies=bodies, effects=[Gravity(), Contact(bodies=["a"])]).plan  # one cloth touching: fine
+
+
+def test_a_lone_modal_body_step_that_fails_leaves_the_state_as_it_was(bar_model):
+    """All or nothing on the lone-body path too: a step that goes non-finite raises one line naming the body and
+    leaves the output state bit for bit as it was (in another state and in place)."""
+    w = mw.World(bodies=[mw.Modal(bar_model, name="bar", velocity=(0.1, 0.0, 0.0))])
+    assert w._solo == "bar"
+    s, other = w.state(), w.state()
+    w.step(s, other, None, 1e-3)
+    s["bar"].qdot[0] = np.inf
+    for out in (other, s):
+        before = {a: getattr(out["bar"], a).copy() for a in ("q", "qdot", "position", "velocity", "angular_momentum")}
+        t_before = out.time
+        with pytest.raises(SimulationError, match="modal body 'bar'.*non-finite"):
+            w.step(s, out, None, 1e-3)
+        for a, v in before.items():
+            assert np.array_equal(getattr(out["bar"], a), v), a
+        assert out.time == t_before
