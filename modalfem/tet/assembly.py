@@ -45,6 +45,8 @@ class HessianPattern:
         # the same scatter as a gather, symmetrised in the same pass: each position of the upper triangle
         # (diagonal included) sums, in a fixed order, the element entries landing on it or on its transpose,
         # and writes both (one compiled pass over the positions, in parallel, no write conflicts)
+        from modalfem.tet import _kernels
+
         upper = np.flatnonzero(self.rows <= self.indices)
         rank = np.empty(self.nnz, dtype=np.int64)
         rank[upper] = np.arange(len(upper))
@@ -52,13 +54,13 @@ class HessianPattern:
         target = rank[self.upper_index]
         order = np.argsort(target, kind="stable")
         self._gather_ptr = np.searchsorted(target[order], np.arange(len(upper) + 1)).astype(np.int64)
-        self._gather_order = order.astype(np.uint64)  # unsigned: no wrap-around test per access in numba
-        self._owner = upper.astype(np.uint64)
-        self._mirror = self.transpose[upper].astype(np.uint64)
+        # unsigned (no wrap-around test per access in numba), 32-bit when they fit (half the index traffic)
+        self._gather_order = _kernels.compact_unsigned(order)
+        self._owner = _kernels.compact_unsigned(upper)
+        self._mirror = _kernels.compact_unsigned(self.transpose[upper])
         self.diag_index = inv[144 * len(cells):]
         self._cells = len(cells)
         self._order_em = None
-        from modalfem.tet import _kernels
 
         #: full 3x3 vertex blocks (every vertex in a tetrahedron): the CG's products read them by blocks
         self.blocked = bool(_kernels.is_blocked3(self.indptr, self.indices))
@@ -98,7 +100,9 @@ class HessianPattern:
         """The gather order for upper triangles stored (m, 78) (element index first), made once."""
         if self._order_em is None:
             k, e = np.divmod(self._gather_order.astype(np.int64), self._cells)
-            self._order_em = (e * 78 + k).astype(np.uint64)
+            from modalfem.tet import _kernels
+
+            self._order_em = _kernels.compact_unsigned(e * 78 + k)
         return self._order_em
 
     def positions(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

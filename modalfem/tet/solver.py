@@ -258,7 +258,9 @@ class TetSolver:
         # ... summed per DOF by a compiled gather (the order of np.bincount's scatter: the same sums)
         order = np.argsort(force_index, kind="stable")
         self._force_ptr = np.searchsorted(force_index[order], np.arange(3 * n + 1)).astype(np.int64)
-        self._force_order = order.astype(np.uint64)
+        from modalfem.tet import _kernels
+
+        self._force_order = _kernels.compact_unsigned(order)
         self._svd_cache = None  # (x, (U, s, V)) of the last evaluated positions
         self._previous = None  # (x, velocity change (3n,), h) of the last step
         self._lag = (0, 0, 0)  # coarse space: solves since its rebuild, CG iterations then, last CG iterations
