@@ -106,6 +106,28 @@ def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, slot_a, slo
     return out[:n].copy(), tests
 
 
+@numba.njit(cache=True, inline="always")
+def _box_size(lo, hi, a: int) -> float:
+    """Sum of the side lengths of node ``a``'s box [m] (which side of a node pair a walk descends)."""
+    return (hi[a, 0] - lo[a, 0]) + (hi[a, 1] - lo[a, 1]) + (hi[a, 2] - lo[a, 2])
+
+
+@numba.njit(cache=True, inline="always")
+def _push_children(stack, top: int, a: int, b: int, depth: int, descend_a: bool):
+    """Push the children of node pair ``(a, b)`` onto a walk's ``(node a, node b, depth)`` stack: a's two
+    children paired with b when ``descend_a``, else a with b's two; returns the stack (grown if needed) and its
+    new top."""
+    if top + 2 > len(stack):
+        stack = _grow(stack, top + 2)
+    if descend_a:
+        stack[top, 0], stack[top, 1], stack[top, 2] = 2 * a, b, depth + 1
+        stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = 2 * a + 1, b, depth + 1
+    else:
+        stack[top, 0], stack[top, 1], stack[top, 2] = a, 2 * b, depth + 1
+        stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, 2 * b + 1, depth + 1
+    return stack, top + 2
+
+
 @numba.njit(cache=True)
 def _walk(a0: int, b0: int, split: int, same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, Pb: int, lo_b, hi_b,
           ne_b, connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit: int, x0, x1, static: bool,
@@ -178,17 +200,8 @@ def _walk(a0: int, b0: int, split: int, same: bool, culling: bool, Pa: int, lo_a
             leaves[count, 0], leaves[count, 1] = (a, b) if split >= 0 else (a - Pa, b - Pb)
             count += 1
             continue
-        size_a = (hi_a[a, 0] - lo_a[a, 0]) + (hi_a[a, 1] - lo_a[a, 1]) + (hi_a[a, 2] - lo_a[a, 2])
-        size_b = (hi_b[b, 0] - lo_b[b, 0]) + (hi_b[b, 1] - lo_b[b, 1]) + (hi_b[b, 2] - lo_b[b, 2])
-        if top + 2 > len(stack):
-            stack = _grow(stack, top + 2)
-        if not leaf_a and (leaf_b or size_a >= size_b):
-            stack[top, 0], stack[top, 1], stack[top, 2] = 2 * a, b, depth + 1
-            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = 2 * a + 1, b, depth + 1
-        else:
-            stack[top, 0], stack[top, 1], stack[top, 2] = a, 2 * b, depth + 1
-            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, 2 * b + 1, depth + 1
-        top += 2
+        stack, top = _push_children(stack, top, a, b, depth, not leaf_a and (
+            leaf_b or _box_size(lo_a, hi_a, a) >= _box_size(lo_b, hi_b, b)))
     return leaves[:count]
 
 
@@ -335,17 +348,8 @@ def _dirty_walk(a0: int, b0: int, split: int, P: int, dlo, dhi, lo, hi):
             out[count, 0], out[count, 1] = a, b
             count += 1
             continue
-        size_a = (dhi[a, 0] - dlo[a, 0]) + (dhi[a, 1] - dlo[a, 1]) + (dhi[a, 2] - dlo[a, 2])
-        size_b = (hi[b, 0] - lo[b, 0]) + (hi[b, 1] - lo[b, 1]) + (hi[b, 2] - lo[b, 2])
-        if top + 2 > len(stack):
-            stack = _grow(stack, top + 2)
-        if not leaf_a and (leaf_b or size_a >= size_b):
-            stack[top, 0], stack[top, 1], stack[top, 2] = 2 * a, b, depth + 1
-            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = 2 * a + 1, b, depth + 1
-        else:
-            stack[top, 0], stack[top, 1], stack[top, 2] = a, 2 * b, depth + 1
-            stack[top + 1, 0], stack[top + 1, 1], stack[top + 1, 2] = a, 2 * b + 1, depth + 1
-        top += 2
+        stack, top = _push_children(stack, top, a, b, depth, not leaf_a and (
+            leaf_b or _box_size(dlo, dhi, a) >= _box_size(lo, hi, b)))
     return out[:count]
 
 
