@@ -25,7 +25,7 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["assemble_upper", "compact_unsigned", "csr_matvec", "element_forces", "galerkin", "gather_sum", "hessians_upper", "pcg_twolevel",
+__all__ = ["assemble_upper", "compact_unsigned", "csr_matvec", "element_forces", "galerkin", "gather_sum", "hessians_upper", "mirror_upper", "pcg_twolevel",
            "svd_of_positions", "svd_rv", "unsigned"]
 
 _apply_threads()
@@ -162,6 +162,16 @@ def compact_unsigned(index: np.ndarray) -> np.ndarray:
         raise ValueError("negative index")
     fits = index.size == 0 or int(index.max()) <= np.iinfo(np.uint32).max
     return index.astype(np.uint32 if fits else np.uint64)
+
+
+@numba.njit(cache=True)
+def mirror_upper(a) -> None:
+    """``a[i, j] = a[j, i]`` for ``i > j``: a square matrix made symmetric from its upper triangle, in place
+    (LAPACK's ``potri`` output; was two ``np.triu`` copies and a sum, ~0.4 ms at 324 x 324)."""
+    n = a.shape[0]
+    for i in range(n):
+        for j in range(i):
+            a[i, j] = a[j, i]
 
 
 def unsigned(index: np.ndarray) -> np.ndarray:

@@ -161,13 +161,12 @@ class TwoLevel:
         empty = d <= 1e-14 * dmax
         Ac[empty, empty] = 1.0
         Ac[np.diag_indices_from(Ac)] += 1e-10 * dmax  # dependent columns (collinear groups) stay factorisable
-        try:
-            c, _ = sla.cho_factor(Ac, lower=False, check_finite=False)
-        except (np.linalg.LinAlgError, ValueError):
-            return P, None
-        ci, info = sla.lapack.dpotri(c, lower=False)
+        # LAPACK directly, in place (the factor's lower triangle is left as it was: potri reads the upper)
+        c, info = sla.lapack.dpotrf(Ac, lower=False, clean=False, overwrite_a=True)
         if info != 0:
             return P, None
-        Ac_inv = np.triu(ci)
-        Ac_inv += np.triu(ci, 1).T  # exactly symmetric (the compiled CG reads it by columns)
-        return P, Ac_inv
+        Ac_inv, info = sla.lapack.dpotri(c, lower=False, overwrite_c=True)
+        if info != 0:
+            return P, None
+        _kernels.mirror_upper(Ac_inv)  # exactly symmetric (the compiled CG reads it by columns)
+        return P, Ac_inv.T  # potri's Fortran-ordered result, as the C-ordered array the CG was compiled for
