@@ -60,49 +60,61 @@ def _angle(ax: np.ndarray, b: np.ndarray) -> float:
 
 
 @numba.njit(cache=True)
-def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, slot_a, slo_a, shi_a, slot_b, slo_b, shi_b,
-                         filt: bool, dirty_tris):
+def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, Pa: int, lo_a, hi_a, slot_a, slo_a, shi_a, Pb: int,
+                         lo_b, hi_b, slot_b, slo_b, shi_b, filt: bool, dirty_tris):
     """Triangle pairs of the leaf pairs ``leaves[:count]`` (leaf indices) whose boxes overlap, and the number
-    of tests (a leaf paired with itself: each unordered pair of its triangles once). Empty slots have
-    empty boxes (+inf / -inf) and never overlap: the box tests of one row run branch-free."""
+    of tests (a leaf paired with itself: each unordered pair of its triangles once).
+
+    Of two different leaves, only the triangles of a whose box overlaps b's leaf box (``lo_b``/``hi_b`` of node
+    ``Pb + leaf``) are tested against those of b overlapping a's leaf box (a triangle outside the other leaf's box
+    overlaps none of its triangles): the same pairs in the same order as all L x L tests, about half the tests on
+    the 64x64 pile. The count of tests stays that of all pairs of the two leaves' triangles. The box tests of a
+    row run branch-free (they fail unpredictably)."""
     L, Lb = slot_a.shape[1], slot_b.shape[1]
     out = np.empty((count * L * Lb, 2), dtype=np.int64)
-    ok = np.empty(Lb, dtype=np.bool_)
+    rows = np.empty(L, dtype=np.int64)
+    cols = np.empty(Lb, dtype=np.int64)
     n = 0
     tests = 0
     for p in range(count):
         ia, ib = leaves[p, 0], leaves[p, 1]
+        na, nb = Pa + ia, Pb + ib
         self_leaf = same and ia == ib
-        nb = 0
-        for c in range(Lb):
-            nb += slot_b[ib, c] >= 0
+        nr = ncol = cnt_a = cnt_b = 0
         for r in range(L):
-            ta = slot_a[ia, r]
-            if ta < 0:
+            if slot_a[ia, r] < 0:
                 continue
+            cnt_a += 1
+            rows[nr] = r
+            nr += self_leaf | ((slo_a[0, ia, r] <= hi_b[nb, 0]) & (lo_b[nb, 0] <= shi_a[0, ia, r])
+                               & (slo_a[1, ia, r] <= hi_b[nb, 1]) & (lo_b[nb, 1] <= shi_a[1, ia, r])
+                               & (slo_a[2, ia, r] <= hi_b[nb, 2]) & (lo_b[nb, 2] <= shi_a[2, ia, r]))
+        for c in range(Lb):
+            if slot_b[ib, c] < 0:
+                continue
+            cnt_b += 1
+            cols[ncol] = c
+            ncol += self_leaf | ((slo_b[0, ib, c] <= hi_a[na, 0]) & (lo_a[na, 0] <= shi_b[0, ib, c])
+                                 & (slo_b[1, ib, c] <= hi_a[na, 1]) & (lo_a[na, 1] <= shi_b[1, ib, c])
+                                 & (slo_b[2, ib, c] <= hi_a[na, 2]) & (lo_a[na, 2] <= shi_b[2, ib, c]))
+        tests += cnt_a * (cnt_a - 1) // 2 if self_leaf else cnt_a * cnt_b
+        for i in range(nr):
+            r = rows[i]
+            ta = slot_a[ia, r]
             alo0, alo1, alo2 = slo_a[0, ia, r], slo_a[1, ia, r], slo_a[2, ia, r]
             ahi0, ahi1, ahi2 = shi_a[0, ia, r], shi_a[1, ia, r], shi_a[2, ia, r]
-            for c in range(Lb):
-                ok[c] = ((alo0 <= shi_b[0, ib, c]) & (slo_b[0, ib, c] <= ahi0) & (alo1 <= shi_b[1, ib, c])
-                         & (slo_b[1, ib, c] <= ahi1) & (alo2 <= shi_b[2, ib, c]) & (slo_b[2, ib, c] <= ahi2))
-            c0 = r + 1 if self_leaf else 0
-            if self_leaf:
-                for c in range(c0, Lb):
-                    tests += slot_b[ib, c] >= 0
-            else:
-                tests += nb
-            # written always, kept by the count: no branch on the box tests, which fail unpredictably
-            # (empty slots never overlap, so their -1 is never kept)
-            if filt:
-                da = dirty_tris[ta]
-                for c in range(c0, Lb):
-                    tb = slot_b[ib, c]
-                    out[n, 0], out[n, 1] = ta, tb
-                    n += ok[c] & (da | (same & dirty_tris[max(tb, 0)]))
-            else:
-                for c in range(c0, Lb):
-                    out[n, 0], out[n, 1] = ta, slot_b[ib, c]
-                    n += ok[c]
+            da = filt and dirty_tris[ta]
+            for j in range(i + 1 if self_leaf else 0, ncol):
+                c = cols[j]
+                tb = slot_b[ib, c]
+                ok = ((alo0 <= shi_b[0, ib, c]) & (slo_b[0, ib, c] <= ahi0) & (alo1 <= shi_b[1, ib, c])
+                      & (slo_b[1, ib, c] <= ahi1) & (alo2 <= shi_b[2, ib, c]) & (slo_b[2, ib, c] <= ahi2))
+                # written always, kept by the count: no branch on the box tests
+                out[n, 0], out[n, 1] = ta, tb
+                if filt:
+                    n += ok & (da | (same & dirty_tris[tb]))
+                else:
+                    n += ok
     return out[:n].copy(), tests
 
 
@@ -131,8 +143,13 @@ def _push_children(stack, top: int, a: int, b: int, depth: int, descend_a: bool)
 @numba.njit(cache=True)
 def _walk(a0: int, b0: int, split: int, same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, Pb: int, lo_b, hi_b,
           ne_b, connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit: int, x0, x1, static: bool,
-          check_contour: bool, dirty_nodes):
+          check_contour: bool, dirty_nodes, nd, gap: float):
     """Depth-first walk from the node pair ``(a0, b0)`` (see :func:`traverse`).
+
+    ``nd`` (2P, 8) (empty: no such test; a tree against itself only): per node the union of its triangles'
+    intervals on the four box diagonals (:func:`node_diagonals`); a node pair whose intervals on one diagonal are
+    more than ``gap`` apart is not walked (every triangle pair under it is that far apart, which the expansion
+    drops: :func:`modalfem.collision._pair_kernels._primitive_range`).
 
     ``split`` < 0: returns the leaf pairs reached (leaf indices), in depth-first order. ``split`` >= 0:
     returns node pairs instead, for :func:`traverse` to walk from in parallel: every pair popped at depth
@@ -140,6 +157,7 @@ def _walk(a0: int, b0: int, split: int, same: bool, culling: bool, Pa: int, lo_a
     that the walks from them, concatenated, give the leaf pairs of one whole walk in its order.
     """
     filt = len(dirty_nodes) > 0
+    use_nd = len(nd) > 0
     stack = np.empty((256, 3), dtype=np.int64)
     stack[0, 0], stack[0, 1], stack[0, 2] = a0, b0, 0
     top = 1
@@ -182,6 +200,12 @@ def _walk(a0: int, b0: int, split: int, same: bool, culling: bool, Pa: int, lo_a
         if (lo_a[a, 0] > hi_b[b, 0] or lo_b[b, 0] > hi_a[a, 0] or lo_a[a, 1] > hi_b[b, 1] or lo_b[b, 1] > hi_a[a, 1]
                 or lo_a[a, 2] > hi_b[b, 2] or lo_b[b, 2] > hi_a[a, 2]):
             continue
+        if use_nd:
+            apart = False
+            for d in range(4):
+                apart = apart | (nd[a, d] > nd[b, 4 + d] + gap) | (nd[b, d] > nd[a, 4 + d] + gap)
+            if apart:
+                continue
         if same and culling and connected[a] and connected[b] and _adjacent(adj, a * (2 * Pa) + b):
             # two adjacent patches whose union is one patch with a narrow normal cone: skip
             for i in range(3):
@@ -205,6 +229,31 @@ def _walk(a0: int, b0: int, split: int, same: bool, culling: bool, Pa: int, lo_a
     return leaves[:count]
 
 
+@numba.njit(cache=True)
+def node_diagonals(P: int, slot_tri, fdiag):
+    """(2P, 8): per node the union of its triangles' intervals on the four box diagonals (``fdiag`` (m, 8),
+    ``lo_0..lo_3, hi_0..hi_3`` per triangle; empty nodes +inf / -inf): a node pair whose intervals on one diagonal
+    are more than the expansion's gap apart holds only triangle pairs that far apart."""
+    L = slot_tri.shape[1]
+    nd = np.empty((2 * P, 8))
+    nd[:, :4] = np.inf
+    nd[:, 4:] = -np.inf
+    for leaf in range(P):
+        node = P + leaf
+        for r in range(L):
+            f = slot_tri[leaf, r]
+            if f < 0:
+                continue
+            for d in range(4):
+                nd[node, d] = min(nd[node, d], fdiag[f, d])
+                nd[node, 4 + d] = max(nd[node, 4 + d], fdiag[f, 4 + d])
+    for a in range(P - 1, 0, -1):
+        for d in range(4):
+            nd[a, d] = min(nd[2 * a, d], nd[2 * a + 1, d])
+            nd[a, 4 + d] = max(nd[2 * a, 4 + d], nd[2 * a + 1, 4 + d])
+    return nd
+
+
 #: depth of the serial walk that hands node pairs to the parallel walks (a self-test splits in 3: up to
 #: 3^6 = 729 tasks, fewer where pruned)
 SPLIT_DEPTH = 6
@@ -216,14 +265,14 @@ TASK_CHUNK = 4
 def _walk_tasks(tasks, start: int, stop: int, same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a,
                 shi_a, Pb: int, lo_b, hi_b, ne_b, slot_b, slo_b, shi_b, connected, cone_axis, cone_angle, adj,
                 bnd_start, bnd_edge, bnd_id, limit: int, x0, x1, static: bool, check_contour: bool, dirty_nodes,
-                dirty_tris):
+                dirty_tris, nd, gap: float):
     """Triangle pairs and leaf tests of the walks from ``tasks[start:stop]``, concatenated in task order."""
     filt = len(dirty_nodes) > 0
     leaves = np.empty((0, 2), dtype=np.int64)
     for t in range(start, stop):
         got = _walk(tasks[t, 0], tasks[t, 1], -1, same, culling, Pa, lo_a, hi_a, ne_a, Pb, lo_b, hi_b, ne_b,
                     connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static,
-                    check_contour, dirty_nodes)
+                    check_contour, dirty_nodes, nd, gap)
         if len(leaves) == 0:
             leaves = got
         elif len(got):
@@ -231,8 +280,8 @@ def _walk_tasks(tasks, start: int, stop: int, same: bool, culling: bool, Pa: int
             both[:len(leaves)] = leaves
             both[len(leaves):] = got
             leaves = both
-    return _leaf_triangle_pairs(leaves, len(leaves), same, slot_a, slo_a, shi_a, slot_b, slo_b, shi_b, filt,
-                                dirty_tris)
+    return _leaf_triangle_pairs(leaves, len(leaves), same, Pa, lo_a, hi_a, slot_a, slo_a, shi_a, Pb, lo_b, hi_b,
+                                slot_b, slo_b, shi_b, filt, dirty_tris)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -253,9 +302,10 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
     concatenated in order: the pairs, and their order, are those of one depth-first walk on any number
     of threads.
     """
+    nd = np.zeros((0, 8))
     tasks = _walk(1, 1, SPLIT_DEPTH, same, culling, Pa, lo_a, hi_a, ne_a, Pb, lo_b, hi_b, ne_b, connected,
                   cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static, check_contour,
-                  dirty_nodes)
+                  dirty_nodes, nd, 0.0)
     T = len(tasks)
     chunks = max(1, min(MAX_CHUNKS, -(-T // TASK_CHUNK)))
     bufs = [np.empty((0, 2), dtype=np.int64) for _ in range(chunks)]
@@ -265,7 +315,7 @@ def traverse(same: bool, culling: bool, Pa: int, lo_a, hi_a, ne_a, slot_a, slo_a
         bufs[ch], tests[ch] = _walk_tasks(tasks, start, stop, same, culling, Pa, lo_a, hi_a, ne_a, slot_a, slo_a,
                                           shi_a, Pb, lo_b, hi_b, ne_b, slot_b, slo_b, shi_b, connected, cone_axis,
                                           cone_angle, adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static,
-                                          check_contour, dirty_nodes, dirty_tris)
+                                          check_contour, dirty_nodes, dirty_tris, nd, 0.0)
     return _concat(bufs), tests.sum()
 
 
@@ -279,14 +329,15 @@ def traverse_primitives(culling: bool, P: int, lo, hi, ne, slot, slo, shi, conne
     :func:`modalfem.collision._pair_kernels.primitive_boxes` and its diagonal test ``diag``, ``fdiag``, ``gap``)
     while they are in cache: the triangle pairs are never gathered into one list. The same pairs in the same
     order as :func:`traverse` followed by :func:`modalfem.collision._pair_kernels.primitive_pairs`, on any number
-    of threads.
+    of threads. With the diagonal test, node pairs apart on a diagonal (:func:`node_diagonals`) are not walked.
 
     Returns:
         ``(vf, ee, tests)``: (p, 4) and (q, 4) vertex quadruples and the leaf tests.
     """
     none = np.zeros(0, dtype=np.bool_)
+    nd = node_diagonals(P, slot, fdiag) if len(diag) > 0 else np.zeros((0, 8))
     tasks = _walk(1, 1, SPLIT_DEPTH, True, culling, P, lo, hi, ne, P, lo, hi, ne, connected, cone_axis, cone_angle,
-                  adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static, check_contour, none)
+                  adj, bnd_start, bnd_edge, bnd_id, limit, x0, x1, static, check_contour, none, nd, gap)
     T = len(tasks)
     chunks = max(1, min(MAX_CHUNKS, -(-T // TASK_CHUNK)))
     vbufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
@@ -296,7 +347,7 @@ def traverse_primitives(culling: bool, P: int, lo, hi, ne, slot, slo, shi, conne
         start, stop = chunk_bounds(T, chunks, ch)
         tp, tests[ch] = _walk_tasks(tasks, start, stop, True, culling, P, lo, hi, ne, slot, slo, shi, P, lo, hi, ne,
                                     slot, slo, shi, connected, cone_axis, cone_angle, adj, bnd_start, bnd_edge, bnd_id,
-                                    limit, x0, x1, static, check_contour, none, none)
+                                    limit, x0, x1, static, check_contour, none, none, nd, gap)
         vbufs[ch], ebufs[ch] = _primitive_range(tp, 0, len(tp), tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
                                                 ehi, none, diag, fdiag, gap)
     return _concat4(vbufs), _concat4(ebufs), tests.sum()
@@ -354,29 +405,38 @@ def _dirty_walk(a0: int, b0: int, split: int, P: int, dlo, dhi, lo, hi):
 
 
 @numba.njit(cache=True)
-def _dirty_leaf_pairs(leaves, P: int, slot_tri, slo, shi, dirty_tris):
+def _dirty_leaf_pairs(leaves, P: int, dlo, dhi, slot_tri, slo, shi, dirty_tris):
     """Triangle pairs (flagged ta of leaf a, tb of leaf b) of the leaf pairs ``leaves`` (node indices) whose boxes
-    overlap, without ta == tb, and a pair of two flagged triangles only as (smaller, larger)."""
+    overlap, without ta == tb, and a pair of two flagged triangles only as (smaller, larger); only b's triangles
+    overlapping the box of a's flagged ones (``dlo``/``dhi``) are tested."""
     L = slot_tri.shape[1]
     out = np.empty((len(leaves) * L * L, 2), dtype=np.int64)
-    ok = np.empty(L, dtype=np.bool_)
+    cols = np.empty(L, dtype=np.int64)
     n = 0
     for p in range(len(leaves)):
-        ia, ib = leaves[p, 0] - P, leaves[p, 1] - P
+        na = leaves[p, 0]
+        ia, ib = na - P, leaves[p, 1] - P
+        ncol = 0
+        for c in range(L):
+            tb = slot_tri[ib, c]
+            cols[ncol] = c
+            ncol += (tb >= 0) & ((slo[0, ib, c] <= dhi[na, 0]) & (dlo[na, 0] <= shi[0, ib, c])
+                                 & (slo[1, ib, c] <= dhi[na, 1]) & (dlo[na, 1] <= shi[1, ib, c])
+                                 & (slo[2, ib, c] <= dhi[na, 2]) & (dlo[na, 2] <= shi[2, ib, c]))
         for r in range(L):
             ta = slot_tri[ia, r]
             if ta < 0 or not dirty_tris[ta]:
                 continue
             alo0, alo1, alo2 = slo[0, ia, r], slo[1, ia, r], slo[2, ia, r]
             ahi0, ahi1, ahi2 = shi[0, ia, r], shi[1, ia, r], shi[2, ia, r]
-            for c in range(L):
-                ok[c] = ((alo0 <= shi[0, ib, c]) & (slo[0, ib, c] <= ahi0) & (alo1 <= shi[1, ib, c])
-                         & (slo[1, ib, c] <= ahi1) & (alo2 <= shi[2, ib, c]) & (slo[2, ib, c] <= ahi2))
-            # written always, kept by the count (empty slots have empty boxes: their -1 is never kept)
-            for c in range(L):
+            # written always, kept by the count: no branch on the box tests
+            for j in range(ncol):
+                c = cols[j]
                 tb = slot_tri[ib, c]
+                ok = ((alo0 <= shi[0, ib, c]) & (slo[0, ib, c] <= ahi0) & (alo1 <= shi[1, ib, c])
+                      & (slo[1, ib, c] <= ahi1) & (alo2 <= shi[2, ib, c]) & (slo[2, ib, c] <= ahi2))
                 out[n, 0], out[n, 1] = ta, tb
-                n += ok[c] & (tb != ta) & ((not dirty_tris[max(tb, 0)]) | (ta < tb))
+                n += ok & (tb != ta) & ((not dirty_tris[tb]) | (ta < tb))
     return out[:n].copy()
 
 
@@ -393,7 +453,7 @@ def _dirty_tasks(tasks, start: int, stop: int, P: int, dlo, dhi, lo, hi, slot_tr
             both[:len(leaves)] = leaves
             both[len(leaves):] = got
             leaves = both
-    return _dirty_leaf_pairs(leaves, P, slot_tri, slo, shi, dirty_tris)
+    return _dirty_leaf_pairs(leaves, P, dlo, dhi, slot_tri, slo, shi, dirty_tris)
 
 
 @numba.njit(cache=True, parallel=True)

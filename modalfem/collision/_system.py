@@ -256,12 +256,14 @@ class System:
             # the same pairs in the same order as the expansion of the gathered list
             boxes = _pair_kernels.primitive_boxes(self.tris, self.edges, vlo, vhi)
             fdiag = _pair_kernels.triangle_diagonals(self.tris, diag[0])
-            fused = self.cloth_bvh.self_primitive_pairs(
-                (self.tris, self.edges, self.owned_verts, self.owned_edges, vlo, vhi, *boxes, diag[0], fdiag, diag[1]),
-                culling=culling)
+            expand = (self.tris, self.edges, self.owned_verts, self.owned_edges, vlo, vhi, *boxes, diag[0], fdiag,
+                      diag[1])
+            fused = self.cloth_bvh.self_primitive_pairs(expand, culling=culling)
             tests = unculled = fused[2]
             if count_unculled and culling:
-                unculled = self.cloth_bvh.self_pairs(culling=False)[1]
+                # the same traversal without culling (it prunes node pairs apart on a box diagonal too): what culling
+                # saved, and nothing else
+                unculled = self.cloth_bvh.self_primitive_pairs(expand, culling=False)[2]
         elif self_collision:
             pairs, tests = self.cloth_bvh.self_pairs(culling=culling, dirty=dtri[: self.m_cloth])
             parts.append(pairs)

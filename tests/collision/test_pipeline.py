@@ -73,7 +73,7 @@ def test_stages_off_leave_velocities_and_report_unresolved():
 
 def test_culling_statistics_on_a_draped_sheet():
     """A flat sheet cannot touch itself: culling removes every test of the traversals it runs in, the
-    proximity search by default (its unculled tests: the swept search's plus the proximity search's),
+    proximity search by default,
     both with ``swept_culling``. (The thickness is the cell size: the unculled swept search then keeps pairs of
     nearby primitives; with a thinner cloth the searches' box-diagonal test leaves none of a flat sheet's.)"""
     x0, tri = grid(20, 20)
@@ -84,8 +84,11 @@ def test_culling_statistics_on_a_draped_sheet():
     assert st.pair_tests == 0 < st.pair_tests_unculled and st.culled_fraction == 1.0
     default = CollisionConfig(thickness=0.05, measure_culling=True)
     _, st2 = CollisionPipeline(tri, config=default).resolve(x0, v, np.ones(len(x0)), DT)
-    assert st2.pair_tests_unculled == st.pair_tests_unculled
     assert 0 < st2.pair_tests < st2.pair_tests_unculled  # the swept traversal's tests, unculled
+    # what default culling saved is the proximity search's tests, which ``both`` counts too (beside its swept
+    # search's, whose margin differs: the traversals prune node pairs apart on a box diagonal, so their counts
+    # depend on the margin)
+    assert 0 < st2.pair_tests_unculled - st2.pair_tests < st.pair_tests_unculled
     assert st2.candidates_vf + st2.candidates_ee > 0 == st.candidates_vf + st.candidates_ee
 
 

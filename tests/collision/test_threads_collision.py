@@ -31,9 +31,10 @@ def _serial_walk(bvh: BroadPhaseBVH):
     leaves = _bvh_kernels._walk(1, 1, -1, True, True, bvh.P, bvh.lo, bvh.hi, bvh.nonempty, bvh.P, bvh.lo, bvh.hi,
                                 bvh.nonempty, bvh.connected, bvh.cone_axis, bvh.cone_angle, bvh._adj, bvh._bnd_start,
                                 bvh._bnd_edge, bvh._bnd_id, int(bvh.contour_limit), bvh._x0, bvh._x1, False,
-                                bool(bvh.boundary_check), np.zeros(0, dtype=bool))
-    return _bvh_kernels._leaf_triangle_pairs(leaves, len(leaves), True, bvh.slot_tri, bvh._slo, bvh._shi,
-                                             bvh.slot_tri, bvh._slo, bvh._shi, False, np.zeros(0, dtype=bool))
+                                bool(bvh.boundary_check), np.zeros(0, dtype=bool), np.zeros((0, 8)), 0.0)
+    return _bvh_kernels._leaf_triangle_pairs(leaves, len(leaves), True, bvh.P, bvh.lo, bvh.hi, bvh.slot_tri, bvh._slo,
+                                             bvh._shi, bvh.P, bvh.lo, bvh.hi, bvh.slot_tri, bvh._slo, bvh._shi, False,
+                                             np.zeros(0, dtype=bool))
 
 
 def test_traversal_and_queries_give_the_same_ordered_pairs_on_any_thread_count():
