@@ -297,6 +297,51 @@ def _deformed(q, o, r, amp, snap):
 
 
 @numba.njit(cache=True)
+def _drift_at(M, t, M0, t0, c, size):
+    """Largest move [m] of a point within ``size`` of ``c`` (a's axes) when a's axes in b's go from (M0, t0) to
+    (M, t): ``|A c + t - t0| + ||A||_2 size`` (A = M - M0, the spectral norm bounded as in ``_drift``), plus 1e-12
+    m for rounding. ``_drift`` is the case c = 0; with c at the region where contacts can be, the turn's lever is
+    that region's radius, not the body's."""
+    A = np.empty(9)
+    for i in range(9):
+        A[i] = M[i] - M0[i]
+    fro2 = 0.0
+    for i in range(9):
+        fro2 += A[i] * A[i]
+    s2 = 0.0
+    for j in range(3):
+        for k in range(3):
+            v = A[j] * A[k] + A[3 + j] * A[3 + k] + A[6 + j] * A[6 + k]
+            s2 += v * v
+    mu = fro2 / 3.0
+    lam = min(fro2 * (1.0 + 1e-12), mu + math.sqrt(max(2.0 / 3.0 * (s2 - 3.0 * mu * mu), 0.0)) + 1e-7 * fro2)
+    d = 0.0
+    for i in range(3):
+        u = A[3 * i] * c[0] + A[3 * i + 1] * c[1] + A[3 * i + 2] * c[2] + t[i] - t0[i]
+        d += u * u
+    return math.sqrt(lam) * size + math.sqrt(d) + 1e-12
+
+
+@numba.njit(cache=True)
+def _near_ball(Ra, pa, blo, bhi, a, b, grow, c):
+    """Centre ``c`` (written, in a's axes: ``Ra`` its rotation, ``pa`` its centre [m]) and radius [m] of a ball
+    holding every point of the world box where a's and b's boxes (``blo``, ``bhi`` rows a, b), each grown by
+    ``grow`` [m], overlap (a point when they do not: then no pair is within reach)."""
+    h2 = 0.0
+    w = np.empty(3)
+    for d in range(3):
+        lo = max(blo[a, d], blo[b, d]) - grow
+        hi = min(bhi[a, d], bhi[b, d]) + grow
+        if hi < lo:
+            lo = hi = 0.5 * (lo + hi)
+        w[d] = 0.5 * (lo + hi) - pa[d]
+        h2 += (0.5 * (hi - lo)) ** 2
+    for i in range(3):
+        c[i] = Ra[0, i] * w[0] + Ra[1, i] * w[1] + Ra[2, i] * w[2]
+    return math.sqrt(h2) * (1.0 + 1e-12) + 1e-12
+
+
+@numba.njit(cache=True)
 def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q, qoff, nm, amp, blo, bhi, tris, toff,
                    edges, eoff, adj, meta, qsnap, cva, cta, cvb, ctb, cem, ceo, cla, clb, cle,
                    tP, tlo, thi, tne, tslot, tslo, tshi, eP, elo, ehi, ene, eslot, eslo, eshi):
@@ -318,6 +363,14 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
     walk met them: the same selection, ties included, as ``vertex_face`` / ``edge_edge``. The same bound from the
     pair's last evaluation (its frames and modal coordinates then) lets them skip a kept pair whose distance then,
     lowered by the motion since, is still beyond reach (margin).
+
+    Two refinements of that bound: (1) the distance of a pair is the same in either body's axes, so the drop may be
+    measured in b's axes (a's point moved by da, b's by deform_b) or in a's (b's point by db, a's by deform_a):
+    ``min(da + deform_b, db + deform_a)`` serves all three tests and the evaluations' skips; (2) a pair within
+    reach now has its closest points (a convex combination of its corners, so deformed by at most deform) in the
+    overlap of the two bodies' current world boxes grown by ``reach``; their move since the walk is bounded by
+    ``_drift_at`` about the centre of a ball holding that overlap (``_near_ball``), grown by the deformation since,
+    instead of by ``_drift`` over the whole body (the smaller kept; tried only when the whole-body test fails).
 
     Args:
         pa ... bhi, tris ... adj, tP ... eshi: as ``all_pairs``; slack: (p,) [m]; radius: (n,) the bodies' rest
@@ -350,6 +403,8 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
     nvf = 0
     nee = 0
     walks = 0
+    cA = np.empty(3)
+    cB = np.empty(3)
     for i in range(pa.shape[0]):
         a, b = pa[i], pb[i]
         s = a * nb + b
@@ -362,7 +417,15 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
             fb = _deformed(q, qoff[b], nm[b], amp, qsnap[s, 1])
             da = _drift(M, t, row[_M_AB:_M_AB + 9], row[_T_AB:_T_AB + 3], radius[a] + row[_BOUND_A]) + fa
             db = _drift(M2, t2, row[_M_BA:_M_BA + 9], row[_T_BA:_T_BA + 3], radius[b] + row[_BOUND_B]) + fb
-            ok = (rr[i] + da + fb <= row[_R_VF] and rr[i] + db + fa <= row[_R_VF] and mm[i] + da + fb <= row[_R_EE])
+            dm = min(da + fb, db + fa)
+            ok = (rr[i] + dm <= row[_R_VF] and mm[i] + dm <= row[_R_EE])
+            if not ok:
+                ha = _near_ball(R[a], pos[a], blo, bhi, a, b, rr[i], cA) + fa
+                hb = _near_ball(R[b], pos[b], blo, bhi, a, b, rr[i], cB) + fb
+                da = min(da, _drift_at(M, t, row[_M_AB:_M_AB + 9], row[_T_AB:_T_AB + 3], cA, ha) + fa)
+                db = min(db, _drift_at(M2, t2, row[_M_BA:_M_BA + 9], row[_T_BA:_T_BA + 3], cB, hb) + fb)
+                dm = min(da + fb, db + fa)
+                ok = (rr[i] + dm <= row[_R_VF] and mm[i] + dm <= row[_R_EE])
         if not ok:
             walks += 1
             row[_R_VF] = rr[i] + slack[i]
@@ -400,6 +463,8 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
                         radius[a] + row[e + _BOUND_A]) + fa + fb
         drop_b = _drift(M2, t2, row[e + _M_BA:e + _M_BA + 9], row[e + _T_BA:e + _T_BA + 3],
                         radius[b] + row[e + _BOUND_B]) + fb + fa
+        drop_a = min(drop_a, drop_b)
+        drop_b = drop_a
         for side in range(2):
             p, o = (a, b) if side == 0 else (b, a)
             out = _vf_eval(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]], tris[toff[o]:toff[o + 1]],
