@@ -59,6 +59,22 @@ def _angle(ax: np.ndarray, b: np.ndarray) -> float:
     return math.acos(min(max(c, -1.0), 1.0))
 
 
+@numba.njit(cache=True, inline="always")
+def _slots_meeting(slot, slo, shi, leaf: int, lo, hi, node: int, every: bool, out):
+    """The slots of ``leaf`` whose triangle box overlaps node ``node``'s box (``lo``/``hi``; all its triangles'
+    slots when ``every``), written to ``out`` in slot order: ``(how many, how many triangles the leaf holds)``."""
+    n = held = 0
+    for r in range(slot.shape[1]):
+        if slot[leaf, r] < 0:
+            continue
+        held += 1
+        out[n] = r
+        n += every | ((slo[0, leaf, r] <= hi[node, 0]) & (lo[node, 0] <= shi[0, leaf, r])
+                      & (slo[1, leaf, r] <= hi[node, 1]) & (lo[node, 1] <= shi[1, leaf, r])
+                      & (slo[2, leaf, r] <= hi[node, 2]) & (lo[node, 2] <= shi[2, leaf, r]))
+    return n, held
+
+
 @numba.njit(cache=True)
 def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, Pa: int, lo_a, hi_a, slot_a, slo_a, shi_a, Pb: int,
                          lo_b, hi_b, slot_b, slo_b, shi_b, filt: bool, dirty_tris):
@@ -80,23 +96,8 @@ def _leaf_triangle_pairs(leaves: np.ndarray, count: int, same: bool, Pa: int, lo
         ia, ib = leaves[p, 0], leaves[p, 1]
         na, nb = Pa + ia, Pb + ib
         self_leaf = same and ia == ib
-        nr = ncol = cnt_a = cnt_b = 0
-        for r in range(L):
-            if slot_a[ia, r] < 0:
-                continue
-            cnt_a += 1
-            rows[nr] = r
-            nr += self_leaf | ((slo_a[0, ia, r] <= hi_b[nb, 0]) & (lo_b[nb, 0] <= shi_a[0, ia, r])
-                               & (slo_a[1, ia, r] <= hi_b[nb, 1]) & (lo_b[nb, 1] <= shi_a[1, ia, r])
-                               & (slo_a[2, ia, r] <= hi_b[nb, 2]) & (lo_b[nb, 2] <= shi_a[2, ia, r]))
-        for c in range(Lb):
-            if slot_b[ib, c] < 0:
-                continue
-            cnt_b += 1
-            cols[ncol] = c
-            ncol += self_leaf | ((slo_b[0, ib, c] <= hi_a[na, 0]) & (lo_a[na, 0] <= shi_b[0, ib, c])
-                                 & (slo_b[1, ib, c] <= hi_a[na, 1]) & (lo_a[na, 1] <= shi_b[1, ib, c])
-                                 & (slo_b[2, ib, c] <= hi_a[na, 2]) & (lo_a[na, 2] <= shi_b[2, ib, c]))
+        nr, cnt_a = _slots_meeting(slot_a, slo_a, shi_a, ia, lo_b, hi_b, nb, self_leaf, rows)
+        ncol, cnt_b = _slots_meeting(slot_b, slo_b, shi_b, ib, lo_a, hi_a, na, self_leaf, cols)
         tests += cnt_a * (cnt_a - 1) // 2 if self_leaf else cnt_a * cnt_b
         for i in range(nr):
             r = rows[i]
