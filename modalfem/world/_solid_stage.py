@@ -62,7 +62,7 @@ class _SolidStage:
             c = None
             for o in obs:
                 tag = self.obstacles.index(o)
-                if tag in self._fast_planes:
+                if tag in self._fast_planes or (name, tag) in ctx.tet_obstacles:
                     continue
                 if c is None:
                     c = self._one(name, fx.Contact)
