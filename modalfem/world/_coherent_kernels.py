@@ -252,17 +252,10 @@ def _relative(Ra, Rb, pa, pb, M, t):
         t[i] = Rb[0, i] * (pa[0] - pb[0]) + Rb[1, i] * (pa[1] - pb[1]) + Rb[2, i] * (pa[2] - pb[2])
 
 
-@numba.njit(cache=True)
-def _drift(M, t, M0, t0, size):
-    """Largest move [m] of a point within ``size`` of a's centre (in a's axes) when a's axes in b's go from
-    (M0, t0) to (M, t): ``|(M - M0) x + (t - t0)| <= ||M - M0||_2 |x| + |t - t0|``, with the spectral norm bounded
-    through the eigenvalues of ``S = A^T A`` (A = M - M0, 3x3): the largest is at most ``mu + sqrt(2/3 ||S - mu
-    I||_F^2)``, mu = tr(S) / 3 (Laguerre-Samuelson: no value of a list of three is farther above their mean than
-    sqrt(2) of their standard deviation), and at most tr(S) = ||A||_F^2 (the smaller kept, each grown by a bound
-    on its rounding). For a change of rotation by theta, ||A||_F = 2 sqrt(2) sin(theta / 2), the bound 2
-    sqrt(4/3) sin(theta / 2) and the true norm 2 sin(theta / 2): the walks' reuse test admits 18 % more turning
-    than with the Frobenius norm (was)."""
-    A = np.empty(9)
+@numba.njit(cache=True, inline="always")
+def _turn_norm(M, M0, A):
+    """An upper bound of the spectral norm of ``A = M - M0`` (3x3 row-major; written into ``A`` (9,)), as
+    ``_drift`` explains (the smaller of the Laguerre-Samuelson and the Frobenius bound, grown by their rounding)."""
     for i in range(9):
         A[i] = M[i] - M0[i]
     fro2 = 0.0
@@ -276,10 +269,25 @@ def _drift(M, t, M0, t0, size):
     mu = fro2 / 3.0
     # rounding: s2 - 3 mu^2 is off by at most ~10 eps s2 <= 10 eps fro2^2, its root by 4e-8 fro2
     lam = min(fro2 * (1.0 + 1e-12), mu + math.sqrt(max(2.0 / 3.0 * (s2 - 3.0 * mu * mu), 0.0)) + 1e-7 * fro2)
+    return math.sqrt(lam)
+
+
+@numba.njit(cache=True)
+def _drift(M, t, M0, t0, size):
+    """Largest move [m] of a point within ``size`` of a's centre (in a's axes) when a's axes in b's go from
+    (M0, t0) to (M, t): ``|(M - M0) x + (t - t0)| <= ||M - M0||_2 |x| + |t - t0|``, with the spectral norm bounded
+    through the eigenvalues of ``S = A^T A`` (A = M - M0, 3x3): the largest is at most ``mu + sqrt(2/3 ||S - mu
+    I||_F^2)``, mu = tr(S) / 3 (Laguerre-Samuelson: no value of a list of three is farther above their mean than
+    sqrt(2) of their standard deviation), and at most tr(S) = ||A||_F^2 (the smaller kept, each grown by a bound
+    on its rounding). For a change of rotation by theta, ||A||_F = 2 sqrt(2) sin(theta / 2), the bound 2
+    sqrt(4/3) sin(theta / 2) and the true norm 2 sin(theta / 2): the walks' reuse test admits 18 % more turning
+    than with the Frobenius norm (was)."""
+    A = np.empty(9)
+    norm = _turn_norm(M, M0, A)
     d = 0.0
     for i in range(3):
         d += (t[i] - t0[i]) ** 2
-    return math.sqrt(lam) * size + math.sqrt(d)
+    return norm * size + math.sqrt(d)
 
 
 @numba.njit(cache=True)
@@ -303,23 +311,12 @@ def _drift_at(M, t, M0, t0, c, size):
     m for rounding. ``_drift`` is the case c = 0; with c at the region where contacts can be, the turn's lever is
     that region's radius, not the body's."""
     A = np.empty(9)
-    for i in range(9):
-        A[i] = M[i] - M0[i]
-    fro2 = 0.0
-    for i in range(9):
-        fro2 += A[i] * A[i]
-    s2 = 0.0
-    for j in range(3):
-        for k in range(3):
-            v = A[j] * A[k] + A[3 + j] * A[3 + k] + A[6 + j] * A[6 + k]
-            s2 += v * v
-    mu = fro2 / 3.0
-    lam = min(fro2 * (1.0 + 1e-12), mu + math.sqrt(max(2.0 / 3.0 * (s2 - 3.0 * mu * mu), 0.0)) + 1e-7 * fro2)
+    norm = _turn_norm(M, M0, A)
     d = 0.0
     for i in range(3):
         u = A[3 * i] * c[0] + A[3 * i + 1] * c[1] + A[3 * i + 2] * c[2] + t[i] - t0[i]
         d += u * u
-    return math.sqrt(lam) * size + math.sqrt(d) + 1e-12
+    return norm * size + math.sqrt(d) + 1e-12
 
 
 @numba.njit(cache=True)
