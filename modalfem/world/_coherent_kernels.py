@@ -460,13 +460,12 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
                         radius[a] + row[e + _BOUND_A]) + fa + fb
         drop_b = _drift(M2, t2, row[e + _M_BA:e + _M_BA + 9], row[e + _T_BA:e + _T_BA + 3],
                         radius[b] + row[e + _BOUND_B]) + fb + fa
-        drop_a = min(drop_a, drop_b)
-        drop_b = drop_a
+        drop = min(drop_a, drop_b)  # (the same in either body's axes: the smaller serves both sides)
         for side in range(2):
             p, o = (a, b) if side == 0 else (b, a)
             out = _vf_eval(X[voff[p]:voff[p + 1]], R[o], pos[o], Xl[voff[o]:voff[o + 1]], tris[toff[o]:toff[o + 1]],
                            rr[i], cva[s] if side == 0 else cvb[s], cta[s] if side == 0 else ctb[s],
-                           cla[s] if side == 0 else clb[s], drop_a if side == 0 else drop_b)
+                           cla[s] if side == 0 else clb[s], drop)
             if out[0].shape[0]:
                 vl_a.append(p)
                 vl_b.append(o)
@@ -474,7 +473,7 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
                 nvf += out[0].shape[0]
         out2 = _ee_eval(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
                         edges[eoff[b]:eoff[b + 1]], adj[eoff[b]:eoff[b + 1]], tris[toff[b]:toff[b + 1]], mm[i],
-                        scale[b], cem[s], ceo[s], cle[s], drop_a)
+                        scale[b], cem[s], ceo[s], cle[s], drop)
         if out2[0].shape[0]:
             el_a.append(a)
             el_b.append(b)
