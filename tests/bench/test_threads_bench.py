@@ -91,6 +91,25 @@ def test_probe_counts_the_cores_a_parallel_loop_gets():
     assert 0.2 < probe(2, seconds=0.3) <= 1.1 * cores
 
 
+def test_throughput_is_work_per_second_relative_to_one_thread():
+    import os
+
+    from modalfem.bench.threads_bench import throughput
+
+    # n threads do at most n (and at least a fraction of one) times the work of one thread, and no more
+    # than the cores the process may run on allow
+    cores = len(os.sched_getaffinity(0))
+    assert 0.2 < throughput(2, seconds=0.4) <= 1.15 * min(2, cores)
+
+
+def test_cores_line_names_both_measures():
+    from modalfem.bench.threads_bench import cores_line
+
+    text = cores_line(2, [2.0, 1.98], [1.41, 1.95])
+    assert "2.00 before the runs, 1.98 after" in text
+    assert "1.41 before, 1.95 after" in text
+
+
 def test_kernel_lines():
     from modalfem.bench.threads_bench import kernel_lines
 
