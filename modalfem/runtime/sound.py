@@ -184,6 +184,10 @@ class ModalSound:
         self._amps.append(self.weights(rotation) * dq[self.band.kept])
         self._contact.append(tau)
 
+    def _forget(self, count: int) -> None:
+        """Drop the impacts recorded after the first ``count`` (a world step taken again, or one that failed)."""
+        del self._times[count:], self._amps[count:], self._contact[count:]
+
     def add_impulses(self, t: float, points, impulses, *, rotation=None, contact_time: float = 0.0) -> np.ndarray:
         """Record impulses applied at the same time at surface points; returns the modal velocity change.
 

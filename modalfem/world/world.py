@@ -63,7 +63,7 @@ from modalfem.world._tet_stage import FRICTION_SLIP, _TetStage  # noqa: F401 (re
 from modalfem.world.bodies import Cloth, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
-from modalfem.world.substeps import merged_report, substep_count
+from modalfem.world.substeps import merged_report, substep_count, taken_count
 
 __all__ = ["Stage", "StepReport", "World", "WorldControl", "WorldState"]
 
@@ -440,20 +440,39 @@ class World(_TetStage, _SolidStage, _ClothStage):
         if self._solo is not None and not control.impulses and self._solo in state_out.bodies:
             return self._step_solo(state_in, state_out, dt)
         self._restart_caches(state_in)
-        n = 1 if control.scripted else substep_count(self, state_in, dt)
-        if n > 1:  # a modal or tet body travelling far against a nearby tet body's surface (``world.substeps``)
-            s = state_in.copy()
-            reports = [self._step_plan(s, s, control if k == 0 else _NO_CONTROL, dt / n) for k in range(n)]
-            self._hand_over(s.bodies, state_out)
-            state_out.contacts = s.contacts
-            state_out.time = state_in.time + dt
-            report = merged_report(reports)
-        else:
-            report = self._step_plan(state_in, state_out, control, dt)
+        heard = {n: snd.impact_count for n, snd in self._sounds.items()}
+        try:
+            report = self._step_divided(state_in, state_out, control, dt, heard)
+        except BaseException:  # all or nothing: a failed step leaves no impact in the sounds either
+            for n, snd in self._sounds.items():
+                snd._forget(heard[n])
+            raise
         if self._tet:
             self._last_step = object()
             state_out.token = (self._last_step, _checksum(state_out))
         return report
+
+    def _step_divided(self, state_in: WorldState, state_out: WorldState, control: WorldControl, dt: float,
+                      heard: dict) -> StepReport:
+        """``step`` after its checks: in one pass, or in sub-steps (``world.substeps``) counted from the start
+        state, or counted from the travel a single pass took (that pass then dropped, its sounds' impacts too:
+        ``heard`` the sounds' impact counts before it)."""
+        n = 1 if control.scripted else substep_count(self, state_in, dt)
+        if n == 1:
+            ctx, report = self._plan_pass(state_in, control, dt)
+            n = taken_count(self, state_in, ctx.out.bodies, dt) if self._tet_modal and not control.scripted else 1
+            if n == 1:
+                self._finish(ctx, state_out, dt)
+                return report
+            for name, snd in self._sounds.items():  # set moving within the step farther than its start velocities
+                snd._forget(heard[name])  # said: that pass is dropped, the step taken again divided
+        # a modal or tet body travelling far against a nearby tet body's surface (``world.substeps``)
+        s = state_in.copy()
+        reports = [self._step_plan(s, s, control if k == 0 else _NO_CONTROL, dt / n) for k in range(n)]
+        self._hand_over(s.bodies, state_out)
+        state_out.contacts = s.contacts
+        state_out.time = state_in.time + dt
+        return merged_report(reports)
 
     def _restart_caches(self, state_in: WorldState) -> None:
         """A step that does not continue from the state the last step ended in (a run started again from
@@ -474,6 +493,19 @@ class World(_TetStage, _SolidStage, _ClothStage):
     def _step_plan(self, state_in: WorldState, state_out: WorldState, control: WorldControl, dt: float
                    ) -> StepReport:
         """One pass of the step plan (``step`` after its checks)."""
+        ctx, report = self._plan_pass(state_in, control, dt)
+        self._finish(ctx, state_out, dt)
+        return report
+
+    def _finish(self, ctx, state_out: WorldState, dt: float) -> None:
+        """Hand a pass's results over to ``state_out`` (only after all its stages succeeded)."""
+        self._hand_over(ctx.out.bodies, state_out)
+        state_out.contacts = ctx.contacts
+        state_out.time = ctx.state_in.time + dt
+
+    def _plan_pass(self, state_in: WorldState, control: WorldControl, dt: float) -> tuple:
+        """Run every stage of the plan from ``state_in``: ``(ctx, report)``, the new states in ``ctx.out`` (nothing
+        handed over yet)."""
         ctx = _StepContext(state_in, WorldState(state_in.time, {}), control, dt)
         report = StepReport()
         ctx.report = report
@@ -484,11 +516,7 @@ class World(_TetStage, _SolidStage, _ClothStage):
         for b in self.bodies:  # bodies no stage moved (none today; kept for completeness)
             if b.name not in ctx.done:
                 raise SimulationError(f"body {b.name!r} was not stepped (internal plan error)")
-        # all stages succeeded: only now does state_out change
-        self._hand_over(ctx.out.bodies, state_out)
-        state_out.contacts = ctx.contacts
-        state_out.time = state_in.time + dt
-        return report
+        return ctx, report  # all stages succeeded: only now may state_out change (``_finish``)
 
     def _hand_over(self, new_bodies: dict, state_out: WorldState) -> None:
         """Put a step's new body states into ``state_out``: a modal body's copied into the caller's state object,

@@ -510,3 +510,27 @@ def test_a_lone_modal_body_step_that_fails_leaves_the_state_as_it_was(bar_model)
         for a, v in before.items():
             assert np.array_equal(getattr(out["bar"], a), v), a
         assert out.time == t_before
+
+
+def test_a_step_that_fails_leaves_no_impact_in_the_sounds(bar_model):
+    """All or nothing for the sounds too: a strike on a sounding bar is recorded in its modal step; when a later
+    stage of that step fails, the step raises and the sound holds no impact of it (the same step then succeeding
+    records the strike once)."""
+    from modalfem.effects import Sound
+
+    w = mw.World(bodies=[mw.Modal(bar_model, name="bar", position=(0.0, 0.0, 0.5))], obstacles=[mw.Ground(0.0)],
+                 effects=[Gravity(), Contact(), Sound()])
+    assert w._solo is None and [s.name for s in w.plan][-1] == "sound"
+    plan = list(w._plan)
+
+    def broken(ctx):
+        raise SimulationError("sound stage failed (test)")
+
+    w._plan = plan[:-1] + [(plan[-1][0], broken)]
+    s = w.state()
+    with pytest.raises(SimulationError, match="failed"):
+        w.step(s, s, w.control().add_impulse("bar", 0, (0.0, 0.0, -0.1)), 1e-3)
+    assert w.sound("bar").impact_count == 0
+    w._plan = plan
+    w.step(s, s, w.control().add_impulse("bar", 0, (0.0, 0.0, -0.1)), 1e-3)
+    assert w.sound("bar").impact_count == 1
