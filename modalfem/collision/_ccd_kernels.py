@@ -218,17 +218,62 @@ def diagonal_intervals(X0: np.ndarray, X1: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def diagonal_gap(X0: np.ndarray, X1: np.ndarray, eta: float) -> float:
     """The gap [m] between two primitives' projections on a diagonal of :func:`diagonal_intervals` beyond which
     they are farther apart than ``eta`` [m] throughout the step: ``eta * sqrt(3)`` (the diagonals' length),
     plus the rounding of the projections (a sum of three coordinates, a few ulps of the coordinate scale
-    ``max |X0|, |X1|``: bounded here by ``ROUNDING`` times three times it, as in :func:`_prologue`)."""
+    ``max |X0|, |X1|``: bounded here by ``ROUNDING`` times three times it, as in :func:`_prologue`). The maximum
+    over chunks in parallel (a maximum is exact: the same answer for any thread count)."""
+    N = len(X0)
+    chunks = chunk_count(N, 1024)
+    part = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(N, chunks, ch)
+        m = 0.0
+        for i in range(start, stop):
+            for c in range(3):
+                m = max(m, abs(X0[i, c]), abs(X1[i, c]))
+        part[ch] = m
     scale = 0.0
-    for i in range(len(X0)):
-        for c in range(3):
-            scale = max(scale, abs(X0[i, c]), abs(X1[i, c]))
+    for ch in range(chunks):
+        scale = max(scale, part[ch])
     return eta * math.sqrt(3.0) * (1.0 + 1e-9) + ROUNDING * 3.0 * scale
+
+
+@numba.njit(cache=True, parallel=True)
+def trajectory_diagonals(X0: np.ndarray, V: np.ndarray, dt: float, eta: float):
+    """The CCD's per-call set-up in one parallel pass: the end positions ``X1 = X0 + dt V`` ((N, 3) [m]), their
+    :func:`diagonal_intervals` and :func:`diagonal_gap` (the same floating-point operations, so the same bits as
+    the three calls; the gap's maximum is over chunks, exact for any thread count)."""
+    N = len(X0)
+    X1 = np.empty((N, 3))
+    out = np.empty((N, 8))
+    chunks = chunk_count(N, 1024)
+    part = np.zeros(chunks)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(N, chunks, ch)
+        m = 0.0
+        for i in range(start, stop):
+            a0, a1, a2 = X0[i, 0], X0[i, 1], X0[i, 2]
+            b0, b1, b2 = a0 + dt * V[i, 0], a1 + dt * V[i, 1], a2 + dt * V[i, 2]
+            X1[i, 0], X1[i, 1], X1[i, 2] = b0, b1, b2
+            m = max(m, abs(a0), abs(b0))
+            m = max(m, abs(a1), abs(b1))
+            m = max(m, abs(a2), abs(b2))
+            p, q = a0 + a1 + a2, b0 + b1 + b2
+            out[i, 0], out[i, 4] = min(p, q), max(p, q)
+            p, q = a0 + a1 - a2, b0 + b1 - b2
+            out[i, 1], out[i, 5] = min(p, q), max(p, q)
+            p, q = a0 - a1 + a2, b0 - b1 + b2
+            out[i, 2], out[i, 6] = min(p, q), max(p, q)
+            p, q = a1 + a2 - a0, b1 + b2 - b0
+            out[i, 3], out[i, 7] = min(p, q), max(p, q)
+        part[ch] = m
+    scale = 0.0
+    for ch in range(chunks):
+        scale = max(scale, part[ch])
+    return X1, out, eta * math.sqrt(3.0) * (1.0 + 1e-9) + ROUNDING * 3.0 * scale
 
 
 @numba.njit(cache=True, inline="always")

@@ -33,8 +33,8 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["box_diagonals", "dirty_self_pairs", "outgrown", "primitive_boxes", "primitive_pairs", "select_indexed",
-           "select_pairs", "triangle_diagonals", "vertex_index"]
+__all__ = ["box_diagonals", "dirty_self_pairs", "flagged_triangles", "outgrown", "primitive_boxes", "primitive_pairs", "select_indexed",
+           "rows_nonzero", "select_pairs", "triangle_diagonals", "vertex_index"]
 
 _apply_threads()
 
@@ -323,21 +323,37 @@ def _compact(q: np.ndarray, keep: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def select_pairs(q: np.ndarray, stamp: np.ndarray, epoch: int, only: np.ndarray) -> np.ndarray:
     """The pairs of ``q`` (k, 4) still in the store (:func:`_alive`), only those holding a vertex flagged in
-    ``only`` ((N,) bool) unless it is empty."""
+    ``only`` ((N,) bool) unless it is empty, in their order. Chunks in parallel: a pass marking and counting
+    each chunk's pairs, their offsets, a pass copying them (the same pairs in the same order for any thread
+    count)."""
     use = len(only) > 0
-    keep = np.empty(len(q), dtype=np.int64)
-    n = 0
-    for i in range(len(q)):
-        if _alive(q, i, stamp, epoch) and (not use or only[q[i, 0]] or only[q[i, 1]] or only[q[i, 2]] or only[q[i, 3]]):
-            keep[n] = i
-            n += 1
-    out = np.empty((n, 4), dtype=q.dtype)
-    for j in range(n):
-        for c in range(4):
-            out[j, c] = q[keep[j], c]
+    k = len(q)
+    chunks = chunk_count(k, 2048)
+    keep = np.empty(k, dtype=np.bool_)
+    count = np.zeros(chunks + 1, dtype=np.int64)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        n = 0
+        for i in range(start, stop):
+            f = _alive(q, i, stamp, epoch) and (not use or only[q[i, 0]] or only[q[i, 1]] or only[q[i, 2]]
+                                                or only[q[i, 3]])
+            keep[i] = f
+            n += f
+        count[ch + 1] = n
+    for ch in range(chunks):
+        count[ch + 1] += count[ch]
+    out = np.empty((count[chunks], 4), dtype=q.dtype)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        o = count[ch]
+        for i in range(start, stop):
+            if keep[i]:
+                for c in range(4):
+                    out[o, c] = q[i, c]
+                o += 1
     return out
 
 
@@ -386,23 +402,53 @@ def select_indexed(q: np.ndarray, stamp: np.ndarray, epoch: int, ptr: np.ndarray
     return _compact(q, mark)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def outgrown(X0: np.ndarray, V: np.ndarray, dt: float, grow: float, lo: np.ndarray, hi: np.ndarray):
     """End positions ``X1 = X0 + dt V`` ((N, 3) [m]) and the (N,) bool vertices whose trajectory ``X0 -> X1``
     grown by ``grow`` [m] leaves its box ``lo``/``hi`` ((N, 3) [m]): one pass instead of numpy's temporaries
-    (the same floating-point operations, so the same answer)."""
+    (the same floating-point operations, so the same answer), chunks in parallel."""
     N = len(X0)
     X1 = np.empty((N, 3))
     out = np.zeros(N, dtype=np.bool_)
-    for i in range(N):
-        d = False
-        for c in range(3):
-            a = X0[i, c]
-            b = a + dt * V[i, c]
-            X1[i, c] = b
-            d |= (min(a, b) - grow < lo[i, c]) | (max(a, b) + grow > hi[i, c])
-        out[i] = d
+    chunks = chunk_count(N, 1024)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(N, chunks, ch)
+        for i in range(start, stop):
+            d = False
+            for c in range(3):
+                a = X0[i, c]
+                b = a + dt * V[i, c]
+                X1[i, c] = b
+                d |= (min(a, b) - grow < lo[i, c]) | (max(a, b) + grow > hi[i, c])
+            out[i] = d
     return X1, out
+
+
+@numba.njit(cache=True, parallel=True)
+def flagged_triangles(flags: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(m,) bool: the triangles ``tris`` (m, 3) holding a vertex flagged in ``flags`` ((N,) bool), chunks in
+    parallel."""
+    m = len(tris)
+    out = np.empty(m, dtype=np.bool_)
+    chunks = chunk_count(m, 2048)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(m, chunks, ch)
+        for i in range(start, stop):
+            out[i] = flags[tris[i, 0]] or flags[tris[i, 1]] or flags[tris[i, 2]]
+    return out
+
+
+@numba.njit(cache=True, parallel=True)
+def rows_nonzero(a: np.ndarray) -> np.ndarray:
+    """(k,) bool: the rows of ``a`` (k, 3) with a nonzero entry (``(a != 0).any(axis=1)``), chunks in parallel."""
+    k = len(a)
+    out = np.empty(k, dtype=np.bool_)
+    chunks = chunk_count(k, 1024)
+    for ch in numba.prange(chunks):
+        start, stop = chunk_bounds(k, chunks, ch)
+        for i in range(start, stop):
+            out[i] = (a[i, 0] != 0.0) or (a[i, 1] != 0.0) or (a[i, 2] != 0.0)
+    return out
 
 
 @numba.njit(cache=True)

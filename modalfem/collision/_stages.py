@@ -102,12 +102,12 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     ``FRESH_SEARCH``, the order a search wrote them in): tests/collision/test_hits_independent_of_candidates.py."""
     from modalfem.collision import _ccd_kernels
 
-    X0 = np.ascontiguousarray(X0)
-    X1 = X0 + dt * V
+    X0 = np.ascontiguousarray(X0, dtype=float)
+    # end positions, their diagonal intervals and gap in one parallel pass
+    X1, diag, gap = _ccd_kernels.trajectory_diagonals(X0, np.ascontiguousarray(V, dtype=float), float(dt), float(eta))
     movable = invm > 0
     zones = np.zeros(0, dtype=np.int64) if roots is None else np.ascontiguousarray(roots, dtype=np.int64)
     only = None if only is None else np.ascontiguousarray(only, dtype=bool)
-    diag, gap = _ccd_kernels.diagonal_intervals(X0, X1), _ccd_kernels.diagonal_gap(X0, X1, eta)
     out = []
     for kind in ("vf", "ee"):
         qs, ts = [], []
@@ -295,7 +295,7 @@ def resolve(system, cfg, x0, v, masses, dt, t):
                 # invariant: a pair without a vertex in `only` was found collision-free on its current
                 # trajectory; changed vertices and vertices of hit pairs are retested
                 dV = _ccd_impulses(system, X0, V, invm, dt, t, hits, ahits, cfg)
-                only = _rows_any(dV != 0)
+                only = _pair_kernels.rows_nonzero(dV)
                 for _, q, _ in hits:
                     only[q.ravel()] = True
                 for _, ids, _ in ahits:

@@ -1,0 +1,89 @@
+"""The pipeline's per-call set-up and selections as compiled parallel passes (issue 20): the same bits as the numpy
+expressions and serial loops they replace, on one and two threads, with inputs spanning several chunks."""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from modalfem._threads import thread_count
+from modalfem.collision import _ccd_kernels, _pair_kernels
+
+THREADS = (1, 2) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,)
+
+
+def _trajectories(N: int, seed: int):
+    rng = np.random.default_rng(seed)
+    X0 = rng.standard_normal((N, 3)) * np.array([0.5, 2.0, 0.1])
+    V = rng.standard_normal((N, 3))
+    if N:
+        X0[N // 3, 1] = -7.5  # the largest coordinate in a middle chunk
+    return X0, V
+
+
+def test_trajectory_diagonals_give_the_bits_of_the_three_steps_it_fuses():
+    dt, eta = 1e-2, 1e-4
+    for N in (0, 1, 1023, 5000):
+        X0, V = _trajectories(N, N)
+        X1 = X0 + dt * V  # the numpy expression ccd_hits used
+        want_diag = _ccd_kernels.diagonal_intervals(X0, X1)
+        scale = max(np.abs(X0).max(initial=0.0), np.abs(X1).max(initial=0.0))
+        want_gap = eta * math.sqrt(3.0) * (1.0 + 1e-9) + _ccd_kernels.ROUNDING * 3.0 * scale
+        for t in THREADS:
+            with thread_count(t):
+                got_x1, got_diag, got_gap = _ccd_kernels.trajectory_diagonals(X0, V, dt, eta)
+                gap = _ccd_kernels.diagonal_gap(X0, X1, eta)
+            assert np.array_equal(got_x1, X1)
+            assert np.array_equal(got_diag, want_diag)
+            assert got_gap == want_gap and gap == want_gap
+
+
+def test_outgrown_matches_numpy_on_any_thread_count():
+    dt, grow = 1e-2, 2e-4
+    X0, V = _trajectories(5000, 1)
+    X1 = X0 + dt * V
+    lo, hi = np.minimum(X0, X1) - 1e-3, np.maximum(X0, X1) + 1e-3
+    V2 = V.copy()
+    V2[::7] *= 1.3  # some trajectories leave their boxes
+    X1b = X0 + dt * V2
+    want = ((np.minimum(X0, X1b) - grow < lo) | (np.maximum(X0, X1b) + grow > hi)).any(axis=1)
+    assert 0 < want.sum() < len(want)
+    for t in THREADS:
+        with thread_count(t):
+            got_x1, got = _pair_kernels.outgrown(X0, V2, dt, grow, lo, hi)
+        assert np.array_equal(got_x1, X1b) and np.array_equal(got, want)
+
+
+def test_select_pairs_keeps_the_pairs_in_order_on_any_thread_count():
+    rng = np.random.default_rng(5)
+    N = 3000
+    for k in (0, 5, 2047, 20000):
+        q = np.stack([rng.choice(N, 4, replace=False) for _ in range(k)]).astype(np.int32) if k else \
+            np.zeros((0, 4), dtype=np.int32)
+        stamp = np.where(rng.random(N) < 0.05, 3, 0).astype(np.int64)
+        only = rng.random(N) < 0.1
+        for epoch, st, fl in ((1, stamp, only), (1, stamp, np.zeros(0, bool)), (3, stamp, only),
+                              (0, np.zeros(0, np.int64), only)):
+            alive = np.ones(k, bool) if len(st) == 0 else (st[q] <= epoch).all(axis=1)
+            keep = alive & (fl[q].any(axis=1) if len(fl) else True)
+            for t in THREADS:
+                with thread_count(t):
+                    got = _pair_kernels.select_pairs(q, st, epoch, fl)
+                assert got.dtype == q.dtype
+                assert np.array_equal(got, q[keep])
+
+
+def test_flagged_triangles_and_nonzero_rows_match_numpy_on_any_thread_count():
+    rng = np.random.default_rng(6)
+    tris = rng.integers(0, 4000, size=(9000, 3))
+    flags = rng.random(4000) < 0.02
+    dV = np.where(rng.random((6000, 3)) < 0.1, rng.standard_normal((6000, 3)), 0.0)
+    dV[1, 2] = -0.0  # a negative zero is no change
+    dV[2, 0] = np.nan
+    for t in THREADS:
+        with thread_count(t):
+            assert np.array_equal(_pair_kernels.flagged_triangles(flags, tris), flags[tris].any(axis=1))
+            assert np.array_equal(_pair_kernels.rows_nonzero(dV), (dV != 0).any(axis=1))
+            assert _pair_kernels.rows_nonzero(np.zeros((0, 3))).shape == (0,)
