@@ -237,10 +237,187 @@ def _ee_eval(xa, Ea, Rb, pb, Xb, Eb, adj, Tb, margin, scale, cm, co, lb, drop):
     return mine[:k], other[:k], so[:k], to[:k], gap[:k], normal[:k]
 
 
+@numba.njit(cache=True)
+def _merge(cv, ct, cd, moved, nv, nt, nd):
+    """The kept candidates (``cv``, ``ct``, ``cd`` (k,): grouped by query in increasing order) of the queries not
+    ``moved`` and the new walk's (``nv``, ``nt``, ``nd``: the moved queries'), grouped by query in increasing order,
+    each query's entries in its walk's order."""
+    n = cv.shape[0]
+    nn = nv.shape[0]
+    keep = 0
+    for i in range(n):
+        if not moved[cv[i]]:
+            keep += 1
+    ov = np.empty(keep + nn, dtype=np.int64)
+    ot = np.empty(keep + nn, dtype=np.int64)
+    od = np.empty(keep + nn)
+    i = 0
+    j = 0
+    k = 0
+    while i < n or j < nn:
+        if i < n and moved[cv[i]]:
+            i += 1
+            continue
+        if j >= nn or (i < n and cv[i] < nv[j]):
+            ov[k], ot[k], od[k] = cv[i], ct[i], cd[i]
+            i += 1
+        else:
+            ov[k], ot[k], od[k] = nv[j], nt[j], nd[j]
+            j += 1
+        k += 1
+    return ov, ot, od
+
+
+@numba.njit(cache=True)
+def _vf_rewalk(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi, cv, ct, cd,
+               gy, thr):
+    """``_vf_candidates`` again for the vertices of a that moved, in b's axes, more than ``thr`` [m] since their
+    last walk, the other vertices' candidates ``cv``, ``ct``, ``cd`` kept: ``(vertices, triangles, distances, moved
+    count)``, as ``_vf_candidates`` orders them. ``gy`` (g, 4): the vertices that may come within reach (id, then
+    its position in b's axes at its last walk; updated); the others are farther (``_guard``). A kept vertex's list
+    holds every triangle within ``radius`` of where it was: with ``thr`` = radius - reach - (how much b's surface
+    moved since), it holds every triangle within reach now (distances are 1-Lipschitz)."""
+    na = xa.shape[0]
+    moved = np.zeros(na, dtype=np.bool_)
+    ng = gy.shape[0]
+    near = np.empty(ng, dtype=np.int64)
+    rows = np.empty(ng, dtype=np.int64)
+    y = np.empty(3)
+    m = 0
+    nmoved = 0
+    for g in range(ng):
+        j = int(gy[g, 0])
+        _to_local(xa[j], Rb, pb, y)
+        d = (y[0] - gy[g, 1]) ** 2 + (y[1] - gy[g, 2]) ** 2 + (y[2] - gy[g, 3]) ** 2
+        if not math.sqrt(d) <= thr:
+            moved[j] = True
+            nmoved += 1
+            gy[g, 1], gy[g, 2], gy[g, 3] = y[0], y[1], y[2]
+            if (blo[0] - radius <= xa[j, 0] <= bhi[0] + radius and blo[1] - radius <= xa[j, 1] <= bhi[1] + radius
+                    and blo[2] - radius <= xa[j, 2] <= bhi[2] + radius):
+                near[m] = j
+                rows[m] = g
+                m += 1
+    if nmoved == 0:
+        return cv, ct, cd, 0
+    yq = np.empty((m, 1, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for i in range(m):
+        for c in range(3):
+            yq[i, 0, c] = gy[rows[i], 1 + c]
+            qlo[i, c] = yq[i, 0, c] - grow
+            qhi[i, c] = yq[i, 0, c] + grow
+    nv, nt, nd = _walk_all(False, near[:m], yq, qlo, qhi, Xb, Tb, radius, P, lo, hi, nonempty, slot_tri, slo, shi)
+    ov, ot, od = _merge(cv, ct, cd, moved, nv, nt, nd)
+    return ov, ot, od, nmoved
+
+
+@numba.njit(cache=True)
+def _ee_rewalk(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi, cm, co, cd,
+               gy, thr):
+    """``_ee_candidates`` again for a's edges whose ends moved, in b's axes, more than ``thr`` [m] since the edge's
+    last walk, the others' candidates kept (as ``_vf_rewalk``; a segment's points move by at most the larger of
+    its ends' moves). ``gy`` (g, 7): the edges that may come within reach (id, then its ends at its last walk)."""
+    ne = Ea.shape[0]
+    moved = np.zeros(ne, dtype=np.bool_)
+    ng = gy.shape[0]
+    sel = np.empty(ng, dtype=np.int64)
+    rows = np.empty(ng, dtype=np.int64)
+    y0 = np.empty(3)
+    y1 = np.empty(3)
+    m = 0
+    nmoved = 0
+    for g in range(ng):
+        e = int(gy[g, 0])
+        i, j = Ea[e, 0], Ea[e, 1]
+        _to_local(xa[i], Rb, pb, y0)
+        _to_local(xa[j], Rb, pb, y1)
+        d0 = (y0[0] - gy[g, 1]) ** 2 + (y0[1] - gy[g, 2]) ** 2 + (y0[2] - gy[g, 3]) ** 2
+        d1 = (y1[0] - gy[g, 4]) ** 2 + (y1[1] - gy[g, 5]) ** 2 + (y1[2] - gy[g, 6]) ** 2
+        if not math.sqrt(max(d0, d1)) <= thr:
+            moved[e] = True
+            nmoved += 1
+            for c in range(3):
+                gy[g, 1 + c] = y0[c]
+                gy[g, 4 + c] = y1[c]
+            ok = True
+            for c in range(3):
+                if min(xa[i, c], xa[j, c]) > bhi[c] + radius or max(xa[i, c], xa[j, c]) < blo[c] - radius:
+                    ok = False
+            if ok:
+                sel[m] = e
+                rows[m] = g
+                m += 1
+    if nmoved == 0:
+        return cm, co, cd, 0
+    y = np.empty((m, 2, 3))
+    qlo = np.empty((m, 3))
+    qhi = np.empty((m, 3))
+    grow = radius + bound
+    for q in range(m):
+        g = rows[q]
+        for c in range(3):
+            y[q, 0, c] = gy[g, 1 + c]
+            y[q, 1, c] = gy[g, 4 + c]
+            qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
+            qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
+    nv, nt, nd = _walk_all(True, sel[:m], y, qlo, qhi, Xb, Eb, radius, P, lo, hi, nonempty, slot_tri, slo, shi)
+    ov, ot, od = _merge(cm, co, cd, moved, nv, nt, nd)
+    return ov, ot, od, nmoved
+
+
+@numba.njit(cache=True)
+def _guard(edges, xa, Ea, Rb, pb, Xb, reach):
+    """The vertices of a (``edges`` False) or its edges ``Ea`` (True) whose points, in b's axes (``Rb``,
+    ``pb``), lie within ``reach`` [m] of the box of b's vertices ``Xb`` (its own axes; a triangle's points are in
+    it): rows (id, position(s) in b's axes), (g, 4) for vertices, (g, 7) for edges. The others are farther than
+    ``reach`` from every point of b's surface."""
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for v in range(Xb.shape[0]):
+        for c in range(3):
+            lo[c] = min(lo[c], Xb[v, c])
+            hi[c] = max(hi[c], Xb[v, c])
+    ya = np.empty((xa.shape[0], 3))
+    for j in range(xa.shape[0]):
+        _to_local(xa[j], Rb, pb, ya[j])
+    n = Ea.shape[0] if edges else xa.shape[0]
+    out = np.empty((n, 7 if edges else 4))
+    g = 0
+    for k in range(n):
+        ok = True
+        for c in range(3):
+            if edges:
+                mn = min(ya[Ea[k, 0], c], ya[Ea[k, 1], c])
+                mx = max(ya[Ea[k, 0], c], ya[Ea[k, 1], c])
+            else:
+                mn = mx = ya[k, c]
+            if mn > hi[c] + reach or mx < lo[c] - reach:
+                ok = False
+        if not ok:
+            continue
+        out[g, 0] = k
+        for c in range(3):
+            if edges:
+                out[g, 1 + c] = ya[Ea[k, 0], c]
+                out[g, 4 + c] = ya[Ea[k, 1], c]
+            else:
+                out[g, 1 + c] = ya[k, c]
+        g += 1
+    return out[:g].copy()
+
+
 #: layout of a pair's row in the coherence cache's ``meta`` (see ``coherent_pairs``)
 _M_AB, _T_AB, _M_BA, _T_BA, _BOUND_A, _BOUND_B, _R_VF, _R_EE, _VALID = 0, 9, 12, 21, 24, 25, 26, 27, 28
 _EVAL = 29  # the same frames and bounds (_M_AB ... _BOUND_B) at the pair's last evaluation, from here
-META = 55
+_FMAX_A, _FMAX_B = 55, 56  # the most a's and b's surfaces moved in their own axes since the walk (at the steps seen)
+_R_G = 57  # the guard radius: primitives farther from the other body at the walk were left out of the re-walk rows
+META = 58
+#: the guard band, in slacks: primitives within (search radius + GUARD slack) of the other body at a pair's walk are
+#: watched for partial re-walks (while the pair's bodies have moved less than that band since the walk)
+GUARD = 4.0
 
 
 @numba.njit(cache=True)
@@ -340,7 +517,7 @@ def _near_ball(Ra, pa, blo, bhi, a, b, grow, c):
 
 @numba.njit(cache=True)
 def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q, qoff, nm, amp, blo, bhi, tris, toff,
-                   edges, eoff, adj, meta, qsnap, cva, cta, cvb, ctb, cem, ceo, cla, clb, cle,
+                   edges, eoff, adj, meta, qsnap, cva, cta, cvb, ctb, cem, ceo, cla, clb, cle, cya, cyb, cye,
                    tP, tlo, thi, tne, tslot, tslo, tshi, eP, elo, ehi, ene, eslot, eslo, eshi):
     """``all_pairs`` with temporal coherence: the same contacts in the same order, the trees walked only when a
     pair's bodies have moved, relative to each other or in shape, more than a slack since its last walk.
@@ -369,6 +546,15 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
     ``_drift_at`` about the centre of a ball holding that overlap (``_near_ball``), grown by the deformation since,
     instead of by ``_drift`` over the whole body (the smaller kept; tried only when the whole-body test fails).
 
+    Partial re-walks: when that test fails but the pair has moved less than a guard band ``GUARD * slack`` beyond
+    it (``reach + dm <= R + guard``), only a primitive that was within ``R + guard`` of the other body's box at the
+    walk can be within reach now (``_guard`` lists them, with their positions in the other body's axes); of those,
+    the ones that moved, in the other body's axes, more than ``R - reach - (the other surface's deformation since
+    their walk: at most its deformation now plus the most seen since the pair's walk)`` are walked again
+    (``_vf_rewalk``, ``_ee_rewalk``; exact moves, a segment's by its ends'), the others keep their candidates. The
+    row is then marked 2: its lists no longer match one walk's frames, so the whole-pair test is skipped until the
+    next full walk (once the guard band or half the slack is used up).
+
     Args:
         pa ... bhi, tris ... adj, tP ... eshi: as ``all_pairs``; slack: (p,) [m]; radius: (n,) the bodies' rest
             radii about their centres of mass [m]; q: every body's modal coordinates, body i's ``nm[i]`` from
@@ -376,10 +562,11 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
         meta, qsnap, cva ... cle: the cache, one row per ordered pair ``a * n + b`` (a < b): ``meta`` (n*n,
             ``META``) floats, ``qsnap`` (n*n, 4, max modes) (a's and b's at the walk, then at the last
             evaluation), typed lists of int64 arrays (a's vertices on b's triangles, b's vertices on a's, a's edges on
-            b's) and of the float lower bounds of their distances [m]. Updated in place.
+            b's) and of the float lower bounds of their distances [m], then (``cya``, ``cyb``, ``cye``) the guard
+            rows of a's vertices, b's vertices and a's edges (``_guard``). Updated in place.
 
     Returns:
-        ``(vf, ee, walks)``: as ``all_pairs``, and the number of pairs whose trees were walked.
+        ``(vf, ee, walks)``: as ``all_pairs``, and the number of pairs whose trees were walked (wholly or in part).
     """
     nb = voff.shape[0] - 1
     scale = np.ones(nb)
@@ -408,21 +595,51 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
         row = meta[s]
         _relative(R[a], R[b], pos[a], pos[b], M, t)
         _relative(R[b], R[a], pos[b], pos[a], M2, t2)
-        ok = row[_VALID] > 0.0
-        if ok:
+        ok = False
+        fa = fb = 0.0
+        dm = np.inf
+        if row[_VALID] > 0.0:
             fa = _deformed(q, qoff[a], nm[a], amp, qsnap[s, 0])
             fb = _deformed(q, qoff[b], nm[b], amp, qsnap[s, 1])
             da = _drift(M, t, row[_M_AB:_M_AB + 9], row[_T_AB:_T_AB + 3], radius[a] + row[_BOUND_A]) + fa
             db = _drift(M2, t2, row[_M_BA:_M_BA + 9], row[_T_BA:_T_BA + 3], radius[b] + row[_BOUND_B]) + fb
             dm = min(da + fb, db + fa)
-            ok = (rr[i] + dm <= row[_R_VF] and mm[i] + dm <= row[_R_EE])
+            # (_VALID 2.0: part of the pair re-walked since, so the whole-pair test no longer holds)
+            ok = row[_VALID] == 1.0 and rr[i] + dm <= row[_R_VF] and mm[i] + dm <= row[_R_EE]
             if not ok:
                 ha = _near_ball(R[a], pos[a], blo, bhi, a, b, rr[i], cA) + fa
                 hb = _near_ball(R[b], pos[b], blo, bhi, a, b, rr[i], cB) + fb
                 da = min(da, _drift_at(M, t, row[_M_AB:_M_AB + 9], row[_T_AB:_T_AB + 3], cA, ha) + fa)
                 db = min(db, _drift_at(M2, t2, row[_M_BA:_M_BA + 9], row[_T_BA:_T_BA + 3], cB, hb) + fb)
                 dm = min(da + fb, db + fa)
-                ok = (rr[i] + dm <= row[_R_VF] and mm[i] + dm <= row[_R_EE])
+                ok = row[_VALID] == 1.0 and rr[i] + dm <= row[_R_VF] and mm[i] + dm <= row[_R_EE]
+        if not ok and row[_VALID] > 0.0 and rr[i] + dm <= row[_R_VF] + row[_R_G] and mm[i] + dm <= row[_R_EE] + row[_R_G]:
+            # every primitive that can be within reach now was in the guard band at the walk (its distance then was
+            # at most reach + dm): re-walk only those that moved more than the slack left since their own walk
+            fma = max(row[_FMAX_A], fa)
+            fmb = max(row[_FMAX_B], fb)
+            thr_a = row[_R_VF] - rr[i] - fb - fmb - 1e-12  # a's vertices against b's triangles
+            thr_b = row[_R_VF] - rr[i] - fa - fma - 1e-12
+            thr_e = row[_R_EE] - mm[i] - fb - fmb - 1e-12
+            if min(thr_a, min(thr_b, thr_e)) >= 0.5 * slack[i]:
+                ok = True
+                row[_VALID] = 2.0
+                row[_FMAX_A], row[_FMAX_B] = fma, fmb
+                cva[s], cta[s], cla[s], n1 = _vf_rewalk(X[voff[a]:voff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
+                                                        tris[toff[b]:toff[b + 1]], bound[b], row[_R_VF], blo[b], bhi[b],
+                                                        tP[b], tlo[b], thi[b], tne[b], tslot[b], tslo[b], tshi[b],
+                                                        cva[s], cta[s], cla[s], cya[s], thr_a)
+                cvb[s], ctb[s], clb[s], n2 = _vf_rewalk(X[voff[b]:voff[b + 1]], R[a], pos[a], Xl[voff[a]:voff[a + 1]],
+                                                        tris[toff[a]:toff[a + 1]], bound[a], row[_R_VF], blo[a], bhi[a],
+                                                        tP[a], tlo[a], thi[a], tne[a], tslot[a], tslo[a], tshi[a],
+                                                        cvb[s], ctb[s], clb[s], cyb[s], thr_b)
+                cem[s], ceo[s], cle[s], n3 = _ee_rewalk(X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b],
+                                                        pos[b], Xl[voff[b]:voff[b + 1]], edges[eoff[b]:eoff[b + 1]],
+                                                        bound[b], row[_R_EE], blo[b], bhi[b], eP[b], elo[b], ehi[b],
+                                                        ene[b], eslot[b], eslo[b], eshi[b], cem[s], ceo[s], cle[s],
+                                                        cye[s], thr_e)
+                if n1 + n2 + n3 > 0:
+                    walks += 1
         if not ok:
             walks += 1
             row[_R_VF] = rr[i] + slack[i]
@@ -433,6 +650,7 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
             row[_T_BA:_T_BA + 3] = t2
             row[_BOUND_A], row[_BOUND_B] = bound[a], bound[b]
             row[_VALID] = 1.0
+            row[_FMAX_A], row[_FMAX_B] = 0.0, 0.0
             qsnap[s, 0, :nm[a]] = q[qoff[a]:qoff[a] + nm[a]]
             qsnap[s, 1, :nm[b]] = q[qoff[b]:qoff[b] + nm[b]]
             for side in range(2):
@@ -448,6 +666,14 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
                                     Xl[voff[b]:voff[b + 1]], edges[eoff[b]:eoff[b + 1]], bound[b], row[_R_EE], blo[b],
                                     bhi[b], eP[b], elo[b], ehi[b], ene[b], eslot[b], eslo[b], eshi[b])
             cem[s], ceo[s], cle[s] = cm, co, cd
+            row[_R_G] = GUARD * slack[i]
+            none = edges[eoff[a]:eoff[a]]
+            cya[s] = _guard(False, X[voff[a]:voff[a + 1]], none, R[b], pos[b], Xl[voff[b]:voff[b + 1]],
+                            row[_R_VF] + row[_R_G])
+            cyb[s] = _guard(False, X[voff[b]:voff[b + 1]], none, R[a], pos[a], Xl[voff[a]:voff[a + 1]],
+                            row[_R_VF] + row[_R_G])
+            cye[s] = _guard(True, X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
+                            row[_R_EE] + row[_R_G])
             # evaluated now: no motion since, and the distances the walk found are the pairs' bounds (the kept pairs
             # beyond this step's reach or margin, in the slack, are not tested again)
             row[_EVAL:_EVAL + 26] = row[0:26]

@@ -107,7 +107,8 @@ class ModalContacts:
         self._qsnap = np.zeros((nb * nb, 4, max([int(v) for v in self.nm] + [1])))
         empty = np.zeros(0, dtype=np.int64)
         self._cache = tuple(List([empty] * (nb * nb)) for _ in range(6)) + tuple(
-            List([np.zeros(0)] * (nb * nb)) for _ in range(3))
+            List([np.zeros(0)] * (nb * nb)) for _ in range(3)) + tuple(
+            List([np.zeros((0, 4))] * (nb * nb)) for _ in range(2)) + (List([np.zeros((0, 7))] * (nb * nb)),)
 
     def velocity_blocks(self, states: dict, g: dict, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Every body's block ``(v + g dt, w, qdot)`` (6 + r) of the solve's velocities, one after another in

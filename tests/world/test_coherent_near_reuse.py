@@ -86,7 +86,7 @@ def test_a_bar_rocking_on_the_end_of_another_reuses_walks_and_finds_what_a_fresh
 
     def checked(*a):
         out = coherent(*a)
-        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[34:])  # as in test_modal_contacts
+        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[37:])  # as in test_modal_contacts
         for x, y in zip(out[0] + out[1], ref[0] + ref[1]):
             assert x.shape == y.shape and np.array_equal(x, y)
         walks.append(out[2])

@@ -409,7 +409,7 @@ def test_the_coherent_pair_search_finds_what_a_fresh_brute_force_search_finds(ba
     def checked(*a):
         out = coherent(*a)
         # all_pairs takes the same arguments less the slack (4), radius, q, qoff, nm, amp (11-15) and the cache
-        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[34:])
+        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[37:])
         for x, y in zip(out[0] + out[1], ref[0] + ref[1]):
             assert x.shape == y.shape and np.array_equal(x, y)
         seen["walks"] += out[2]
@@ -454,7 +454,7 @@ def test_the_coherent_pair_search_walks_again_when_shape_or_turn_alone_moves_the
 
     def checked(*a):
         out = coherent(*a)
-        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[34:])  # as the test above
+        ref = SK.all_pairs(*a[:4], *a[5:11], *a[16:23], *a[37:])  # as the test above
         for x, y in zip(out[0] + out[1], ref[0] + ref[1]):
             assert x.shape == y.shape and np.array_equal(x, y)
         walks.append(out[2])
