@@ -59,7 +59,7 @@ def test_outgrown_matches_numpy_on_any_thread_count():
 def test_select_pairs_keeps_the_pairs_in_order_on_any_thread_count():
     rng = np.random.default_rng(5)
     N = 3000
-    for k in (0, 5, 2047, 20000):
+    for k in (0, 5, 2047, 20000, 40000):  # serial below two chunks of SELECT_CHUNK, parallel at 40000
         q = np.stack([rng.choice(N, 4, replace=False) for _ in range(k)]).astype(np.int32) if k else \
             np.zeros((0, 4), dtype=np.int32)
         stamp = np.where(rng.random(N) < 0.05, 3, 0).astype(np.int64)
