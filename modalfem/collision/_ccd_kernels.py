@@ -192,6 +192,19 @@ def ccd_batch(vf: bool, x0: np.ndarray, x1: np.ndarray, eta: float, max_depth: i
 CCD_CHUNK = 256
 
 
+@numba.njit(cache=True, inline="always")
+def _project(out, i, a0, a1, a2, b0, b1, b2):
+    """Row ``i`` of :func:`diagonal_intervals`: the segment from ``a`` to ``b`` on the four box diagonals."""
+    p, q = a0 + a1 + a2, b0 + b1 + b2
+    out[i, 0], out[i, 4] = min(p, q), max(p, q)
+    p, q = a0 + a1 - a2, b0 + b1 - b2
+    out[i, 1], out[i, 5] = min(p, q), max(p, q)
+    p, q = a0 - a1 + a2, b0 - b1 + b2
+    out[i, 2], out[i, 6] = min(p, q), max(p, q)
+    p, q = a1 + a2 - a0, b1 + b2 - b0
+    out[i, 3], out[i, 7] = min(p, q), max(p, q)
+
+
 @numba.njit(cache=True, parallel=True)
 def diagonal_intervals(X0: np.ndarray, X1: np.ndarray) -> np.ndarray:
     """Per vertex, its trajectory ``X0 -> X1`` ((N, 3) [m]) projected on the four box diagonals ``(1, 1, 1)``,
@@ -207,14 +220,7 @@ def diagonal_intervals(X0: np.ndarray, X1: np.ndarray) -> np.ndarray:
         for i in range(start, stop):
             a0, a1, a2 = X0[i, 0], X0[i, 1], X0[i, 2]
             b0, b1, b2 = X1[i, 0], X1[i, 1], X1[i, 2]
-            p, q = a0 + a1 + a2, b0 + b1 + b2
-            out[i, 0], out[i, 4] = min(p, q), max(p, q)
-            p, q = a0 + a1 - a2, b0 + b1 - b2
-            out[i, 1], out[i, 5] = min(p, q), max(p, q)
-            p, q = a0 - a1 + a2, b0 - b1 + b2
-            out[i, 2], out[i, 6] = min(p, q), max(p, q)
-            p, q = a1 + a2 - a0, b1 + b2 - b0
-            out[i, 3], out[i, 7] = min(p, q), max(p, q)
+            _project(out, i, a0, a1, a2, b0, b1, b2)
     return out
 
 
@@ -261,14 +267,7 @@ def trajectory_diagonals(X0: np.ndarray, V: np.ndarray, dt: float, eta: float):
             m = max(m, abs(a0), abs(b0))
             m = max(m, abs(a1), abs(b1))
             m = max(m, abs(a2), abs(b2))
-            p, q = a0 + a1 + a2, b0 + b1 + b2
-            out[i, 0], out[i, 4] = min(p, q), max(p, q)
-            p, q = a0 + a1 - a2, b0 + b1 - b2
-            out[i, 1], out[i, 5] = min(p, q), max(p, q)
-            p, q = a0 - a1 + a2, b0 - b1 + b2
-            out[i, 2], out[i, 6] = min(p, q), max(p, q)
-            p, q = a1 + a2 - a0, b1 + b2 - b0
-            out[i, 3], out[i, 7] = min(p, q), max(p, q)
+            _project(out, i, a0, a1, a2, b0, b1, b2)
         part[ch] = m
     scale = 0.0
     for ch in range(chunks):

@@ -331,9 +331,8 @@ SELECT_CHUNK = 16384
 @numba.njit(cache=True, parallel=True)
 def select_pairs(q: np.ndarray, stamp: np.ndarray, epoch: int, only: np.ndarray) -> np.ndarray:
     """The pairs of ``q`` (k, 4) still in the store (:func:`_alive`), only those holding a vertex flagged in
-    ``only`` ((N,) bool) unless it is empty, in their order. Chunks in parallel: a pass marking and counting
-    each chunk's pairs, their offsets, a pass copying them (the same pairs in the same order for any thread
-    count)."""
+    ``only`` ((N,) bool) unless it is empty, in their order. From two chunks on, in parallel: a pass marking
+    the pairs, then :func:`_compact` (the same pairs in the same order for any thread count)."""
     use = len(only) > 0
     k = len(q)
     chunks = chunk_count(k, SELECT_CHUNK)
@@ -351,28 +350,12 @@ def select_pairs(q: np.ndarray, stamp: np.ndarray, epoch: int, only: np.ndarray)
                 res[j, c] = q[mark[j], c]
         return res
     keep = np.empty(k, dtype=np.bool_)
-    count = np.zeros(chunks + 1, dtype=np.int64)
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(k, chunks, ch)
-        n = 0
         for i in range(start, stop):
-            f = _alive(q, i, stamp, epoch) and (not use or only[q[i, 0]] or only[q[i, 1]] or only[q[i, 2]]
-                                                or only[q[i, 3]])
-            keep[i] = f
-            n += f
-        count[ch + 1] = n
-    for ch in range(chunks):
-        count[ch + 1] += count[ch]
-    out = np.empty((count[chunks], 4), dtype=q.dtype)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(k, chunks, ch)
-        o = count[ch]
-        for i in range(start, stop):
-            if keep[i]:
-                for c in range(4):
-                    out[o, c] = q[i, c]
-                o += 1
-    return out
+            keep[i] = _alive(q, i, stamp, epoch) and (not use or only[q[i, 0]] or only[q[i, 1]] or only[q[i, 2]]
+                                                      or only[q[i, 3]])
+    return _compact(q, keep)
 
 
 @numba.njit(cache=True)
