@@ -224,6 +224,15 @@ def diagonal_intervals(X0: np.ndarray, X1: np.ndarray) -> np.ndarray:
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _gap_of(part: np.ndarray, eta: float) -> float:
+    """:func:`diagonal_gap` from the chunks' largest coordinates ``part`` (their maximum is the coordinate scale)."""
+    scale = 0.0
+    for ch in range(len(part)):
+        scale = max(scale, part[ch])
+    return eta * math.sqrt(3.0) * (1.0 + 1e-9) + ROUNDING * 3.0 * scale
+
+
 @numba.njit(cache=True, parallel=True)
 def diagonal_gap(X0: np.ndarray, X1: np.ndarray, eta: float) -> float:
     """The gap [m] between two primitives' projections on a diagonal of :func:`diagonal_intervals` beyond which
@@ -241,10 +250,7 @@ def diagonal_gap(X0: np.ndarray, X1: np.ndarray, eta: float) -> float:
             for c in range(3):
                 m = max(m, abs(X0[i, c]), abs(X1[i, c]))
         part[ch] = m
-    scale = 0.0
-    for ch in range(chunks):
-        scale = max(scale, part[ch])
-    return eta * math.sqrt(3.0) * (1.0 + 1e-9) + ROUNDING * 3.0 * scale
+    return _gap_of(part, eta)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -269,10 +275,7 @@ def trajectory_diagonals(X0: np.ndarray, V: np.ndarray, dt: float, eta: float):
             m = max(m, abs(a2), abs(b2))
             _project(out, i, a0, a1, a2, b0, b1, b2)
         part[ch] = m
-    scale = 0.0
-    for ch in range(chunks):
-        scale = max(scale, part[ch])
-    return X1, out, eta * math.sqrt(3.0) * (1.0 + 1e-9) + ROUNDING * 3.0 * scale
+    return X1, out, _gap_of(part, eta)
 
 
 @numba.njit(cache=True, inline="always")
