@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-__all__ = ["TRAVEL_SHARE", "substep_count", "taken_count", "merged_report"]
+__all__ = ["TRAVEL_SHARE", "extents", "substep_count", "taken_count", "merged_report"]
 
 #: a modal body may travel at most this part of a nearby tet body's smallest rest surface edge per (sub-)step [-]
 TRAVEL_SHARE = 0.5
@@ -46,15 +46,15 @@ def _smallest_edge(world, name: str) -> float:
     return t["smallest_edge"]
 
 
-def substep_count(world, state, dt: float) -> int:
+def substep_count(world, state, dt: float, ext: dict | None = None) -> int:
     """How many equal sub-steps a step of ``dt`` [s] from ``state`` takes (1: not divided; see the module
-    docstring)."""
-    ext = _extents(world, state)
+    docstring). ``ext``: ``extents(world, state)`` (computed here when not given)."""
+    ext = extents(world, state) if ext is None else ext
     count = _tet_pairs_count(world, state, dt, ext)
     return max(count, _modal_count(world, state, dt, ext, None))
 
 
-def taken_count(world, state, bodies_out: dict, dt: float) -> int:
+def taken_count(world, state, bodies_out: dict, dt: float, ext: dict | None = None) -> int:
     """The sub-steps a step of ``dt`` [s] from ``state`` needed by the travel its modal bodies took in it
     (``bodies_out``: their states at its end, as a single pass left them): the rule of ``substep_count`` with each
     body's travel measured, ``|p_1 - p_0| + theta r`` (``theta`` [rad] the turn between the two orientations,
@@ -62,7 +62,8 @@ def taken_count(world, state, bodies_out: dict, dt: float) -> int:
     be set moving in the step by a moving obstacle or a strike (a box ridge rising at 1 m/s under the end of a bar
     lying across a soft tet cube turned the bar 0.14 rad in one 20 ms step, and the linearised contacts of the tet
     step left cube vertices 0.8 mm inside it: tests/world/test_tet_modal_moving_ridge.py); ``World.step`` then
-    takes that step again in this many sub-steps (1: the pass stands)."""
+    takes that step again in this many sub-steps (1: the pass stands). ``ext``: ``extents(world, state)``, the one
+    ``substep_count`` used (computed here when not given)."""
     tets = [n for n in world._tet if world._tet_modal.get(n)]
     if not tets:
         return 1
@@ -74,7 +75,7 @@ def taken_count(world, state, bodies_out: dict, dt: float) -> int:
         c = min(1.0, abs(float(np.dot(st.orientation, end.orientation))))
         return float(np.linalg.norm(end.position - st.position)) + 2.0 * math.acos(c) * body.radius
 
-    return _modal_count(world, state, dt, _extents(world, state), travel)
+    return _modal_count(world, state, dt, extents(world, state) if ext is None else ext, travel)
 
 
 def _modal_count(world, state, dt: float, ext: dict, travel) -> int:
@@ -116,9 +117,10 @@ def _gravity(world, name: str) -> float:
     return 0.0 if e is None else float(np.linalg.norm(e.g))
 
 
-def _extents(world, state) -> dict:
+def extents(world, state) -> dict:
     """Per tet body with contact: its surface's bounding box ``(lo, hi)`` (3,) [m] and its fastest vertex's speed
-    [m/s] at ``state``, computed once per step for both counts (``substep_count``, ``_tet_pairs_count``)."""
+    [m/s] at ``state``, computed once per step for the counts (``substep_count``, ``_tet_pairs_count``,
+    ``taken_count``)."""
     out = {}
     for n, t in world._tet.items():
         if t["contact"] is None:
@@ -134,12 +136,12 @@ def _tet_pairs_count(world, state, dt: float, ext: dict | None = None) -> int:
     """The sub-steps two tet bodies with contact closing on each other need: for each pair whose surfaces' boxes,
     each grown by its own travel bound and margin, overlap, their relative travel ``(vmax_a + vmax_b) dt + max(|g_a|,
     |g_b|) dt^2 / 2`` (the faster vertex of each; one body may be held while the other falls) against
-    ``TRAVEL_SHARE`` of the smaller of their smallest rest surface edges. ``ext``: ``_extents(world, state)``
+    ``TRAVEL_SHARE`` of the smaller of their smallest rest surface edges. ``ext``: ``extents(world, state)``
     (computed here when not given)."""
     tets = [n for n, t in world._tet.items() if t["contact"] is not None]
     if len(tets) < 2:
         return 1
-    ext = _extents(world, state) if ext is None else ext
+    ext = extents(world, state) if ext is None else ext
     info = {}
     for n in tets:
         lo, hi, vmax = ext[n]

@@ -63,7 +63,7 @@ from modalfem.world._tet_stage import FRICTION_SLIP, _TetStage  # noqa: F401 (re
 from modalfem.world.bodies import Cloth, Modal, Tet
 from modalfem.world.obstacles import Box, Ground, Plane, Sphere, TriangleMesh
 from modalfem.world.proximity import EdgeProximity, SurfaceProximity
-from modalfem.world.substeps import merged_report, substep_count, taken_count
+from modalfem.world.substeps import extents, merged_report, substep_count, taken_count
 
 __all__ = ["Stage", "StepReport", "World", "WorldControl", "WorldState"]
 
@@ -457,10 +457,11 @@ class World(_TetStage, _SolidStage, _ClothStage):
         """``step`` after its checks: in one pass, or in sub-steps (``world.substeps``) counted from the start
         state, or counted from the travel a single pass took (that pass then dropped, its sounds' impacts too:
         ``heard`` the sounds' impact counts before it)."""
-        n = 1 if control.scripted else substep_count(self, state_in, dt)
+        ext = extents(self, state_in) if self._tet and not control.scripted else None  # once for both counts
+        n = 1 if control.scripted else substep_count(self, state_in, dt, ext)
         if n == 1:
-            ctx, report = self._plan_pass(state_in, control, dt)
-            n = taken_count(self, state_in, ctx.out.bodies, dt) if self._tet_modal and not control.scripted else 1
+            ctx, report = self._plan_pass(state_in, control, dt)  # (state_in is not written before _finish)
+            n = taken_count(self, state_in, ctx.out.bodies, dt, ext) if self._tet_modal and not control.scripted else 1
             if n == 1:
                 self._finish(ctx, state_out, dt)
                 return report

@@ -106,3 +106,41 @@ def test_the_sub_step_count_reads_each_tet_surface_once(bar_model, cube):
     n = substep_count(w, s, 2e-2)
     assert _Counted.gathers == 2
     assert n >= 2  # (the bar, in reach, travels 2 cm in the step: at least twice half a 2 cm cell)
+
+
+def test_a_step_reads_the_tet_extents_once_for_both_of_its_counts(bar_model, cube, monkeypatch):
+    """A World step with a modal body near a tet body counts its sub-steps twice: from the start velocities
+    (``substep_count``) and from the travel the single pass took (``taken_count``). Both read the tet's surface box
+    and fastest vertex at the step start, which the pass does not change: one ``extents`` per step (before: two),
+    and both counts get that one."""
+    from modalfem.world import substeps
+    from modalfem.world import world as world_module
+
+    calls = {"extents": 0, "substep_count": [], "taken_count": []}
+    real_extents, real_sub, real_taken = substeps.extents, substeps.substep_count, substeps.taken_count
+
+    def counted_extents(w, st):
+        calls["extents"] += 1
+        return real_extents(w, st)
+
+    def sub(w, st, dt, ext=None):
+        calls["substep_count"].append(ext)
+        return real_sub(w, st, dt, ext)
+
+    def taken(w, st, out, dt, ext=None):
+        calls["taken_count"].append(ext)
+        return real_taken(w, st, out, dt, ext)
+
+    monkeypatch.setattr(world_module, "extents", counted_extents)
+    monkeypatch.setattr(world_module, "substep_count", sub)
+    monkeypatch.setattr(world_module, "taken_count", taken)
+    w = _world(bar_model, cube, 0.1, height=0.03)
+    s = w.state()
+    for _ in range(3):
+        w.step(s, s, None, 1e-3)
+    assert calls["extents"] == 3
+    assert len(calls["substep_count"]) == 3 and len(calls["taken_count"]) == 3
+    for a, b in zip(calls["substep_count"], calls["taken_count"]):
+        assert a is b and set(a) == {"cube"}
+        lo, hi, vmax = a["cube"]
+        assert np.all(lo <= hi) and vmax >= 0.0
