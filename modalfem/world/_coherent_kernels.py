@@ -369,42 +369,41 @@ def _ee_rewalk(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, nonem
 
 
 @numba.njit(cache=True)
-def _guard(edges, xa, Ea, Rb, pb, Xb, reach):
+def _guard(edges, xa, Ea, Rb, pb, llo, lhi, wlo, whi, reach):
     """The vertices of a (``edges`` False) or its edges ``Ea`` (True) whose points, in b's axes (``Rb``,
-    ``pb``), lie within ``reach`` [m] of the box of b's vertices ``Xb`` (its own axes; a triangle's points are in
-    it): rows (id, position(s) in b's axes), (g, 4) for vertices, (g, 7) for edges. The others are farther than
-    ``reach`` from every point of b's surface."""
-    lo = np.full(3, np.inf)
-    hi = np.full(3, -np.inf)
-    for v in range(Xb.shape[0]):
-        for c in range(3):
-            lo[c] = min(lo[c], Xb[v, c])
-            hi[c] = max(hi[c], Xb[v, c])
-    ya = np.empty((xa.shape[0], 3))
-    for j in range(xa.shape[0]):
-        _to_local(xa[j], Rb, pb, ya[j])
+    ``pb``), lie within ``reach`` [m] of the box of b's vertices in its own axes (``llo``, ``lhi``), and in the
+    world within ``reach`` of their world box (``wlo``, ``whi``; a triangle's points are in both boxes): rows (id,
+    position(s) in b's axes), (g, 4) for vertices, (g, 7) for edges. The others are farther than ``reach`` from
+    every point of b's surface. The world box is tested first, without the change of axes (most of a body's
+    vertices are far from the other's box)."""
     n = Ea.shape[0] if edges else xa.shape[0]
     out = np.empty((n, 7 if edges else 4))
+    y0 = np.empty(3)
+    y1 = np.empty(3)
     g = 0
     for k in range(n):
+        i, j = (Ea[k, 0], Ea[k, 1]) if edges else (k, k)
         ok = True
         for c in range(3):
-            if edges:
-                mn = min(ya[Ea[k, 0], c], ya[Ea[k, 1], c])
-                mx = max(ya[Ea[k, 0], c], ya[Ea[k, 1], c])
-            else:
-                mn = mx = ya[k, c]
-            if mn > hi[c] + reach or mx < lo[c] - reach:
+            if min(xa[i, c], xa[j, c]) > whi[c] + reach or max(xa[i, c], xa[j, c]) < wlo[c] - reach:
+                ok = False
+        if not ok:
+            continue
+        _to_local(xa[i], Rb, pb, y0)
+        if edges:
+            _to_local(xa[j], Rb, pb, y1)
+        else:
+            y1[:] = y0
+        for c in range(3):
+            if min(y0[c], y1[c]) > lhi[c] + reach or max(y0[c], y1[c]) < llo[c] - reach:
                 ok = False
         if not ok:
             continue
         out[g, 0] = k
         for c in range(3):
+            out[g, 1 + c] = y0[c]
             if edges:
-                out[g, 1 + c] = ya[Ea[k, 0], c]
-                out[g, 4 + c] = ya[Ea[k, 1], c]
-            else:
-                out[g, 1 + c] = ya[k, c]
+                out[g, 4 + c] = y1[c]
         g += 1
     return out[:g].copy()
 
@@ -570,10 +569,14 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
     """
     nb = voff.shape[0] - 1
     scale = np.ones(nb)
+    llo = np.full((nb, 3), np.inf)  # the boxes of the bodies' deformed surfaces in their own axes [m]
+    lhi = np.full((nb, 3), -np.inf)
     for i in range(nb):
         for v in range(voff[i], voff[i + 1]):
             for c in range(3):
                 scale[i] = max(scale[i], abs(Xl[v, c]))
+                llo[i, c] = min(llo[i, c], Xl[v, c])
+                lhi[i, c] = max(lhi[i, c], Xl[v, c])
     M = np.empty(9)
     t = np.empty(3)
     M2 = np.empty(9)
@@ -668,12 +671,12 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
             cem[s], ceo[s], cle[s] = cm, co, cd
             row[_R_G] = GUARD * slack[i]
             none = edges[eoff[a]:eoff[a]]
-            cya[s] = _guard(False, X[voff[a]:voff[a + 1]], none, R[b], pos[b], Xl[voff[b]:voff[b + 1]],
+            cya[s] = _guard(False, X[voff[a]:voff[a + 1]], none, R[b], pos[b], llo[b], lhi[b], blo[b], bhi[b],
                             row[_R_VF] + row[_R_G])
-            cyb[s] = _guard(False, X[voff[b]:voff[b + 1]], none, R[a], pos[a], Xl[voff[a]:voff[a + 1]],
+            cyb[s] = _guard(False, X[voff[b]:voff[b + 1]], none, R[a], pos[a], llo[a], lhi[a], blo[a], bhi[a],
                             row[_R_VF] + row[_R_G])
-            cye[s] = _guard(True, X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], Xl[voff[b]:voff[b + 1]],
-                            row[_R_EE] + row[_R_G])
+            cye[s] = _guard(True, X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], llo[b], lhi[b],
+                            blo[b], bhi[b], row[_R_EE] + row[_R_G])
             # evaluated now: no motion since, and the distances the walk found are the pairs' bounds (the kept pairs
             # beyond this step's reach or margin, in the slack, are not tested again)
             row[_EVAL:_EVAL + 26] = row[0:26]
