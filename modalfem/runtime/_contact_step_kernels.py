@@ -31,7 +31,26 @@ from modalfem.runtime._contact_body_kernels import (_conjugate, crossings, gaps_
 from modalfem.runtime.body import NEGLIGIBLE  # a mode's skipped contribution [m]
 from modalfem.runtime.solver import ENERGY_RTOL  # the energy guard's tolerance
 
-__all__ = ["energy", "modal_terms", "pay_lift", "push_and_pay", "stop_share", "sustained_step"]
+__all__ = ["energy", "modal_terms", "pay_lift", "push_and_pay", "settle", "stop_share", "sustained_step"]
+
+
+@numba.njit(cache=True)
+def settle(q, qdot, pos, v, L, tiny):
+    """The end of ``ModalSolver._step``: modal values ``|q_i|``, ``|qdot_i|`` below ``tiny`` set to 0 (in place),
+    then True when the state is finite (the sum of q, qdot, position, velocity and angular momentum is finite:
+    no NaN or infinity among them, and no overflow)."""
+    s = 0.0
+    for i in range(q.shape[0]):
+        if abs(q[i]) < tiny:
+            q[i] = 0.0
+        s += q[i]
+    for i in range(qdot.shape[0]):
+        if abs(qdot[i]) < tiny:
+            qdot[i] = 0.0
+        s += qdot[i]
+    for i in range(3):
+        s += pos[i] + v[i] + L[i]
+    return math.isfinite(s)
 
 
 
@@ -173,6 +192,12 @@ def _matrix(qt):
     R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
     R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
     return R
+
+
+@numba.njit(cache=True)
+def matrix_into(qt, out):
+    """``_matrix`` written into ``out`` (3, 3) (returning a new array from compiled code costs ~1.7 us)."""
+    out[:, :] = _matrix(qt)
 
 
 @numba.njit(cache=True)

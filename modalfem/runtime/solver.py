@@ -78,6 +78,17 @@ class Loads:
         self.modal = np.zeros(r)
 
 
+_SETTLE: list = []
+
+
+def _settle():
+    """``_contact_step_kernels.settle`` (imported on first use: that module imports this one)."""
+    if not _SETTLE:
+        from modalfem.runtime._contact_step_kernels import settle
+        _SETTLE.append(settle)
+    return _SETTLE[0]
+
+
 class ModalSolver:
     """Time stepper of one ``ModalBody`` with opt-in effects.
 
@@ -282,12 +293,10 @@ class ModalSolver:
                 step_with_contacts(self, s, contacts, loads, h)
                 push_out(self, s, contacts, accel=None if loads is None else loads.force / body.mass)
         # modes that decayed below any physical amplitude are set to 0: subnormal numbers would make
-        # every later step and reconstruction ~100x slower (a body at rest rings down to them)
-        for a in (s.q, s.qdot):
-            a[np.abs(a) < TINY] = 0.0
+        # every later step and reconstruction ~100x slower (a body at rest rings down to them); then the
+        # finiteness check (one compiled call: the two were ~12 us of numpy calls, 7 % of a resting bar's step)
         s.time = state_in.time + h
-        if not math.isfinite(float(s.q.sum() + s.qdot.sum()) + float(s.position.sum())
-                             + float(s.velocity.sum() + s.angular_momentum.sum())):
+        if not _settle()(s.q, s.qdot, s.position, s.velocity, s.angular_momentum, TINY):
             raise SimulationError("state became non-finite during the step")
 
     def _conservative(self, loads: Loads | None, forces) -> bool:
@@ -295,7 +304,7 @@ class ModalSolver:
         kinetic + modal + its potential energy is what contact may only remove."""
         if loads is None:
             return True
-        return not (forces or self._dependent or np.any(loads.torque) or np.any(loads.modal))
+        return not (forces or self._dependent or loads.torque.any() or loads.modal.any())
 
     def _mechanical_energy(self, s: State, loads: Loads | None) -> float:
         """Rigid kinetic + modal energy + potential of the constant load force [J]."""
