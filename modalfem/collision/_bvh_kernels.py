@@ -355,23 +355,20 @@ def traverse_primitives(culling: bool, P: int, lo, hi, ne, slot, slo, shi, conne
 
 
 @numba.njit(cache=True)
-def _dirty_boxes(P: int, slot_tri, slo, shi, dirty_tris):
-    """Node boxes (2P, 3) [m] of the flagged triangles only: per node the union of the slot boxes of its flagged
-    triangles (empty, +inf / -inf, where it holds none)."""
-    L = slot_tri.shape[1]
+def _dirty_boxes_of(P: int, ids, leaf_of_tri, slot_of_tri, slo, shi):
+    """Node boxes (2P, 3) [m] of the flagged triangles ``ids`` ((k,) int) only: per node the union of the slot boxes
+    of its flagged triangles (empty, +inf / -inf, where it holds none), each one's slot box joined into its leaf and
+    every ancestor (a minimum or maximum is exact in any order), O(k log P) after the fill. (Before: a pass over
+    every slot testing its triangle's flag, then the internal nodes bottom-up; the same boxes.)"""
     dlo, dhi = np.full((2 * P, 3), np.inf), np.full((2 * P, 3), -np.inf)
-    for leaf in range(P):
-        node = P + leaf
-        for r in range(L):
-            f = slot_tri[leaf, r]
-            if f >= 0 and dirty_tris[f]:
-                for c in range(3):
-                    dlo[node, c] = min(dlo[node, c], slo[c, leaf, r])
-                    dhi[node, c] = max(dhi[node, c], shi[c, leaf, r])
-    for a in range(P - 1, 0, -1):
-        for c in range(3):
-            dlo[a, c] = min(dlo[2 * a, c], dlo[2 * a + 1, c])
-            dhi[a, c] = max(dhi[2 * a, c], dhi[2 * a + 1, c])
+    for f in ids:
+        node, col = leaf_of_tri[f], slot_of_tri[f]
+        leaf = node - P
+        while node >= 1:
+            for c in range(3):
+                dlo[node, c] = min(dlo[node, c], slo[c, leaf, col])
+                dhi[node, c] = max(dhi[node, c], shi[c, leaf, col])
+            node >>= 1
     return dlo, dhi
 
 
@@ -458,21 +455,27 @@ def _dirty_tasks(tasks, start: int, stop: int, P: int, dlo, dhi, lo, hi, slot_tr
 
 
 @numba.njit(cache=True, parallel=True)
-def traverse_dirty(P: int, lo, hi, slot_tri, slo, shi, dirty_tris):
+def traverse_dirty(P: int, lo, hi, slot_tri, slo, shi, dirty_tris, ids, leaf_of_tri, slot_of_tri):
     """Triangle pairs of a tree whose boxes overlap and that hold a triangle flagged in ``dirty_tris`` (m,): each
     unordered pair once (a flagged triangle first; two flagged ones as (smaller, larger)), no triangle paired with
     itself, no culling. The same pairs as :func:`traverse` of the tree against itself with that dirty filter, but
     a walk of the flagged triangles' own boxes (a node's box the union of its flagged triangles' boxes only,
-    :func:`_dirty_boxes`) against the whole tree: a node holding one flagged triangle among clean ones is not
+    :func:`_dirty_boxes_of`) against the whole tree: a node holding one flagged triangle among clean ones is not
     tested with its whole box, and only the flagged triangles' rows are tested at the leaves.
 
     Parallel as :func:`traverse`: a serial walk to depth ``SPLIT_DEPTH`` lists node pairs, chunks of them are
     walked in parallel and their pairs concatenated in order (the same pairs in the same order on any number of
-    threads)."""
-    dlo, dhi = _dirty_boxes(P, slot_tri, slo, shi, dirty_tris)
+    threads).
+
+    ``ids``: the flagged triangles ((k,) int), with the tree's ``leaf_of_tri``/``slot_of_tri`` for their node
+    boxes. One chunk of tasks is walked serially (no parallel region to launch: the same pairs), so that a search
+    for a few triangles costs about what they pair with."""
+    dlo, dhi = _dirty_boxes_of(P, ids, leaf_of_tri, slot_of_tri, slo, shi)
     tasks = _dirty_walk(1, 1, SPLIT_DEPTH, P, dlo, dhi, lo, hi)
     T = len(tasks)
     chunks = max(1, min(MAX_CHUNKS, -(-T // TASK_CHUNK)))
+    if chunks == 1:
+        return _dirty_tasks(tasks, 0, T, P, dlo, dhi, lo, hi, slot_tri, slo, shi, dirty_tris)
     bufs = [np.empty((0, 2), dtype=np.int64) for _ in range(chunks)]
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(T, chunks, ch)

@@ -33,8 +33,10 @@ import numpy as np
 from modalfem._threads import apply as _apply_threads
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["box_diagonals", "dirty_self_pairs", "flagged_triangles", "outgrown", "primitive_boxes", "primitive_pairs", "select_indexed",
-           "rows_nonzero", "select_pairs", "triangle_diagonals", "vertex_index"]
+__all__ = ["box_diagonals", "dirty_self_pairs", "dirty_triangles", "flagged_triangles", "outgrown", "primitive_boxes", "primitive_pairs",
+           "primitive_pairs_serial", "select_indexed",
+           "rows_nonzero", "select_pairs", "triangle_diagonals", "update_box_diagonals", "vertex_index",
+           "vertex_triangles"]
 
 _apply_threads()
 
@@ -89,18 +91,7 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
     for ch in numba.prange(bchunks):
         start, stop = chunk_bounds(nu, bchunks, ch)
         for u in range(start, stop):
-            f = used[u]
-            for c in range(3):
-                flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
-                fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
-            if use_diag:
-                _triangle_diagonals(tris, diag, f, fdiag)
-            for r in range(3):
-                e = own_e[f, r]
-                if e >= 0:
-                    for c in range(3):
-                        elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
-                        ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
+            _triangle_boxes(used[u], tris, edges, own_e, vlo, vhi, diag, flo, fhi, elo, ehi, fdiag)
     vbufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
     ebufs = [np.empty((0, 4), dtype=np.int64) for _ in range(chunks)]
     for ch in numba.prange(chunks):
@@ -108,6 +99,49 @@ def primitive_pairs(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: 
         vbufs[ch], ebufs[ch] = _primitive_range(tp, start, stop, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo,
                                                 ehi, dirty, diag, fdiag, gap)
     return _concat4(vbufs), _concat4(ebufs)
+
+
+@numba.njit(cache=True, inline="always")
+def _triangle_boxes(f: int, tris, edges, own_e, vlo, vhi, diag, flo, fhi, elo, ehi, fdiag) -> None:
+    """Triangle ``f``'s box (and with a non-empty ``diag`` its diagonal intervals) and the boxes of the edges it
+    owns, written into their rows of ``flo``/``fhi``, ``fdiag``, ``elo``/``ehi`` (for :func:`_primitive_range`)."""
+    for c in range(3):
+        flo[f, c] = min(vlo[tris[f, 0], c], vlo[tris[f, 1], c], vlo[tris[f, 2], c])
+        fhi[f, c] = max(vhi[tris[f, 0], c], vhi[tris[f, 1], c], vhi[tris[f, 2], c])
+    if len(diag) > 0:
+        _triangle_diagonals(tris, diag, f, fdiag)
+    for r in range(3):
+        e = own_e[f, r]
+        if e >= 0:
+            for c in range(3):
+                elo[e, c] = min(vlo[edges[e, 0], c], vlo[edges[e, 1], c])
+                ehi[e, c] = max(vhi[edges[e, 0], c], vhi[edges[e, 1], c])
+
+
+@numba.njit(cache=True)
+def primitive_pairs_serial(tp: np.ndarray, tris: np.ndarray, edges: np.ndarray, own_v: np.ndarray, own_e: np.ndarray,
+                           vlo: np.ndarray, vhi: np.ndarray, dirty: np.ndarray, diag: np.ndarray, gap: float,
+                           flo: np.ndarray, fhi: np.ndarray, elo: np.ndarray, ehi: np.ndarray, fdiag: np.ndarray,
+                           fdone: np.ndarray):
+    """:func:`primitive_pairs` (the same pairs in the same order) in one serial pass for a few triangle pairs (a
+    dirty search's): no parallel region to launch, and the triangle and edge boxes written into the caller's work
+    arrays ``flo``/``fhi`` (F, 3), ``elo``/``ehi`` (E, 3), ``fdiag`` (F, 8) (only the rows of the triangles in
+    ``tp``) instead of new ones; ``fdone`` ((F,) bool, all False) is left all False. Its cost follows ``tp``."""
+    k = len(tp)
+    used = np.empty(2 * k, dtype=np.int64)
+    nu = 0
+    for p in range(k):
+        for side in range(2):
+            f = tp[p, side]
+            if not fdone[f]:
+                fdone[f] = True
+                used[nu] = f
+                nu += 1
+    for u in range(nu):
+        _triangle_boxes(used[u], tris, edges, own_e, vlo, vhi, diag, flo, fhi, elo, ehi, fdiag)
+        fdone[used[u]] = False
+    return _primitive_range(tp, 0, k, tris, edges, own_v, own_e, vlo, vhi, flo, fhi, elo, ehi, dirty, diag, fdiag,
+                            gap)
 
 
 @numba.njit(cache=True, parallel=True)
@@ -201,13 +235,87 @@ def box_diagonals(vlo: np.ndarray, vhi: np.ndarray) -> np.ndarray:
     for ch in numba.prange(chunks):
         start, stop = chunk_bounds(N, chunks, ch)
         for i in range(start, stop):
-            l0, l1, l2 = vlo[i, 0], vlo[i, 1], vlo[i, 2]
-            h0, h1, h2 = vhi[i, 0], vhi[i, 1], vhi[i, 2]
-            out[i, 0], out[i, 4] = l0 + l1 + l2, h0 + h1 + h2
-            out[i, 1], out[i, 5] = l0 + l1 - h2, h0 + h1 - l2
-            out[i, 2], out[i, 6] = l0 - h1 + l2, h0 - l1 + h2
-            out[i, 3], out[i, 7] = l1 + l2 - h0, h1 + h2 - l0
+            _box_diagonal_row(vlo, vhi, i, out)
     return out
+
+
+@numba.njit(cache=True, inline="always")
+def _box_diagonal_row(vlo: np.ndarray, vhi: np.ndarray, i: int, out: np.ndarray) -> None:
+    """Row ``i`` of :func:`box_diagonals` written into ``out``."""
+    l0, l1, l2 = vlo[i, 0], vlo[i, 1], vlo[i, 2]
+    h0, h1, h2 = vhi[i, 0], vhi[i, 1], vhi[i, 2]
+    out[i, 0], out[i, 4] = l0 + l1 + l2, h0 + h1 + h2
+    out[i, 1], out[i, 5] = l0 + l1 - h2, h0 + h1 - l2
+    out[i, 2], out[i, 6] = l0 - h1 + l2, h0 - l1 + h2
+    out[i, 3], out[i, 7] = l1 + l2 - h0, h1 + h2 - l0
+
+
+@numba.njit(cache=True)
+def update_box_diagonals(diag: np.ndarray, ids: np.ndarray, vlo: np.ndarray, vhi: np.ndarray) -> float:
+    """In place: the rows ``ids`` ((k,) int) of ``diag`` ((N, 8), :func:`box_diagonals` of earlier boxes) recomputed
+    from the boxes ``vlo``/``vhi`` ((N, 3) [m]); returns the largest absolute coordinate [m] of those rows' boxes (the
+    coordinate scale of :func:`modalfem.collision._ccd_kernels.diagonal_gap`). Serial: O(k), for a few rows."""
+    scale = 0.0
+    for i in ids:
+        _box_diagonal_row(vlo, vhi, i, diag)
+        for c in range(3):
+            scale = max(scale, abs(vlo[i, c]), abs(vhi[i, c]))
+    return scale
+
+
+@numba.njit(cache=True)
+def vertex_triangles(tris: np.ndarray, n: int):
+    """The triangles ``tris`` (m, 3) holding each vertex ``0..n-1`` as a compressed list: ``(ptr, tri)``, vertex
+    ``v``'s triangles ``tri[ptr[v]:ptr[v + 1]]`` in increasing order."""
+    m = len(tris)
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    for f in range(m):
+        for r in range(3):
+            ptr[tris[f, r] + 1] += 1
+    for v in range(n):
+        ptr[v + 1] += ptr[v]
+    fill = ptr[:-1].copy()
+    tri = np.empty(ptr[n], dtype=np.int64)
+    for f in range(m):
+        for r in range(3):
+            v = tris[f, r]
+            tri[fill[v]] = f
+            fill[v] += 1
+    return ptr, tri
+
+
+@numba.njit(cache=True)
+def dirty_triangles(flags: np.ndarray, ptr: np.ndarray, vtri: np.ndarray, m: int):
+    """The triangles holding a vertex flagged in ``flags`` ((N,) bool), from the vertex -> triangles list
+    ``ptr``/``vtri`` (:func:`vertex_triangles` of the m triangles over the first ``len(ptr) - 1`` vertices; the
+    other vertices' flags are not read): ``(mask, ids)``, (m,) bool as :func:`flagged_triangles` and the (k,)
+    flagged triangles in increasing order. Serial; reads the flagged vertices' lists only (no pass over the
+    triangles)."""
+    n = len(ptr) - 1
+    mask = np.zeros(m, dtype=np.bool_)
+    count = 0
+    for v in range(n):
+        if flags[v]:
+            for j in range(ptr[v], ptr[v + 1]):
+                f = vtri[j]
+                if not mask[f]:
+                    mask[f] = True
+                    count += 1
+    ids = np.empty(count, dtype=np.int64)
+    o = 0
+    for v in range(n):
+        if flags[v]:
+            for j in range(ptr[v], ptr[v + 1]):
+                f = vtri[j]
+                if mask[f]:
+                    # first visit: taken once (the mark is cleared here and set again below)
+                    mask[f] = False
+                    ids[o] = f
+                    o += 1
+    for j in range(count):
+        mask[ids[j]] = True
+    ids.sort()
+    return mask, ids
 
 
 @numba.njit(cache=True)

@@ -252,17 +252,21 @@ class BroadPhaseBVH:
         """
         return self._traverse(self, culling, dirty)
 
-    def dirty_pairs(self, dirty: np.ndarray) -> np.ndarray:
+    def dirty_pairs(self, dirty: np.ndarray, ids: np.ndarray | None = None) -> np.ndarray:
         """Triangle pairs of this tree whose boxes overlap and that hold a triangle flagged in ``dirty`` ((m,)
         bool), without culling (call :meth:`refit`, and :meth:`refit_triangles` for changed boxes, first): the
         pairs of :meth:`self_pairs` ``(culling=False, dirty=dirty)``, found by a walk of the flagged triangles' own
         boxes against the tree (:func:`modalfem.collision._bvh_kernels.traverse_dirty`), in another order.
 
+        ``ids``: the flagged triangles ((k,) int) if known (else found from ``dirty``).
+
         Returns:
             (k, 2) triangle indices, each unordered pair once, a flagged triangle first.
         """
-        return _bvh_kernels.traverse_dirty(self.P, self.lo, self.hi, self.slot_tri, self._slo, self._shi,
-                                           np.ascontiguousarray(dirty, dtype=bool))
+        dirty = np.ascontiguousarray(dirty, dtype=bool)
+        ids = np.flatnonzero(dirty) if ids is None else np.ascontiguousarray(ids, dtype=np.int64)
+        return _bvh_kernels.traverse_dirty(self.P, self.lo, self.hi, self.slot_tri, self._slo, self._shi, dirty, ids,
+                                           self.leaf_of_tri, self.slot_of_tri)
 
     def self_primitive_pairs(self, expand: tuple, *, culling: bool = True) -> tuple[np.ndarray, np.ndarray, int]:
         """:meth:`self_pairs` (no dirty filter) with each parallel chunk's triangle pairs expanded at once into
