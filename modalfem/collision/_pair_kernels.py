@@ -266,18 +266,19 @@ def update_box_diagonals(diag: np.ndarray, ids: np.ndarray, vlo: np.ndarray, vhi
 @numba.njit(cache=True)
 def vertex_triangles(tris: np.ndarray, n: int):
     """The triangles ``tris`` (m, 3) holding each vertex ``0..n-1`` as a compressed list: ``(ptr, tri)``, vertex
-    ``v``'s triangles ``tri[ptr[v]:ptr[v + 1]]`` in increasing order."""
-    m = len(tris)
+    ``v``'s triangles ``tri[ptr[v]:ptr[v + 1]]`` in increasing order. Any row width: the rows of ``tris`` (m, w)
+    holding each vertex (``vertex_index`` for the pairs' four vertices)."""
+    m, w = tris.shape
     ptr = np.zeros(n + 1, dtype=np.int64)
     for f in range(m):
-        for r in range(3):
+        for r in range(w):
             ptr[tris[f, r] + 1] += 1
     for v in range(n):
         ptr[v + 1] += ptr[v]
     fill = ptr[:-1].copy()
     tri = np.empty(ptr[n], dtype=np.int64)
     for f in range(m):
-        for r in range(3):
+        for r in range(w):
             v = tris[f, r]
             tri[fill[v]] = f
             fill[v] += 1
@@ -470,22 +471,8 @@ def select_pairs(q: np.ndarray, stamp: np.ndarray, epoch: int, only: np.ndarray)
 def vertex_index(q: np.ndarray, N: int):
     """The pairs of ``q`` (k, 4) holding each vertex 0..N-1: ``(ptr (N + 1,), pid (4k,))``, vertex v's
     pairs ``pid[ptr[v]:ptr[v + 1]]`` (ascending; a pair twice under a vertex it holds twice never
-    happens: a pair's four vertices are distinct)."""
-    k = len(q)
-    ptr = np.zeros(N + 1, dtype=np.int64)
-    for p in range(k):
-        for j in range(4):
-            ptr[q[p, j] + 1] += 1
-    for v in range(N):
-        ptr[v + 1] += ptr[v]
-    pos = ptr[:-1].copy()
-    pid = np.empty(4 * k, dtype=np.int64)
-    for p in range(k):
-        for j in range(4):
-            v = q[p, j]
-            pid[pos[v]] = p
-            pos[v] += 1
-    return ptr, pid
+    happens: a pair's four vertices are distinct). :func:`vertex_triangles` over the pairs' rows."""
+    return vertex_triangles(q, N)
 
 
 @numba.njit(cache=True)
