@@ -294,6 +294,7 @@ def dirty_triangles(flags: np.ndarray, ptr: np.ndarray, vtri: np.ndarray, m: int
     triangles)."""
     n = len(ptr) - 1
     mask = np.zeros(m, dtype=np.bool_)
+    found = np.empty(len(vtri), dtype=np.int64)  # (at most every listed triangle; only the found rows are written)
     count = 0
     for v in range(n):
         if flags[v]:
@@ -301,20 +302,9 @@ def dirty_triangles(flags: np.ndarray, ptr: np.ndarray, vtri: np.ndarray, m: int
                 f = vtri[j]
                 if not mask[f]:
                     mask[f] = True
+                    found[count] = f
                     count += 1
-    ids = np.empty(count, dtype=np.int64)
-    o = 0
-    for v in range(n):
-        if flags[v]:
-            for j in range(ptr[v], ptr[v + 1]):
-                f = vtri[j]
-                if mask[f]:
-                    # first visit: taken once (the mark is cleared here and set again below)
-                    mask[f] = False
-                    ids[o] = f
-                    o += 1
-    for j in range(count):
-        mask[ids[j]] = True
+    ids = found[:count].copy()
     ids.sort()
     return mask, ids
 
