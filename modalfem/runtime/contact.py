@@ -98,6 +98,7 @@ in the next steps, returning the momentum (numbers in tests/runtime/test_contact
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 import weakref
@@ -592,15 +593,12 @@ def _rotation(state) -> np.ndarray:
     return _ROTATION[1]
 
 
-_KS: list = []
-
-
+@functools.cache
 def _matrix():
     """``_contact_step_kernels.matrix_into`` (``rotation.quat_to_matrix`` compiled, the same expressions)."""
-    if not _KS:
-        from modalfem.runtime._contact_step_kernels import matrix_into as m
-        _KS.append(m)
-    return _KS[0]
+    from modalfem.runtime._contact_step_kernels import matrix_into
+
+    return matrix_into
 
 
 def _gaps(effects, contacts: Contacts, body, state, skip=None):

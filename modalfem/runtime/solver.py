@@ -26,6 +26,7 @@ motions, so they carry no linear momentum and, to first order, no angular moment
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -78,15 +79,12 @@ class Loads:
         self.modal = np.zeros(r)
 
 
-_SETTLE: list = []
-
-
+@functools.cache
 def _settle():
     """``_contact_step_kernels.settle`` (imported on first use: that module imports this one)."""
-    if not _SETTLE:
-        from modalfem.runtime._contact_step_kernels import settle
-        _SETTLE.append(settle)
-    return _SETTLE[0]
+    from modalfem.runtime._contact_step_kernels import settle
+
+    return settle
 
 
 class ModalSolver:
