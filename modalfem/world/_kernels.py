@@ -78,15 +78,19 @@ def contact_velocities(V, ptr, off, nd, jptr, J):
 
 
 @numba.njit(cache=True)
-def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, iterations, lam_n, lam_t, vtol=0.0):
-    """Projected Gauss-Seidel on the contacts, in place on ``V``; returns the sweeps taken.
+def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, iterations, lam_n, lam_t, vtol,
+                        island):
+    """Projected Gauss-Seidel on the contacts, in place on ``V``; returns the most sweeps an island took.
 
     Each contact wants its normal relative velocity ``>= target[c]`` [m/s] with a normal impulse
     ``lam_n[c] >= 0`` [N s], and Coulomb friction ``|lam_t[c]| <= mu[c] lam_n[c]`` against its sliding
-    (the tangential impulse along the sliding velocity that stops it, clamped to the disc). Stops after
-    ``iterations`` sweeps, or once a sweep changes no impulse by more than 1e-10 of the largest, or no
-    contact's velocity by more than ``vtol`` [m/s] (the change of its impulse times its normal effective
-    inverse mass).
+    (the tangential impulse along the sliding velocity that stops it, clamped to the disc). The contacts are
+    in islands (``island`` (k,) int64, labels in ``[0, k)``; contacts of different islands must share no
+    velocity): each island stops on its own, after ``iterations`` sweeps, or once a sweep changes none of its
+    impulses by more than 1e-10 of its largest, or none of its contacts' velocities by more than ``vtol``
+    [m/s] (the change of its impulse times its normal effective inverse mass); an island that stopped is not
+    swept again. An island's result is that of solving it alone (its contacts visited in the same order),
+    bit for bit; all labels 0 is one shared stop (every contact swept until all have converged).
 
     A contact without impulse is first tested on its normal row ``n^T J`` alone (a third of the work of its
     velocity): when that shows it separating (its normal velocity above the target by more than a bound on
@@ -110,13 +114,31 @@ def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, it
         kns[c] = (n0 * (K[c, 0, 0] * n0 + K[c, 0, 1] * n1 + K[c, 0, 2] * n2)
                   + n1 * (K[c, 1, 0] * n0 + K[c, 1, 1] * n1 + K[c, 1, 2] * n2)
                   + n2 * (K[c, 2, 0] * n0 + K[c, 2, 1] * n1 + K[c, 2, 2] * n2))
+    nis = 0
+    for c in range(k):
+        nis = max(nis, island[c] + 1)
+    change = np.zeros(nis)
+    vchange = np.zeros(nis)
+    scale = np.zeros(nis)
+    done = np.ones(nis, dtype=np.bool_)
+    for c in range(k):
+        done[island[c]] = False  # labels without contacts are done from the start
+    active = 0
+    for i in range(nis):
+        if not done[i]:
+            active += 1
     sweeps = 0
     for it in range(iterations):
+        if active == 0:
+            break
         sweeps += 1
-        change = 0.0
-        vchange = 0.0
-        scale = 0.0
+        change[:] = 0.0
+        vchange[:] = 0.0
+        scale[:] = 0.0
         for c in range(k):
+            isl = island[c]
+            if done[isl]:
+                continue
             kn = kns[c]
             if not kn > 0.0:
                 continue
@@ -172,11 +194,13 @@ def sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, normal, target, mu, it
                 lam_t[c, 0], lam_t[c, 1], lam_t[c, 2] = c0, c1, c2
             if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
                 _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2)
-                change = max(change, abs(d0) + abs(d1) + abs(d2))
-                vchange = max(vchange, kn * (abs(d0) + abs(d1) + abs(d2)))
-            scale = max(scale, lam_n[c])
-        if change <= 1e-10 * scale or vchange <= vtol:
-            break
+                change[isl] = max(change[isl], abs(d0) + abs(d1) + abs(d2))
+                vchange[isl] = max(vchange[isl], kn * (abs(d0) + abs(d1) + abs(d2)))
+            scale[isl] = max(scale[isl], lam_n[c])
+        for i in range(nis):
+            if not done[i] and (change[i] <= 1e-10 * scale[i] or vchange[i] <= vtol):
+                done[i] = True
+                active -= 1
     return sweeps
 
 

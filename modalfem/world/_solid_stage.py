@@ -293,8 +293,11 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     V0 = V.copy()
     _kernels.apply_impulses(V, ptr, off, nd, jptr, WJt, lam_n[:, None] * n + lam_t)
     vtol = VELOCITY_STOP * float(np.min(skin)) / dt
+    # each island (bodies linked by body-body contacts) stops on its own: an island's result is that of solving it alone
+    body, other = np.asarray(data["body"], dtype=np.int64), np.asarray(data["other"], dtype=np.int64)
+    island = SK.island_labels(body, other, int(max(body.max(), other.max())) + 1)[body]
     sweeps = _kernels.sequential_impulses(V, ptr, off, nd, jptr, J, WJt, K, n, target, data["mu"],
-                                          int(data["iterations"]), lam_n, lam_t, vtol)
+                                          int(data["iterations"]), lam_n, lam_t, vtol, island)
     lam = lam_n[:, None] * n + lam_t
     dV = V - V0
     if blocks is not None:  # the energy change (see above), per island (``islands``), compiled

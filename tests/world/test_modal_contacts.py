@@ -216,7 +216,8 @@ def test_the_solve_passing_separating_contacts_is_the_plain_sweeps(bar_model, se
         V1, ln, lt = V.copy(), lam_n.copy(), lam_t.copy()
         if solve == "kernel":
             sw = _kernels.sequential_impulses(V1, data["ptr"], data["off"], data["nd"], data["jptr"], data["J"],
-                                              data["WJt"], data["K"], data["normal"], target, mu, 10, ln, lt, 1e-6)
+                                              data["WJt"], data["K"], data["normal"], target, mu, 10, ln, lt, 1e-6,
+                                              np.zeros(k, dtype=np.int64))  # one island: the shared stop
         else:
             sw = _reference_sweeps(V1, data, data["K"], target, mu, 10, ln, lt, 1e-6)
         runs.append((V1, ln, lt, sw))
