@@ -32,21 +32,19 @@ class _SolidStage:
         # the modal bodies with contact, all of them in the compiled modal contacts (``self._fast``, made at build
         # whenever there are any; this stage is planned only then); tet bodies meet them in their implicit step
         names = self._modal_contact
-        seg, V_parts, pos, speed = {}, [], {}, {}
-        n_off = 0
+        pos = {}
         fast = self._fast
-        # their velocity blocks (v + g dt, w, qdot) and speed bounds in one call
-        Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, {n: self._modal[n]["g"] for n in fast.names}, dt)
-        o = 0
-        for i, name in enumerate(fast.names):
-            V_parts.append(Vf[o:o + 6 + fast.nm[i]])
-            if name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
-                V_parts[-1] = V_parts[-1] + ctx.dV[name]
-            speed[name] = float(sf[i])
-            seg[name] = (n_off, 6 + int(fast.nm[i]))
-            o += 6 + fast.nm[i]
-            n_off += seg[name][1]
-        V = np.concatenate(V_parts)
+        lay = self._solid_layout()
+        seg = lay["seg"]
+        gd = {n: self._modal[n]["g"] for n in fast.names}
+        # their velocity blocks (v + g dt, w, qdot), one after another in ``seg``'s order, and speed bounds in one call
+        Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, gd, dt)
+        V = Vf.copy()  # the solve's, changed in place
+        speed = dict(zip(fast.names, sf.tolist()))
+        for name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
+            if name in seg:
+                o, nd = seg[name]
+                V[o:o + nd] += ctx.dV[name]
 
         def where(name):  # world surface of a modal body at the step start, computed once when needed
             x = pos.get(name)
@@ -93,8 +91,8 @@ class _SolidStage:
                                      weights=w, keys=[(name, "edge", tag) + tuple(k) for k in key.tolist()])
                     driven[names.index(name)] |= o.moving
         # modal bodies against each other and static planes (None: no such contact)
-        fdata = fast.collect(ctx.state_in.bodies, {n: seg[n][0] for n in fast.names}, speed, dt,
-                             {n: names.index(n) for n in fast.names}, ctx.state_in.contacts.get(_FAST_KEY))
+        fdata = fast.collect(ctx.state_in.bodies, lay["vel_off"], speed, dt, lay["index"],
+                             ctx.state_in.contacts.get(_FAST_KEY))
         kp = builder.count
         k = kp + (len(fdata["gap"]) if fdata is not None else 0)
         ctx.report.contacts["solid"] = k
@@ -102,26 +100,22 @@ class _SolidStage:
         if k == 0:
             return
         data = _merge(builder.arrays() if kp else None, fdata)
-        n = data["normal"]
-        lam_n, lam_t = np.zeros(k), np.zeros((k, 3))
-        old_lam = np.zeros((k, 3))
-        for c, key in enumerate(builder.keys):  # warm start: the impulses these contacts had in the last step
-            old = ctx.state_in.contacts.get(key)
-            if old is not None:
-                old_lam[c] = old
-        if fdata is not None:
-            old_lam[kp:] = fdata["warm"]
-        lam_n[:] = np.maximum(np.einsum("ij,ij->i", old_lam, n), 0.0)
-        t = old_lam - np.einsum("ij,ij->i", old_lam, n)[:, None] * n
-        tn = np.sqrt(np.einsum("ij,ij->i", t, t))
-        lim = data["mu"] * lam_n
-        lam_t[:] = t * np.where(tn <= lim, 1.0, lim / np.where(tn > 0, tn, 1.0))[:, None]
+        if kp:  # warm start: the impulses these contacts had in the last step
+            old_lam = np.zeros((k, 3))
+            for c, key in enumerate(builder.keys):
+                old = ctx.state_in.contacts.get(key)
+                if old is not None:
+                    old_lam[c] = old
+            if fdata is not None:
+                old_lam[kp:] = fdata["warm"]
+        else:
+            old_lam = fdata["warm"]
         # a body the tet step moved (a tet body's reaction in ``ctx.dV``) was placed by it: no lift (``_solve``)
         lifted = np.array([name not in ctx.dV for name in fast.names])
-        start = (np.array([seg[n][0] for n in fast.names], dtype=np.int64),
-                 np.array([self._modal[n]["g"] for n in fast.names]) * dt)
-        lam, bounce, sweeps = _solve(V, data, lam_n, lam_t, dt, self._inverse_mass_blocks(ctx, seg), lifted, start,
-                                     driven=driven)
+        g = np.array([gd[n] for n in fast.names], dtype=float)
+        start = (lay["soff"], g * dt)
+        lam, bounce, sweeps, lam_n = _solve(V, data, old_lam, dt, self._inverse_mass_blocks(ctx, start[1]), lifted,
+                                            start, driven=driven)
         ctx.report.sweeps = sweeps
         ctx.contacts.update({key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0})
         if fdata is not None:
@@ -131,13 +125,14 @@ class _SolidStage:
             ctx.contacts[_FAST_KEY] = (fk[held][order], lam[kp:][held][order])
         dV = data["dV"]
         # the part of the solve's dv that holds the step's load acts at the step's middle (``_solve``)
-        lifts, has = gravity_lifts(dV[start[0][:, None] + np.arange(3)],
-                                   np.array([self._modal[n]["g"] for n in fast.names], dtype=float), dt)
-        for i, name in enumerate(fast.names):  # ``seg``'s bodies, in its order
+        lifts, has = gravity_lifts(dV[lay["soff"][:, None] + np.arange(3)], g, dt)
+        dV0 = dV + 0.0  # (what adding no tet reaction gave each body's block: -0 made +0)
+        for name in fast.names:  # ``seg``'s bodies, in its order; taken at the step start by the modal step
             o, nd = seg[name]
-            ctx.dV[name] = dV[o:o + nd] + ctx.dV.get(name, 0.0)  # taken at the step start by the modal step
-            if lifted[i] and has[i]:
-                ctx.lift[name] = lifts[i]
+            d = ctx.dV.get(name)
+            ctx.dV[name] = dV0[o:o + nd] if d is None else dV[o:o + nd] + d
+        for i in np.flatnonzero(lifted & has).tolist():
+            ctx.lift[fast.names[i]] = lifts[i]
         # what each body received from each other body (the other received the opposite), per pair
         uniq, J, L = _kernels.exchanged(data["body"], data["other"], data["point"], lam, len(names))
         if len(uniq):  # per pair sums in contact order
@@ -153,17 +148,35 @@ class _SolidStage:
                         dq = dq + fast.modal_change(name, fdata, sel[sel >= kp] - kp, lam[kp:])
                     ctx.impacts[name] = dq
 
-    def _inverse_mass_blocks(self, ctx, seg: dict) -> tuple:
+    def _solid_layout(self) -> dict:
+        """The solve's bodies (``self._fast``'s, in its order), made once: ``seg`` {name: (velocity offset, 6 + r)},
+        ``soff`` (m,) int64 offsets, ``size`` (m,) int64 block sizes, ``vel_off`` {name: offset} and ``index``
+        {name: index in ``self._modal_contact``}."""
+        lay = self.__dict__.get("_solid_lay")
+        if lay is None or lay["fast"] is not self._fast:
+            fast = self._fast
+            size = (6 + np.asarray(fast.nm)).astype(np.int64)
+            soff = np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
+            seg = {n: (int(soff[i]), int(size[i])) for i, n in enumerate(fast.names)}
+            lay = self._solid_lay = {"fast": fast, "seg": seg, "soff": soff, "size": size,
+                                     "vel_off": {n: seg[n][0] for n in fast.names},
+                                     "index": {n: self._modal_contact.index(n) for n in fast.names}}
+        return lay
+
+    def _inverse_mass_blocks(self, ctx, gdt: np.ndarray | None = None) -> tuple:
         """The bodies of the solve (the compiled modal contacts') as arrays for ``_kernels.modal_energy_change``, to
         measure the energy of velocity changes: offsets, sizes, masses [kg], rotations at the step start, body-axes
         inertias [kg m^2] (modal coordinates have unit mass) and shifts ``g dt`` (3,) [m/s], which the solve's
         velocities hold but the energy must not count: a velocity change dv at the step start moves the body by
         ``dv dt`` in the gravity field, which costs ``-m g . dv dt``, so the energy change is
         ``dv . M (V - g dt) + 0.5 dv . M dv`` (and the part of dv that holds the step's load, acting at the step's
-        middle, lowers the body: ``gravity_lift``, counted by ``_solve``)."""
+        middle, lowers the body: ``gravity_lift``, counted by ``_solve``). ``gdt``: those shifts (m, 3), when the
+        caller has them."""
         fast = self._fast
-        return (np.array([seg[n][0] for n in fast.names], dtype=np.int64), 6 + fast.nm, fast.mass,
-                fast.rotations, fast.inertia, np.array([self._modal[n]["g"] for n in fast.names]) * ctx.dt)
+        lay = self._solid_layout()
+        if gdt is None:
+            gdt = np.array([self._modal[n]["g"] for n in fast.names], dtype=float) * ctx.dt
+        return lay["soff"], lay["size"], fast.mass, fast.rotations, fast.inertia, gdt
 
 
 #: the key of the compiled modal contacts' impulses in ``WorldState.contacts``: (sorted int64 keys, (k, 3) [N s])
@@ -237,9 +250,10 @@ def _box_edges(body, s, box: Box, t: float, x: np.ndarray, idx: np.ndarray, reac
 VELOCITY_STOP = 1e-2
 
 
-def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: float, blocks: tuple | None,
+def _solve(V: np.ndarray, data: dict, warm: np.ndarray, dt: float, blocks: tuple | None,
            lifted: np.ndarray | None = None, start: tuple | None = None, driven: np.ndarray | None = None):
-    """The sequential-impulse solve in place on ``V`` from the warm start ``lam_n``, ``lam_t``; then no gain: the
+    """The sequential-impulse solve in place on ``V`` from the warm start ``warm`` (k, 3) [N s] (its normal part, and
+    its tangential part clamped to the friction disc: ``_kernels.solve_start``); then no gain: the
     kinetic energy change of the impulses ``dV^T M V0 + 0.5 dV^T M dV`` (summed over the bodies, ``blocks`` as
     ``_SolidStage._inverse_mass_blocks``; None: no energy rule) is made <= 0 per island (``islands``: bodies linked by
     body-body contacts; an obstacle links nothing) by scaling the island's impulses back (equal and opposite impulses
@@ -247,7 +261,7 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     gain 1.1e-6 J from a drop elsewhere: tests/world/test_world_islands.py). An island holding a body of ``driven``
     (bool per body of ``blocks``: a moving obstacle touches it, and may do work on it) is exempt; the others keep the
     rule (tests/world/test_world_driven_islands.py). Returns
-    ``(lam (k, 3), bounce (k,), sweeps)`` and leaves ``data["dV"]``.
+    ``(lam (k, 3), bounce (k,), sweeps, lam_n (k,))`` and leaves ``data["dV"]``.
 
     The impulses act at the step start and target the end velocity ``vn`` that closes the gap to the skin (or pushes
     out) in a step, ``gap + vn dt`` (``V`` holds the end-of-step velocities ``v + g dt``). That would leave a body
@@ -274,25 +288,16 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
     K = data.get("K")  # the compiled modal contacts' come with their entries
     if K is None:
         K = _kernels.effective_masses(ptr, off, nd, jptr, J, WJt)
-    u = _kernels.contact_velocities(V, ptr, off, nd, jptr, J)
     n = data["normal"]
-    vn = np.einsum("ij,ij->i", u, n) - data["vobs_n"]
-    gap = data["gap"]
-    skin = 0.5 * data["margin"]
-    target = np.where(gap > skin, -(gap - skin) / dt, PUSH_OUT * (skin - gap) / dt)
-    e = data["restitution"]
-    v_in = vn
-    if start is not None:  # the approach at the step start (without the step's g dt)
-        off_b, gdt = start
-        V_s = V.copy()
-        for i in range(len(off_b)):
-            V_s[off_b[i]:off_b[i] + 3] -= gdt[i]
-        v_in = np.einsum("ij,ij->i", _kernels.contact_velocities(V_s, ptr, off, nd, jptr, J), n) - data["vobs_n"]
-    bounce = (v_in < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= data["margin"])
-    target = np.where(bounce, np.maximum(target, -e * v_in), target) + data["vobs_n"]
-    V0 = V.copy()
-    _kernels.apply_impulses(V, ptr, off, nd, jptr, WJt, lam_n[:, None] * n + lam_t)
-    vtol = VELOCITY_STOP * float(np.min(skin)) / dt
+    if start is None:
+        soff, gdt = np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+    else:  # the approach at the step start (without the step's g dt)
+        soff, gdt = start
+    # warm start, targets, bounces and the warm impulses applied, in one compiled pass
+    lam_n, lam_t, target, bounce, V0, min_skin = _kernels.solve_start(
+        V, ptr, off, nd, jptr, J, WJt, n, data["vobs_n"], data["gap"], data["margin"], data["restitution"],
+        data["mu"], warm, float(dt), PUSH_OUT, BOUNCE_THRESHOLD, soff, gdt)
+    vtol = VELOCITY_STOP * min_skin / dt
     # each island (bodies linked by body-body contacts) stops on its own: an island's result is that of solving it alone
     body, other = np.asarray(data["body"], dtype=np.int64), np.asarray(data["other"], dtype=np.int64)
     island = SK.island_labels(body, other, int(max(body.max(), other.max())) + 1)[body]
@@ -312,7 +317,7 @@ def _solve(V: np.ndarray, data: dict, lam_n: np.ndarray, lam_t: np.ndarray, dt: 
             lam *= scale[data["body"]][:, None]
             V[:] = V0 + dV
     data["dV"] = dV
-    return lam, bounce, sweeps
+    return lam, bounce, sweeps, lam_n
 
 
 def islands(body: np.ndarray, other: np.ndarray, m: int) -> list:

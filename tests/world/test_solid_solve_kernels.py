@@ -121,3 +121,78 @@ def test_labels_need_not_be_dense():
     assert a[3] == b[3]
     for x, y in zip(a[:3], b[:3]):
         assert np.array_equal(x, y)
+
+
+def _dense(data, nv):
+    """Per contact its Jacobian (3, nv) and W J^T (nv, 3), dense, from the entries."""
+    ptr = data["ptr"]
+    k = len(ptr) - 1
+    Js, Ws = np.zeros((k, 3, nv)), np.zeros((k, nv, 3))
+    for c in range(k):
+        for e in range(ptr[c], ptr[c + 1]):
+            o, m, b = data["off"][e], data["nd"][e], data["jptr"][e]
+            Js[c][:, o:o + m] += data["J"][b:b + 3 * m].reshape(3, m)
+            Ws[c][o:o + m, :] += data["WJt"][b:b + 3 * m].reshape(m, 3)
+    return Js, Ws
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_solve_start_is_the_warm_start_targets_and_bounces(seed):
+    """``_kernels.solve_start`` (the solve's set-up in one compiled pass) against the formulas of ``_solid_stage._solve``
+    written out here with dense Jacobians: the warm start's normal part and its tangential part clamped to the
+    friction disc (elementwise, the same operations: equal), the targets (gap closing, push-out, restitution on the
+    approach at the step start, the obstacle's velocity) and bounces, and the velocities with the warm impulses
+    applied. Tolerances: a sum of m products rounds by at most m eps of the sum of their sizes."""
+    from modalfem.world._shared import BOUNCE_THRESHOLD, PUSH_OUT
+
+    rng = np.random.default_rng(seed)
+    size = 8
+    data = _contacts(rng, [(0, 1, 2), (3,)], size, per_pair=12, obstacle=8)
+    V = data["V"]
+    nv, k = len(V), len(data["body"])
+    n = data["normal"]
+    dt = 1e-3
+    margin = rng.choice([1e-3, 2e-3], k)
+    gap = rng.uniform(-1e-3, 3e-3, k)
+    e = rng.choice([0.0, 0.3], k)
+    vobs = np.where(rng.uniform(size=k) < 0.3, rng.normal(size=k), 0.0)
+    mu = rng.choice([0.0, 0.2, 1.0], k)
+    warm = np.where(rng.uniform(size=(k, 1)) < 0.8, rng.normal(size=(k, 3)), 0.0)
+    soff = np.arange(4, dtype=np.int64) * size
+    gdt = rng.normal(size=(4, 3)) * 0.01
+    V1 = V.copy()
+    lam_n, lam_t, target, bounce, V0, min_skin = _kernels.solve_start(
+        V1, data["ptr"], data["off"], data["nd"], data["jptr"], data["J"], data["WJt"], n, vobs, gap, margin, e, mu,
+        warm, dt, PUSH_OUT, BOUNCE_THRESHOLD, soff, gdt)
+    # warm start
+    p = warm[:, 0] * n[:, 0] + warm[:, 1] * n[:, 1] + warm[:, 2] * n[:, 2]
+    ln = np.maximum(p, 0.0)
+    t = warm - p[:, None] * n
+    tn = np.sqrt(t[:, 0] * t[:, 0] + t[:, 1] * t[:, 1] + t[:, 2] * t[:, 2])
+    lim = mu * ln
+    lt = t * np.where(tn <= lim, 1.0, lim / np.where(tn > 0, tn, 1.0))[:, None]
+    assert np.array_equal(lam_n, ln) and np.array_equal(lam_t, lt)
+    assert np.count_nonzero(ln) > 0.2 * k and np.count_nonzero(np.linalg.norm(lt, axis=1) < tn) > 0.1 * k
+    # targets: approach at the end (V) and at the start (V less g dt on the linear velocities)
+    Js, Ws = _dense(data, nv)
+    Vs = V.copy()
+    for i in range(len(soff)):
+        Vs[soff[i]:soff[i] + 3] -= gdt[i]
+    eps = np.finfo(float).eps
+    m = nv + 3
+    v_in = np.einsum("kdj,j,kd->k", Js, Vs, n) - vobs
+    tol_in = m * eps * (np.einsum("kdj,j,kd->k", np.abs(Js), np.abs(Vs), np.abs(n)) + np.abs(vobs))
+    skin = 0.5 * margin
+    tg = np.where(gap > skin, -(gap - skin) / dt, PUSH_OUT * (skin - gap) / dt)
+    want = (v_in < -BOUNCE_THRESHOLD) & (e > 0) & (gap <= margin)
+    sure = np.abs(v_in + BOUNCE_THRESHOLD) > tol_in  # away from the threshold by more than the rounding
+    assert np.array_equal(bounce[sure], want[sure]) and 0 < np.count_nonzero(want) < k
+    tgt = np.where(want, np.maximum(tg, -e * v_in), tg) + vobs
+    assert np.all(np.abs(target - tgt)[sure] <= e[sure] * tol_in[sure] + 4 * eps * (np.abs(tgt) + np.abs(vobs))[sure])
+    assert min_skin == skin.min()
+    # the warm impulses applied
+    assert np.array_equal(V0, V)
+    d = ln[:, None] * n + lt
+    dV = np.einsum("kjd,kd->j", Ws, d)
+    size_dV = np.einsum("kjd,kd->j", np.abs(Ws), np.abs(d))
+    assert np.all(np.abs(V1 - (V + dV)) <= (k * 3 + 2) * eps * (size_dV + np.abs(V)))
