@@ -335,3 +335,22 @@ def solve_start(V, ptr, off, nd, jptr, J, WJt, normal, vobs_n, gap, margin, rest
         if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
             _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2)
     return lam_n, lam_t, target, bounce, V0, min_skin
+
+
+@numba.njit(cache=True)
+def gravity_lifts(dv, g, dt):
+    """``_solid_stage.gravity_lifts`` compiled: per body (``dv``, ``g`` (m, 3) [m/s], [m/s^2]) the position change
+    ``-dt / 2 min(max(dv . up, 0), |g| dt) up`` (m, 3) [m], ``up = -g / |g|``, and whether it is non-zero (m,)."""
+    m = dv.shape[0]
+    lift = np.zeros((m, 3))
+    has = np.zeros(m, dtype=np.bool_)
+    for i in range(m):
+        g0, g1, g2 = g[i, 0], g[i, 1], g[i, 2]
+        gn = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2) * dt
+        d = gn if gn > 0.0 else 1.0
+        u0, u1, u2 = -g0 * dt / d, -g1 * dt / d, -g2 * dt / d
+        c = min(max(dv[i, 0] * u0 + dv[i, 1] * u1 + dv[i, 2] * u2, 0.0), gn)
+        s = -0.5 * dt * c
+        lift[i, 0], lift[i, 1], lift[i, 2] = s * u0, s * u1, s * u2
+        has[i] = c != 0.0
+    return lift, has

@@ -139,7 +139,7 @@ class ModalBatch:
         q = np.concatenate([np.zeros(0)] + [s.q for s in sts])
         qdot = np.concatenate([np.zeros(0)] + [s.qdot for s in sts])
         nm = self.nm[idx]
-        qoff = np.concatenate([[0], np.cumsum(nm)[:-1]]).astype(np.int64)
+        qoff = np.concatenate([[0], np.cumsum(nm)[:-1]]).astype(np.int64) if skip else self.qoff
         kick = np.zeros(len(names), dtype=np.bool_)
         dvoff = np.zeros(len(names), dtype=np.int64)
         parts, o = [np.zeros(0)], 0

@@ -343,11 +343,9 @@ def gravity_lift(dv: np.ndarray, g: np.ndarray, dt: float) -> np.ndarray | None:
 
 def gravity_lifts(dv: np.ndarray, g: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """``gravity_lift`` of m bodies at once (``dv``, ``g`` (m, 3)): their position changes (m, 3) [m] and (m,) bool,
-    whether each has one (``gravity_lift`` not None)."""
-    gn = np.sqrt(np.einsum("ij,ij->i", g, g)) * dt
-    up = -g * dt / np.where(gn > 0.0, gn, 1.0)[:, None]
-    c = np.minimum(np.maximum(np.einsum("ij,ij->i", dv, up), 0.0), gn)
-    return (-0.5 * dt * c)[:, None] * up, c != 0.0
+    whether each has one (``gravity_lift`` not None); compiled (``_kernels.gravity_lifts``)."""
+    return _kernels.gravity_lifts(np.ascontiguousarray(dv, dtype=float), np.ascontiguousarray(g, dtype=float),
+                                  float(dt))
 
 
 def apply_lift(lift: dict, name: str, position: np.ndarray) -> None:
