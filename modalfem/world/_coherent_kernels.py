@@ -133,7 +133,15 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
     at the last evaluation, which the bodies' motion since may have lowered by at most ``drop`` [m]: a pair still
     beyond ``reach`` by them, or beyond the distance of its vertex's best triangle so far, is skipped
     (``_vf_test`` would reject it) and its bound lowered; the others are tested and their bound set to their
-    distance."""
+    distance.
+
+    Before that pass, each vertex's candidate of smallest bound (its likely nearest triangle) is measured (its
+    distance ``u``): a candidate whose bound, lowered by ``drop``, exceeds ``u (1 + 1e-9 + 4e-12 c)`` (c: the
+    vertex's count of candidates) is farther than that triangle by more than ``_vf_test``'s tie band (1e-12
+    relative, which a chain of c ties, each taking a farther triangle by at most that, stretches to at most
+    (1 + 1e-12)^c), so even when met first in tree order its taking would be undone at the latest by that
+    triangle (then taken strictly, whatever the best was), and skipping it leaves the selection, ties included, as
+    the tree-order pass makes it."""
     n = cv.shape[0]
     m = 0
     prev = -1
@@ -147,23 +155,44 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
     gbest = np.zeros(m)
     bary = np.zeros((m, 3))
     nloc = np.zeros((m, 3))
+    yl = np.empty((m, 3))
+    cut = np.empty(m)  # the skip threshold from the pre-pass [m]
     x = np.empty((4, 3))
     w = np.empty(3)
-    y = np.empty(3)
+    i = -1
+    prev = -1
+    kmin = k0 = -1
+    for k in range(n + 1):
+        if k == n or cv[k] != prev:
+            if i >= 0:
+                t = ct[kmin]
+                for d in range(3):
+                    x[0, d] = yl[i, d]
+                    x[1, d] = Xb[Tb[t, 0], d]
+                    x[2, d] = Xb[Tb[t, 1], d]
+                    x[3, d] = Xb[Tb[t, 2], d]
+                cut[i] = min(reach, point_triangle_closest(x, w) * (1.0 + 1e-9 + 4e-12 * (k - k0)))
+            if k == n:
+                break
+            i += 1
+            prev = cv[k]
+            vid[i] = prev
+            _to_local(xa[prev], Rb, pb, yl[i])
+            kmin = k0 = k
+        elif lb[k] < lb[kmin]:
+            kmin = k
     i = -1
     prev = -1
     for k in range(n):
         if cv[k] != prev:
             i += 1
             prev = cv[k]
-            vid[i] = prev
-            _to_local(xa[prev], Rb, pb, y)
-        if lb[k] - drop > reach or lb[k] - drop > dbest[i] * (1.0 + 1e-9):
-            # beyond reach, or farther than the vertex's best so far (``_vf_test`` would not take it: it takes a
-            # triangle nearer than the best, or as near within 1e-12): its bound lowered by the motion since
+        if lb[k] - drop > cut[i] or lb[k] - drop > dbest[i] * (1.0 + 1e-9):
+            # beyond reach, or farther than the vertex's pre-measured or best-so-far triangle (``_vf_test`` would
+            # not take it, or its taking would be undone: see above): its bound lowered by the motion since
             lb[k] -= drop
             continue
-        lb[k] = _vf_test(y, Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
+        lb[k] = _vf_test(yl[i], Xb, Tb, ct[k], reach, x, w, i, best, dbest, gbest, bary, nloc)
     return _vf_found(vid, best, gbest, bary, nloc, Rb)
 
 
