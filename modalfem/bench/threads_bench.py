@@ -134,10 +134,17 @@ def profile_share(case: str, steps: int | None) -> dict:
     prof.enable()
     run()
     prof.disable()
-    stats = pstats.Stats(prof).stats
+    return _profile_summary(pstats.Stats(prof).stats, count)
+
+
+def _profile_summary(stats: dict, steps: int) -> dict:
+    """From ``pstats.Stats(...).stats`` of ``steps`` steps: CPU seconds in everything (``total_s``) and in the
+    parallel kernels (``parallel_s``), and per kernel its own CPU seconds (``kernels``) and calls (``calls``)."""
     total = sum(v[2] for v in stats.values())
-    kernels = {f"{os.path.basename(f)}:{name}": v[2] for (f, _, name), v in stats.items() if _is_parallel(f, name)}
-    return {"total_s": total, "parallel_s": sum(kernels.values()), "kernels": kernels}
+    par = {f"{os.path.basename(f)}:{name}": v for (f, _, name), v in stats.items() if _is_parallel(f, name)}
+    kernels = {k: v[2] for k, v in par.items()}
+    return {"total_s": total, "parallel_s": sum(kernels.values()), "kernels": kernels,
+            "calls": {k: v[1] for k, v in par.items()}, "steps": steps}
 
 
 def replay(case: str, n: int, repeats: int, *, warm: int, window: int) -> dict:
@@ -227,6 +234,72 @@ def throughput(n: int, seconds: float = 1.0) -> float:
                     done[t][0] += 1
                 done[t][1] += time.perf_counter() - t0
     return (done[n][0] / done[n][1]) / (done[1][0] / done[1][1])
+
+
+def _busy(seconds: float) -> None:
+    """Python busy for ``seconds`` (the serial glue between two parallel regions)."""
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        pass
+
+
+def wake_probe(n: int, gaps_us=(0.0, 200.0, 2000.0), work_us: float = 100.0, calls: int = 100) -> dict:
+    """Cost of waking the pool: wall time of one small parallel region (64 chunks, ``work_us`` [us] of work
+    on one thread) launched right after ``gap`` [us] of busy serial Python, on 1 and ``n`` threads
+    (alternating call by call). While Python runs, the idle workers stop spinning and sleep; a region that
+    has to wake them (or a virtual CPU the hypervisor has descheduled) starts late. With free cores the
+    ``n``-thread region takes about ``work_us / n`` plus the launch; a time that grows with the gap is the
+    wake-up. Returns ``{"work_us": calibrated work, "gaps": {gap: {"1": median us, "n": median us}}}``."""
+    from modalfem._threads import thread_count
+
+    a = np.zeros(64)
+    with thread_count(1):
+        _probe_kernel(a, 10)
+        work, best = 1000, np.inf
+        for _ in range(5):  # calibrate the work per chunk to ~work_us on one thread (fastest of 5)
+            t0 = time.perf_counter()
+            _probe_kernel(a, work)
+            best = min(best, time.perf_counter() - t0)
+        work = max(1, int(work * work_us * 1e-6 / best))
+    with thread_count(n):
+        _probe_kernel(a, 10)
+    out: dict = {}
+    for gap in gaps_us:
+        times: dict = {1: [], n: []}
+        for k in range(2 * calls):
+            t = (1, n)[(k + k // 2) % 2]  # 1 n n 1 1 n ...
+            with thread_count(t):
+                _busy(gap * 1e-6)
+                t0 = time.perf_counter()
+                _probe_kernel(a, work)
+                times[t].append(1e6 * (time.perf_counter() - t0))
+        out[float(gap)] = {"1": float(np.median(times[1])), str(n): float(np.median(times[n]))}
+    return {"work_us": work_us, "gaps": out}
+
+
+def wake_lines(wake: dict | None, n: int, launches: float | None = None) -> list[str]:
+    """Markdown lines of :func:`wake_probe`; ``launches``: parallel kernel calls per step of the cloth pile
+    (from its profile), to price the wake-up per step."""
+    if not wake:
+        return []
+    gaps = wake["gaps"]
+    L = ["", (f"Waking the pool: one parallel region of ~{wake['work_us']:.0f} us of work (one thread) launched "
+              f"after a gap of busy serial Python, median of many calls, 1 and {n} threads alternating. With free "
+              f"cores {n} threads take about 1/{n} of it plus the launch; growth with the gap is the time the "
+              "sleeping workers take to wake:"), "",
+         f"| serial gap before the region us | 1 thread us | {n} threads us | speed-up |", "|---:|---:|---:|---:|"]
+    for gap, r in sorted(gaps.items()):
+        L.append(f"| {gap:.0f} | {r['1']:.1f} | {r[str(n)]:.1f} | {r['1'] / r[str(n)]:.2f}x |")
+    keys = sorted(gaps)
+    if launches and len(keys) > 1:
+        # the growth on n threads beyond that on one thread (which has no workers to wake)
+        lo, hi = gaps[keys[0]], gaps[keys[-1]]
+        extra = max(0.0, (hi[str(n)] - lo[str(n)]) - (hi["1"] - lo["1"]))
+        L += ["", (f"The cloth pile launches at least {launches:.0f} parallel kernels per step (calls counted in its "
+                   f"one-thread profile; the CG solves launch more inside): at {extra:.1f} us more per region on "
+                   f"{n} threads after a {keys[-1]:.0f} us gap than back to back (beyond the change on one thread), "
+                   f"the wake-ups would cost up to {launches * extra / 1e3:.1f} ms per step on {n} threads.")]
+    return L
 
 
 def kernel_times(n: int, repeats: int) -> dict:
@@ -550,6 +623,7 @@ def command(argv: list[str]) -> int:
     probes, rates = [probe(n)], [throughput(n)]
     print(f"[bench threads] cores this process gets now: {probes[0]:.2f}; work per second on {n} threads / on 1: "
           f"{rates[0]:.2f}", file=sys.stderr, flush=True)
+    wake = None if a.quick else wake_probe(n)
     print("[bench threads] warm-up (fills numba's disk cache, not timed) ...", file=sys.stderr, flush=True)
     _cloth(5, 8, n, a.timeout)
     _tet((4, 2, 2), 1, n, a.timeout)
@@ -590,7 +664,10 @@ def command(argv: list[str]) -> int:
                      tet_label=f"tet bar {tets} tets, newton+cg")
     probes.append(probe(n))
     rates.append(throughput(n))
-    extra = kernel_lines(kernels, n) + replay_lines(replays, n) + profile_lines(profiles)
+    pile = profiles.get("cloth pile 64x64") or {}
+    launches = sum(pile.get("calls", {}).values()) / pile["steps"] if pile.get("steps") else None
+    extra = (kernel_lines(kernels, n) + replay_lines(replays, n) + profile_lines(profiles)
+             + wake_lines(wake, n, launches))
     extra += ["", cores_line(n, probes, rates)]
     section = section + "\n".join(extra) + ("\n" if extra else "")
     print(section)

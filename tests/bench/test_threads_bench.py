@@ -116,3 +116,49 @@ def test_kernel_lines():
     text = "\n".join(kernel_lines({"cloth: CG": {"1": 20.0, "2": 12.5}}, 2))
     assert "| cloth: CG | 20.00 | 12.50 | 1.60x |" in text
     assert kernel_lines(None, 2) == []
+
+
+def test_wake_lines_price_the_wake_up_per_step():
+    from modalfem.bench.threads_bench import wake_lines
+
+    wake = {"work_us": 100.0, "gaps": {0.0: {"1": 100.0, "2": 55.0}, 2000.0: {"1": 104.0, "2": 79.0}}}
+    text = "\n".join(wake_lines(wake, 2, 250.0))
+    assert "| 0 | 100.0 | 55.0 | 1.82x |" in text and "| 2000 | 104.0 | 79.0 | 1.32x |" in text
+    # (79 - 55) - (104 - 100) = 20 us more per region, 250 launches: 5.0 ms per step
+    assert "at 20.0 us more per region" in text and "up to 5.0 ms per step on 2 threads" in text
+    assert "launches at least 250 parallel kernels" in text
+    assert "ms per step" not in "\n".join(wake_lines(wake, 2, None))
+    assert wake_lines(None, 2) == []
+
+
+def test_wake_probe_times_the_region_after_each_gap_on_both_counts():
+    from modalfem.bench.threads_bench import wake_probe
+
+    out = wake_probe(2, gaps_us=(0.0, 300.0), work_us=50.0, calls=5)
+    assert out["work_us"] == 50.0 and sorted(out["gaps"]) == [0.0, 300.0]
+    for r in out["gaps"].values():
+        # the region's work was calibrated to 50 us on one thread (fastest of 5): its median cannot be much less
+        # on one thread, nor much less than half of it on two
+        assert set(r) == {"1", "2"} and r["1"] > 0.3 * 50.0 and r["2"] > 0.3 * 25.0
+
+
+def test_profile_summary_counts_the_parallel_kernel_calls():
+    import cProfile
+    import pstats
+    import time
+
+    import numpy as np
+
+    from modalfem.bench import threads_bench
+
+    a = np.zeros(8)
+    threads_bench._probe_kernel(a, 10)  # compiled outside the profile
+    prof = cProfile.Profile(time.process_time)
+    prof.enable()
+    for _ in range(3):
+        threads_bench._probe_kernel(a, 10)
+    np.concatenate([a, a])  # not a parallel kernel
+    prof.disable()
+    pr = threads_bench._profile_summary(pstats.Stats(prof).stats, 3)
+    assert pr["steps"] == 3 and pr["calls"] == {"threads_bench.py:_probe_kernel": 3}
+    assert set(pr["kernels"]) == set(pr["calls"]) and 0 <= pr["parallel_s"] <= pr["total_s"]
