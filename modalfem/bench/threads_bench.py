@@ -693,12 +693,21 @@ def _main(argv: list[str]) -> int:
     ap.add_argument("--profile", choices=("cloth", "tet"))
     ap.add_argument("--replay", choices=("cloth", "tet"))
     ap.add_argument("--kernels", action="store_true")
+    ap.add_argument("--wake", action="store_true", help="wake_probe (e.g. under NUMBA_THREADING_LAYER=omp "
+                    "and OMP_WAIT_POLICY / GOMP_SPINCOUNT variants) and print its lines")
     ap.add_argument("--steps", type=int, default=0, help="0: the case's default")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeats", type=int, default=4)
     a = ap.parse_args(argv)
     if a.kernels:
         print(json.dumps(kernel_times(a.threads, a.repeats)))
+    elif a.wake:
+        from modalfem._threads import threading_layer
+
+        wake = wake_probe(a.threads)
+        print("\n".join([f"threading layer {threading_layer()}; OMP_WAIT_POLICY="
+                         f"{os.environ.get('OMP_WAIT_POLICY', '')} GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', '')}; "
+                         f"load {_load():.2f}"] + wake_lines(wake, a.threads)))
     elif a.replay:
         _, warm, window = REPLAYS[a.replay]
         print(json.dumps(replay(a.replay, a.threads, a.repeats, warm=warm, window=window)))

@@ -162,3 +162,13 @@ def test_profile_summary_counts_the_parallel_kernel_calls():
     pr = threads_bench._profile_summary(pstats.Stats(prof).stats, 3)
     assert pr["steps"] == 3 and pr["calls"] == {"threads_bench.py:_probe_kernel": 3}
     assert set(pr["kernels"]) == set(pr["calls"]) and 0 <= pr["parallel_s"] <= pr["total_s"]
+
+
+def test_wake_command_prints_the_layer_and_the_table(capsys):
+    from modalfem.bench.threads_bench import _main
+    from modalfem._threads import threading_layer
+
+    assert _main(["--wake", "--threads", "2"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"threading layer {threading_layer()};")
+    assert "| 0 |" in out and "| 200 |" in out and "| 2000 |" in out
