@@ -20,6 +20,9 @@ from modalfem.collision._distance_kernels import edge_edge_closest, point_triang
 from modalfem.world._solid_kernels import _edge_queries, _ee_test, _gather, _to_local, _vertex_queries, _vf_found, _vf_test
 
 
+_CUT_EPS = 1e-12
+
+
 @numba.njit(cache=True)
 def _grow(cv, ct, cd, k):
     """The candidate buffers doubled (their first ``k`` entries kept)."""
@@ -53,12 +56,17 @@ def _walk(edges, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, s
         k0 = k
         x0, x1, x2 = qlo[i, 0], qlo[i, 1], qlo[i, 2]
         y0, y1, y2 = qhi[i, 0], qhi[i, 1], qhi[i, 2]
+        mag = 0.0
         for d in range(3):
             if edges:
                 x[0, d] = y[i, 0, d]
                 x[1, d] = y[i, 1, d]
+                mag = max(mag, max(abs(x[0, d]), abs(x[1, d])))
             else:
                 x[0, d] = y[i, 0, d]
+                mag = max(mag, abs(x[0, d]))
+        cut = radius + _CUT_EPS * (mag + radius)
+        cut2 = cut * cut
         stack[0] = 1
         top = 1
         while top > 0:
@@ -76,16 +84,31 @@ def _walk(edges, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, s
                         continue
                     if (x0 <= shi[0, ia, c] and slo[0, ia, c] <= y0 and x1 <= shi[1, ia, c]
                             and slo[1, ia, c] <= y1 and x2 <= shi[2, ia, c] and slo[2, ia, c] <= y2):
+                        # the gap between the boxes of the query and of the entry's deformed corners is a lower
+                        # bound of their distance: past the radius (+ rounding), the exact test would reject it too
+                        g2 = 0.0
                         if edges:
                             for d in range(3):
                                 x[2, d] = Xb[Fb[t, 0], d]
                                 x[3, d] = Xb[Fb[t, 1], d]
-                            dist = edge_edge_closest(x)[0]
+                                g = max(min(x[2, d], x[3, d]) - max(x[0, d], x[1, d]),
+                                        min(x[0, d], x[1, d]) - max(x[2, d], x[3, d]))
+                                if g > 0.0:
+                                    g2 += g * g
                         else:
                             for d in range(3):
                                 x[1, d] = Xb[Fb[t, 0], d]
                                 x[2, d] = Xb[Fb[t, 1], d]
                                 x[3, d] = Xb[Fb[t, 2], d]
+                                g = max(min(x[1, d], min(x[2, d], x[3, d])) - x[0, d],
+                                        x[0, d] - max(x[1, d], max(x[2, d], x[3, d])))
+                                if g > 0.0:
+                                    g2 += g * g
+                        if g2 > cut2:
+                            continue
+                        if edges:
+                            dist = edge_edge_closest(x)[0]
+                        else:
                             dist = point_triangle_closest(x, w)
                         if dist <= radius:
                             if k < cap:
