@@ -143,8 +143,10 @@ class ModalBatch:
         kick = np.zeros(len(names), dtype=np.bool_)
         dvoff = np.zeros(len(names), dtype=np.int64)
         parts, o = [np.zeros(0)], 0
+        lift = ctx.lift
         for i, n in enumerate(names):
-            apply_lift(ctx.lift, n, pos[i])  # the part of the solid solve's dv holding the load (``gravity_lift``)
+            if n in lift:  # the part of the solid solve's dv holding the load (``gravity_lift``)
+                apply_lift(lift, n, pos[i])
             d = ctx.dV.get(n)
             if d is not None:
                 kick[i], dvoff[i] = True, o

@@ -56,11 +56,10 @@ class _SolidStage:
         # the bodies a moving obstacle touches: it may do work on them, so their islands are exempt from the no-gain
         # rule (``_solve``); the other islands keep it
         driven = np.zeros(len(names), dtype=bool)
-        for name, obs in self._world_obstacles.items():  # modal bodies: moving obstacles and meshes (all if shared)
+        for name, obs in lay["obstacles"]:  # modal bodies: moving obstacles and meshes (all if shared)
             c = None
-            for o in obs:
-                tag = self.obstacles.index(o)
-                if tag in self._fast_planes or (name, tag) in ctx.tet_obstacles:
+            for o, tag in obs:
+                if (name, tag) in ctx.tet_obstacles:
                     continue
                 if c is None:
                     c = self._one(name, fx.Contact)
@@ -150,17 +149,24 @@ class _SolidStage:
 
     def _solid_layout(self) -> dict:
         """The solve's bodies (``self._fast``'s, in its order), made once: ``seg`` {name: (velocity offset, 6 + r)},
-        ``soff`` (m,) int64 offsets, ``size`` (m,) int64 block sizes, ``vel_off`` {name: offset} and ``index``
-        {name: index in ``self._modal_contact``}."""
+        ``soff`` (m,) int64 offsets, ``size`` (m,) int64 block sizes, ``vel_off`` {name: offset}, ``index``
+        {name: index in ``self._modal_contact``}, and ``obstacles`` [(name, [(obstacle, its index in
+        ``self.obstacles``)])]: each body's obstacles of ``_world_obstacles`` less the static planes of the compiled
+        modal contacts (``_fast_planes``)."""
         lay = self.__dict__.get("_solid_lay")
-        if lay is None or lay["fast"] is not self._fast:
+        if lay is None or lay["fast"] is not self._fast or lay["wo"] is not self._world_obstacles or \
+                lay["fp"] is not self._fast_planes:
             fast = self._fast
             size = (6 + np.asarray(fast.nm)).astype(np.int64)
             soff = np.concatenate([[0], np.cumsum(size)[:-1]]).astype(np.int64)
             seg = {n: (int(soff[i]), int(size[i])) for i, n in enumerate(fast.names)}
             lay = self._solid_lay = {"fast": fast, "seg": seg, "soff": soff, "size": size,
                                      "vel_off": {n: seg[n][0] for n in fast.names},
-                                     "index": {n: self._modal_contact.index(n) for n in fast.names}}
+                                     "index": {n: self._modal_contact.index(n) for n in fast.names},
+                                     "wo": self._world_obstacles, "fp": self._fast_planes, "obstacles": [
+                                         (name, [(o, t) for o, t in ((o, self.obstacles.index(o)) for o in obs)
+                                                 if t not in self._fast_planes])
+                                         for name, obs in self._world_obstacles.items()]}
         return lay
 
     def _inverse_mass_blocks(self, ctx, gdt: np.ndarray | None = None) -> tuple:
@@ -311,7 +317,7 @@ def _solve(V: np.ndarray, data: dict, warm: np.ndarray, dt: float, blocks: tuple
                                   np.asarray(data["other"], dtype=np.int64), *blocks,
                                   np.ones(m, dtype=bool) if lifted is None else np.asarray(lifted, dtype=bool),
                                   np.zeros(m, dtype=bool) if driven is None else np.asarray(driven, dtype=bool))
-        if np.any(scale < 1.0):  # some island's impulses would add energy: scale them back
+        if (scale < 1.0).any():  # some island's impulses would add energy: scale them back
             body_scale = np.repeat(scale, blocks[1])  # per velocity (blocks in order, contiguous)
             dV *= body_scale
             lam *= scale[data["body"]][:, None]
