@@ -769,3 +769,27 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
         qsnap[s, 3, :nm[b]] = q[qoff[b]:qoff[b] + nm[b]]
     vf, ee = _gather(vl_a, vl_b, vl, nvf, el_a, el_b, el, nee)
     return vf, ee, walks
+
+
+@numba.njit(cache=True)
+def box_pairs(lo, hi, marg, reach):
+    """The body pairs a < b whose world boxes (``lo``, ``hi`` (n, 3) [m]) meet within ``rr = max(marg_a, marg_b) +
+    reach_a + reach_b`` [m], in increasing (a, b) order: ``(a, b, rr, mm)`` (k,) each, ``mm`` the larger margin."""
+    n = lo.shape[0]
+    k = 0
+    ia = np.empty(n * (n - 1) // 2, dtype=np.int64)
+    ib = np.empty_like(ia)
+    rr = np.empty(ia.shape[0])
+    mm = np.empty(ia.shape[0])
+    for a in range(n):
+        for b in range(a + 1, n):
+            m = max(marg[a], marg[b])
+            r = m + reach[a] + reach[b]
+            ok = True
+            for c in range(3):
+                if not (lo[a, c] - r <= hi[b, c] and lo[b, c] - r <= hi[a, c]):
+                    ok = False
+            if ok:
+                ia[k], ib[k], rr[k], mm[k] = a, b, r, m
+                k += 1
+    return ia[:k], ib[:k], rr[:k], mm[:k]

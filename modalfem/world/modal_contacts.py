@@ -160,15 +160,11 @@ class ModalContacts:
         if len(self.plane_d):
             plane = SK.plane_contacts(X, voff, pos, self._radius + bound, marg + reach, self.plane_n, self.plane_d)
         # body pairs whose boxes meet within the search radius
-        mm = np.maximum(marg[:, None], marg[None, :])
-        rr = mm + reach[:, None] + reach[None, :]
-        meet = np.all((lo[:, None, :] - rr[:, :, None] <= hi[None, :, :])
-                      & (lo[None, :, :] - rr[:, :, None] <= hi[:, None, :]), axis=2)
-        ia, ib = np.nonzero(np.triu(meet, 1))
+        ia, ib, rr, mm = CK.box_pairs(lo, hi, marg, reach)
         self.walks = 0
         if len(ia):
             vf, ee, self.walks = CK.coherent_pairs(
-                ia.astype(np.int64), ib.astype(np.int64), rr[ia, ib], mm[ia, ib], SLACK * mm[ia, ib], X, Xl, voff, R,
+                ia, ib, rr, mm, SLACK * mm, X, Xl, voff, R,
                 pos, bound, self._radius, q, self._qoff, self.nm, self._amp, lo, hi,
                 self._tris, self._toff, self._edges, self._eoff, self._adj, self._meta, self._qsnap, *self._cache,
                 *self._treelists)
