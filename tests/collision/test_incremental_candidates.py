@@ -148,10 +148,11 @@ def test_outgrown_vertices_and_dirty_query_pairs_equal_their_numpy_definitions()
     X1 = X0 + dt * V
     lo, hi = np.minimum(X0, X1) - 2e-4, np.maximum(X0, X1) + 2e-4
     V[rng.random(N) < 0.1] *= 1.5  # some trajectories leave their boxes
-    got_x1, got = _pair_kernels.outgrown(X0, V, dt, grow, lo, hi)
+    got_x1, got, head, total = _pair_kernels.outgrown(X0, V, dt, grow, lo, hi, V, np.inf, N // 2)
     want_x1 = X0 + dt * V
     want = ((np.minimum(X0, want_x1) - grow < lo) | (np.maximum(X0, want_x1) + grow > hi)).any(axis=1)
     assert np.array_equal(got_x1, want_x1) and np.array_equal(got, want) and 0 < want.sum() < N
+    assert head == want[: N // 2].sum() and total == want.sum()
     m = 50
     dirty_tri = rng.random(m) < 0.3
     ids = np.flatnonzero(dirty_tri)

@@ -41,19 +41,42 @@ def test_trajectory_diagonals_give_the_bits_of_the_three_steps_it_fuses():
 
 
 def test_outgrown_matches_numpy_on_any_thread_count():
-    dt, grow = 1e-2, 2e-4
+    """The dirty vertices of the pipeline's candidate refresh: trajectory out of its box, or (swept culling) the
+    end position moved by more than eta since the pairs were found -- the numpy expressions _stages used, with
+    both tests on and the velocity test off (vtol = inf), and the counts among the first n and in all."""
+    dt, grow, eta = 1e-2, 2e-4, 1e-4
     X0, V = _trajectories(5000, 1)
+    V[11, 0] = 0.0  # see the bound below
     X1 = X0 + dt * V
     lo, hi = np.minimum(X0, X1) - 1e-3, np.maximum(X0, X1) + 1e-3
     V2 = V.copy()
     V2[::7] *= 1.3  # some trajectories leave their boxes
+    rng = np.random.default_rng(3)
+    Vc = V2.copy()
+    moved = rng.random(len(V2)) < 0.05
+    # a single component changed by 2 eta / dt (dirty) or 0.5 eta / dt (clean), inside the box either way
+    Vc[moved, rng.integers(0, 3, moved.sum())] += np.where(rng.random(moved.sum()) < 0.5, 2.0, 0.5) * eta / dt
+    # the bound itself is clean (dt |dV| > eta): a component whose change times dt rounds to eta exactly
+    x = eta / dt
+    while dt * x < eta:
+        x = np.nextafter(x, np.inf)
+    while dt * x > eta:
+        x = np.nextafter(x, -np.inf)
+    Vc[11] = V2[11]  # 11 is inside its box (V2[::7] only are scaled)
+    Vc[11, 0] = x
+    assert dt * abs(V2[11, 0] - Vc[11, 0]) == eta
+    n = 3100  # the cloth vertices: a count over a prefix that ends inside a chunk
+    Vc[n, 1] += 3.0 * eta / dt  # the first vertex after the prefix is dirty
     X1b = X0 + dt * V2
-    want = ((np.minimum(X0, X1b) - grow < lo) | (np.maximum(X0, X1b) + grow > hi)).any(axis=1)
-    assert 0 < want.sum() < len(want)
-    for t in THREADS:
-        with thread_count(t):
-            got_x1, got = _pair_kernels.outgrown(X0, V2, dt, grow, lo, hi)
-        assert np.array_equal(got_x1, X1b) and np.array_equal(got, want)
+    box = ((np.minimum(X0, X1b) - grow < lo) | (np.maximum(X0, X1b) + grow > hi)).any(axis=1)
+    vel = dt * np.abs(V2 - Vc).max(axis=1) > eta
+    assert 0 < box.sum() < len(box) and 0 < (vel & ~box).sum() < moved.sum() and not (box | vel)[11] and vel[n]
+    for vtol, want in ((eta, box | vel), (np.inf, box)):
+        for t in THREADS:
+            with thread_count(t):
+                got_x1, got, head, total = _pair_kernels.outgrown(X0, V2, dt, grow, lo, hi, Vc, vtol, n)
+            assert np.array_equal(got_x1, X1b) and np.array_equal(got, want)
+            assert head == want[:n].sum() and total == want.sum()
 
 
 def test_select_pairs_keeps_the_pairs_in_order_on_any_thread_count():
