@@ -14,6 +14,8 @@ from modalfem.collision._distance_kernels import point_triangle_closest
 from modalfem.world import _coherent_kernels as CK
 from modalfem.world._solid_kernels import _to_local, _vf_found, _vf_test
 
+from _grid_surface import grid_surface
+
 
 @numba.njit(cache=False)
 def _reference(xa, Rb, pb, Xb, Tb, reach, cv, ct):
@@ -65,24 +67,10 @@ def _rotation(rng):
     return Q * np.sign(np.linalg.det(Q))
 
 
-def _surface(n, h):
-    """A wavy grid surface of b (its axes), 1 mm cells [m]: vertices (n*n, 3), triangles."""
-    g = np.arange(n) * 1e-3
-    X, Y = np.meshgrid(g, g, indexing="ij")
-    Z = h * np.sin(X * 900.0) * np.cos(Y * 700.0)
-    V = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
-    T = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
-            T += [(a, b, d), (a, d, c)]
-    return V, np.array(T, dtype=np.int64)
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_prepass_equals_every_candidate_tested(seed):
     rng = np.random.default_rng(seed)
-    Xb, Tb = _surface(12, 0.4e-3)
+    Xb, Tb, _ = grid_surface(12, 0.4e-3)
     Rb, pb = _rotation(rng), rng.normal(size=3)
     reach, radius, move = 2.0e-3, 3.0e-3, 0.6e-3
     skipped_within_reach = 0

@@ -14,6 +14,8 @@ from modalfem.collision._distance_kernels import edge_edge_closest, point_triang
 from modalfem.collision.bvh import BroadPhaseBVH
 from modalfem.world import _coherent_kernels as CK
 
+from _grid_surface import grid_surface
+
 
 @numba.njit(cache=False)
 def _all_pairs(edges, y, Xb, Fb, radius):
@@ -36,22 +38,6 @@ def _all_pairs(edges, y, Xb, Fb, radius):
     return out
 
 
-def _surface(n, h):
-    """A wavy grid surface, 1 mm cells [m]: vertices (n*n, 3), triangles, edges."""
-    g = np.arange(n) * 1e-3
-    X, Y = np.meshgrid(g, g, indexing="ij")
-    Z = h * np.sin(X * 900.0) * np.cos(Y * 700.0)
-    V = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
-    T = []
-    for i in range(n - 1):
-        for j in range(n - 1):
-            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
-            T += [(a, b, d), (a, d, c)]
-    T = np.array(T, dtype=np.int64)
-    E = np.unique(np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1), axis=0)
-    return V, T, np.ascontiguousarray(E)
-
-
 def _gap(yq, corners):
     """The distance between the box of the query's points and the box of the entry's corners [m]."""
     g = np.maximum(np.maximum(corners.min(0) - yq.max(0), yq.min(0) - corners.max(0)), 0.0)
@@ -62,7 +48,7 @@ def _gap(yq, corners):
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_walk_lists_every_pair_within_radius(seed, edges):
     rng = np.random.default_rng(seed)
-    rest, T, E = _surface(10, 0.4e-3)
+    rest, T, E = grid_surface(10, 0.4e-3)
     bound, radius = 0.3e-3, 1.5e-3
     # deformed surface: every vertex within ``bound`` of its rest position (the tree holds the rest boxes)
     u = rng.normal(size=rest.shape)
