@@ -289,8 +289,9 @@ def solve_start(V, ptr, off, nd, jptr, J, WJt, normal, vobs_n, gap, margin, rest
     velocities at ``soff`` (m,)) with ``restitution`` e > 0 bounces (target at least ``-e`` times that approach);
     ``vobs_n`` [m/s] (an obstacle's normal velocity) is added. Then the warm impulses are applied to ``V``.
 
-    Returns ``(lam_n, lam_t, target, bounce, V0, min_skin)``: V0 the velocities before the warm impulses. The same
-    arithmetic as the numpy expressions it replaced (bit for bit on the pile of 20)."""
+    Returns ``(lam_n, lam_t, target, bounce, V0, min_skin)``: V0 the velocities before the warm impulses. The
+    formulas of the numpy expressions it replaced, with each dot product summed in order (numpy's einsum summed
+    them in another order: the targets can differ from those by an ulp)."""
     k = len(ptr) - 1
     lam_n = np.empty(k)
     lam_t = np.empty((k, 3))
@@ -327,13 +328,7 @@ def solve_start(V, ptr, off, nd, jptr, J, WJt, normal, vobs_n, gap, margin, rest
             tg = max(tg, -e * v_in)
         target[c] = tg + vobs_n[c]
     V0 = V.copy()
-    for c in range(k):
-        n0, n1, n2 = normal[c, 0], normal[c, 1], normal[c, 2]
-        d0 = lam_n[c] * n0 + lam_t[c, 0]
-        d1 = lam_n[c] * n1 + lam_t[c, 1]
-        d2 = lam_n[c] * n2 + lam_t[c, 2]
-        if d0 != 0.0 or d1 != 0.0 or d2 != 0.0:
-            _impulse(V, ptr, off, nd, jptr, WJt, c, d0, d1, d2)
+    apply_impulses(V, ptr, off, nd, jptr, WJt, lam_n.reshape(k, 1) * normal + lam_t)
     return lam_n, lam_t, target, bounce, V0, min_skin
 
 

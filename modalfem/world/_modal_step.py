@@ -143,10 +143,8 @@ class ModalBatch:
         kick = np.zeros(len(names), dtype=np.bool_)
         dvoff = np.zeros(len(names), dtype=np.int64)
         parts, o = [np.zeros(0)], 0
-        lift = ctx.lift
         for i, n in enumerate(names):
-            if n in lift:  # the part of the solid solve's dv holding the load (``gravity_lift``)
-                apply_lift(lift, n, pos[i])
+            apply_lift(ctx.lift, n, pos[i])  # the part of the solid solve's dv holding the load (``gravity_lift``)
             d = ctx.dV.get(n)
             if d is not None:
                 kick[i], dvoff[i] = True, o

@@ -113,7 +113,7 @@ class _SolidStage:
         lifted = np.array([name not in ctx.dV for name in fast.names])
         g = np.array([gd[n] for n in fast.names], dtype=float)
         start = (lay["soff"], g * dt)
-        lam, bounce, sweeps, lam_n = _solve(V, data, old_lam, dt, self._inverse_mass_blocks(ctx, start[1]), lifted,
+        lam, bounce, sweeps, lam_n = _solve(V, data, old_lam, dt, self._inverse_mass_blocks(start[1]), lifted,
                                             start, driven=driven)
         ctx.report.sweeps = sweeps
         ctx.contacts.update({key: lam[c] for c, key in enumerate(builder.keys) if lam_n[c] > 0.0})
@@ -169,19 +169,17 @@ class _SolidStage:
                                          for name, obs in self._world_obstacles.items()]}
         return lay
 
-    def _inverse_mass_blocks(self, ctx, gdt: np.ndarray | None = None) -> tuple:
+    def _inverse_mass_blocks(self, gdt: np.ndarray) -> tuple:
         """The bodies of the solve (the compiled modal contacts') as arrays for ``_kernels.modal_energy_change``, to
         measure the energy of velocity changes: offsets, sizes, masses [kg], rotations at the step start, body-axes
         inertias [kg m^2] (modal coordinates have unit mass) and shifts ``g dt`` (3,) [m/s], which the solve's
         velocities hold but the energy must not count: a velocity change dv at the step start moves the body by
         ``dv dt`` in the gravity field, which costs ``-m g . dv dt``, so the energy change is
         ``dv . M (V - g dt) + 0.5 dv . M dv`` (and the part of dv that holds the step's load, acting at the step's
-        middle, lowers the body: ``gravity_lift``, counted by ``_solve``). ``gdt``: those shifts (m, 3), when the
-        caller has them."""
+        middle, lowers the body: ``gravity_lift``, counted by ``_solve``). ``gdt``: those shifts (m, 3), in
+        ``self._fast``'s order."""
         fast = self._fast
         lay = self._solid_layout()
-        if gdt is None:
-            gdt = np.array([self._modal[n]["g"] for n in fast.names], dtype=float) * ctx.dt
         return lay["soff"], lay["size"], fast.mass, fast.rotations, fast.inertia, gdt
 
 
@@ -313,14 +311,13 @@ def _solve(V: np.ndarray, data: dict, warm: np.ndarray, dt: float, blocks: tuple
     dV = V - V0
     if blocks is not None:  # the energy change (see above), per island (``islands``), compiled
         m = len(blocks[0])
-        scale = SK.no_gain_scales(dV, V0, np.asarray(data["body"], dtype=np.int64),
-                                  np.asarray(data["other"], dtype=np.int64), *blocks,
+        scale = SK.no_gain_scales(dV, V0, body, other, *blocks,
                                   np.ones(m, dtype=bool) if lifted is None else np.asarray(lifted, dtype=bool),
                                   np.zeros(m, dtype=bool) if driven is None else np.asarray(driven, dtype=bool))
         if (scale < 1.0).any():  # some island's impulses would add energy: scale them back
             body_scale = np.repeat(scale, blocks[1])  # per velocity (blocks in order, contiguous)
             dV *= body_scale
-            lam *= scale[data["body"]][:, None]
+            lam *= scale[body][:, None]
             V[:] = V0 + dV
     data["dV"] = dV
     return lam, bounce, sweeps, lam_n
