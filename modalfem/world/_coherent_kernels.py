@@ -21,6 +21,11 @@ from modalfem.world._solid_kernels import _edge_queries, _ee_test, _gather, _to_
 
 
 _CUT_EPS = 1e-12
+#: the vertex-face walks write box-gap lower bounds, not exact distances (``_walk``'s ``lazy``): most of a fast pair's
+#: candidates are never measured by ``_vf_eval`` (a vertex's nearest triangle found, the others skipped on their
+#: bounds). The edge-edge walks keep the exact test (lazy there measured no gain: ``_ee_eval`` tests most kept pairs).
+LAZY_VF = True
+LAZY_EE = False
 
 
 @numba.njit(cache=True)
@@ -37,12 +42,14 @@ def _grow(cv, ct, cd, k):
 
 
 @numba.njit(cache=True)
-def _walk(edges, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi, cv, ct, cd):
+def _walk(edges, lazy, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi, cv, ct, cd):
     """The tree walk of ``_bvh_kernels._query_walk`` (the same boxes, the same order) for queries ``i0...`` with
     the distance test at each leaf entry whose box passes: points ``y`` (m, 3) against triangles ``Fb`` (``edges``
     False), or segments ``y`` (m, 2, 3) against edges ``Fb`` (True); the pairs within ``radius`` are written from
-    ``k`` on as (``ids[query]``, entry, distance). Stops before a query whose pairs do not fit in the buffers:
-    returns (the next query, the count written)."""
+    ``k`` on as (``ids[query]``, entry, distance). ``lazy``: no exact test; every entry whose box gap (below) is
+    within the radius (+ rounding) is written with that gap lowered by the rounding band, a lower bound of its
+    distance (a superset of the pairs within ``radius``: the evaluations measure the few they need). Stops before a
+    query whose pairs do not fit in the buffers: returns (the next query, the count written)."""
     m = qlo.shape[0]
     cap = cv.shape[0]
     x = np.empty((4, 3))
@@ -65,7 +72,8 @@ def _walk(edges, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, s
             else:
                 x[0, d] = y[i, 0, d]
                 mag = max(mag, abs(x[0, d]))
-        cut = radius + _CUT_EPS * (mag + radius)
+        band = _CUT_EPS * (mag + radius)
+        cut = radius + band
         cut2 = cut * cut
         stack[0] = 1
         top = 1
@@ -106,6 +114,13 @@ def _walk(edges, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, s
                                     g2 += g * g
                         if g2 > cut2:
                             continue
+                        if lazy:
+                            # the computed gap is below the exact test's distance up to rounding (~1e-16 of the
+                            # coordinates), far inside the band
+                            if k < cap:
+                                cv[k], ct[k], cd[k] = ids[i], t, max(math.sqrt(g2) - band, 0.0)
+                            k += 1
+                            continue
                         if edges:
                             dist = edge_edge_closest(x)[0]
                         else:
@@ -124,17 +139,19 @@ def _walk(edges, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, s
 
 
 @numba.njit(cache=True)
-def _walk_all(edges, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi):
-    """``_walk`` over every query, the buffers grown as needed: ``(ids, entries, distances)``, (k,) each."""
+def _walk_all(edges, lazy, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi):
+    """``_walk`` over every query, the buffers grown as needed: ``(ids, entries, distances or their lower bounds
+    (lazy))``, (k,) each."""
     m = qlo.shape[0]
     cv = np.empty(8 * m + 64, dtype=np.int64)
     ct = np.empty(8 * m + 64, dtype=np.int64)
     cd = np.empty(8 * m + 64)
-    i, k = _walk(edges, 0, 0, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi, cv, ct, cd)
+    i, k = _walk(edges, lazy, 0, 0, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi, cv,
+                 ct, cd)
     while i < m:
         cv, ct, cd = _grow(cv, ct, cd, k)
-        i, k = _walk(edges, i, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi, cv, ct,
-                     cd)
+        i, k = _walk(edges, lazy, i, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi, cv,
+                     ct, cd)
     return cv[:k].copy(), ct[:k].copy(), cd[:k].copy()
 
 
@@ -142,11 +159,12 @@ def _walk_all(edges, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot
 def _vf_candidates(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonempty, slot_tri, slo, shi):
     """Every (vertex of a, triangle of b) pair closer than ``radius`` [m] (arguments as ``vertex_face``), grouped
     by vertex in increasing order, each vertex's triangles in the tree's order (the order ``vertex_face`` meets
-    them in): ``(vertices, triangles, distances [m])``, (k,) each (the distances as ``_vf_test`` finds them).
-    One pass of the walk with the tests (``_walk``; was a counting walk, a filling walk, then the tests)."""
+    them in): ``(vertices, triangles, lower bounds of the distances [m])``, (k,) each (``LAZY_VF``: box gaps, a
+    superset of the pairs within ``radius``; else the distances as ``_vf_test`` finds them, exactly those pairs).
+    One pass of the walk (``_walk``; was a counting walk, a filling walk, then the tests)."""
     near, y, qlo, qhi = _vertex_queries(xa, Rb, pb, bound, radius, blo, bhi)
-    return _walk_all(False, near, y.reshape((y.shape[0], 1, 3)), qlo, qhi, Xb, Tb, radius, P, lo, hi, nonempty,
-                     slot_tri, slo, shi)
+    return _walk_all(False, LAZY_VF, near, y.reshape((y.shape[0], 1, 3)), qlo, qhi, Xb, Tb, radius, P, lo, hi,
+                     nonempty, slot_tri, slo, shi)
 
 
 @numba.njit(cache=True)
@@ -225,7 +243,7 @@ def _ee_candidates(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, n
     edge in increasing order, in the order ``edge_edge`` meets them: ``(mine, other, distances [m])``, (k,) each
     (the distances as ``_ee_test`` finds them). One pass, as ``_vf_candidates``."""
     sel, y, qlo, qhi = _edge_queries(xa, Ea, Rb, pb, bound, radius, blo, bhi)
-    return _walk_all(True, sel, y, qlo, qhi, Xb, Eb, radius, P, lo, hi, nonempty, slot_tri, slo, shi)
+    return _walk_all(True, LAZY_EE, sel, y, qlo, qhi, Xb, Eb, radius, P, lo, hi, nonempty, slot_tri, slo, shi)
 
 
 @numba.njit(cache=True, inline="always")
@@ -361,7 +379,8 @@ def _vf_rewalk(xa, Rb, pb, Xb, Tb, bound, radius, blo, bhi, P, lo, hi, nonempty,
             yq[i, 0, c] = gy[rows[i], 1 + c]
             qlo[i, c] = yq[i, 0, c] - grow
             qhi[i, c] = yq[i, 0, c] + grow
-    nv, nt, nd = _walk_all(False, near[:m], yq, qlo, qhi, Xb, Tb, radius, P, lo, hi, nonempty, slot_tri, slo, shi)
+    nv, nt, nd = _walk_all(False, LAZY_VF, near[:m], yq, qlo, qhi, Xb, Tb, radius, P, lo, hi, nonempty, slot_tri, slo,
+                           shi)
     ov, ot, od = _merge(cv, ct, cd, moved, nv, nt, nd)
     return ov, ot, od, nmoved
 
@@ -415,7 +434,8 @@ def _ee_rewalk(xa, Ea, Rb, pb, Xb, Eb, bound, radius, blo, bhi, P, lo, hi, nonem
             y[q, 1, c] = gy[g, 4 + c]
             qlo[q, c] = min(y[q, 0, c], y[q, 1, c]) - grow
             qhi[q, c] = max(y[q, 0, c], y[q, 1, c]) + grow
-    nv, nt, nd = _walk_all(True, sel[:m], y, qlo, qhi, Xb, Eb, radius, P, lo, hi, nonempty, slot_tri, slo, shi)
+    nv, nt, nd = _walk_all(True, LAZY_EE, sel[:m], y, qlo, qhi, Xb, Eb, radius, P, lo, hi, nonempty, slot_tri, slo,
+                           shi)
     ov, ot, od = _merge(cm, co, cd, moved, nv, nt, nd)
     return ov, ot, od, nmoved
 
@@ -729,8 +749,8 @@ def coherent_pairs(pa, pb, rr, mm, slack, X, Xl, voff, R, pos, bound, radius, q,
                             row[_R_VF] + row[_R_G])
             cye[s] = _guard(True, X[voff[a]:voff[a + 1]], edges[eoff[a]:eoff[a + 1]], R[b], pos[b], llo[b], lhi[b],
                             blo[b], bhi[b], row[_R_EE] + row[_R_G])
-            # evaluated now: no motion since, and the distances the walk found are the pairs' bounds (the kept pairs
-            # beyond this step's reach or margin, in the slack, are not tested again)
+            # evaluated now: no motion since, and the distances (or gaps) the walk found are the pairs' bounds (the
+            # kept pairs beyond this step's reach or margin, in the slack, are not tested again)
             row[_EVAL:_EVAL + 26] = row[0:26]
             qsnap[s, 2], qsnap[s, 3] = qsnap[s, 0], qsnap[s, 1]
         # how far the pair's distances may have dropped since its last evaluation (as the walk's test above)
