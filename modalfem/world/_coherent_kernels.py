@@ -41,6 +41,26 @@ def _grow(cv, ct, cd, k):
     return cv2, ct2, cd2
 
 
+@numba.njit(cache=True, inline="always")
+def _ball_gap2(x0, x1, x2, y0, y1, y2, l0, l1, l2, h0, h1, h2, radius):
+    """The squared gap [m^2] between the query's points and the deformed surface under a rest box (``l``, ``h``),
+    from the query box (``x``, ``y``: its points' box grown by ``radius + bound`` on each side; every deformed
+    point within ``bound`` of its rest place, each axis so): per axis, the rest boxes' gap less ``bound``
+    (``max(l - y, x - h) + radius``), the positive parts squared and summed. A lower bound of the squared
+    distance of the query to any entry under the box (the box test bounds each axis alone; this, the sum)."""
+    g2 = 0.0
+    g = max(l0 - y0, x0 - h0) + radius
+    if g > 0.0:
+        g2 += g * g
+    g = max(l1 - y1, x1 - h1) + radius
+    if g > 0.0:
+        g2 += g * g
+    g = max(l2 - y2, x2 - h2) + radius
+    if g > 0.0:
+        g2 += g * g
+    return g2
+
+
 @numba.njit(cache=True)
 def _walk(edges, lazy, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonempty, slot_tri, slo, shi, cv, ct, cd):
     """The tree walk of ``_bvh_kernels._query_walk`` (the same boxes, the same order) for queries ``i0...`` with
@@ -84,6 +104,9 @@ def _walk(edges, lazy, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonem
                 continue
             if x0 > hi[a, 0] or lo[a, 0] > y0 or x1 > hi[a, 1] or lo[a, 1] > y1 or x2 > hi[a, 2] or lo[a, 2] > y2:
                 continue
+            if _ball_gap2(x0, x1, x2, y0, y1, y2, lo[a, 0], lo[a, 1], lo[a, 2], hi[a, 0], hi[a, 1], hi[a, 2],
+                          radius) > cut2:
+                continue
             if a >= P:
                 ia = a - P
                 for c in range(L):
@@ -91,7 +114,9 @@ def _walk(edges, lazy, i0, k, ids, y, qlo, qhi, Xb, Fb, radius, P, lo, hi, nonem
                     if t < 0:
                         continue
                     if (x0 <= shi[0, ia, c] and slo[0, ia, c] <= y0 and x1 <= shi[1, ia, c]
-                            and slo[1, ia, c] <= y1 and x2 <= shi[2, ia, c] and slo[2, ia, c] <= y2):
+                            and slo[1, ia, c] <= y1 and x2 <= shi[2, ia, c] and slo[2, ia, c] <= y2
+                            and _ball_gap2(x0, x1, x2, y0, y1, y2, slo[0, ia, c], slo[1, ia, c], slo[2, ia, c],
+                                           shi[0, ia, c], shi[1, ia, c], shi[2, ia, c], radius) <= cut2):
                         # the gap between the boxes of the query and of the entry's deformed corners is a lower
                         # bound of their distance: past the radius (+ rounding), the exact test would reject it too
                         g2 = 0.0
@@ -205,7 +230,11 @@ def _vf_eval(xa, Rb, pb, Xb, Tb, reach, cv, ct, lb, drop):
     kmin = k0 = -1
     for k in range(n + 1):
         if k == n or cv[k] != prev:
-            if i >= 0:
+            if i >= 0 and (k - k0 == 1 or lb[kmin] - drop > reach):
+                # a lone candidate (its bound, lowered by drop, is below its distance: the cut would not skip it),
+                # or none within reach by their bounds: the measure would not change a skip
+                cut[i] = reach
+            elif i >= 0:
                 t = ct[kmin]
                 for d in range(3):
                     x[0, d] = yl[i, d]
