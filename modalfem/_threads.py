@@ -219,6 +219,15 @@ def threading_layer() -> str:
     return _LAYER
 
 
+#: one-thread work [us] below which a pass over all vertices runs serially instead of as a parallel region. A region
+#: started after serial Python waits for the pool's sleeping workers: on an idle 2-vCPU host (Intel Xeon, KVM,
+#: ``python -m modalfem.bench.threads_bench --wake``) a ~100 us region right after another took 1/1.74 of its
+#: one-thread time, after 2 ms of Python 1/1.11: ~33 us of wake-up. A region of W us of work then pays on two threads
+#: when W / 1.74 + 33 < W, i.e. W > ~78 us. The kernels turn this into an item count from their cost per item, and
+#: run the same chunks in the same order either way (the same bits).
+SERIAL_WORK_US = 80.0
+
+
 @numba.njit(cache=True, inline="always")
 def chunk_count(n: int, min_chunk: int) -> int:
     """Chunks of a parallel loop over ``n`` items, at least ``min_chunk`` items each (at most

@@ -24,12 +24,15 @@ import math
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.extending import intrinsic
 
 from modalfem._threads import apply as _apply_threads
 from modalfem.collision._distance_kernels import edge_edge_lb, point_triangle_lb
 from modalfem._threads import chunk_bounds, chunk_count
 
-__all__ = ["ccd_batch", "ccd_block", "ccd_candidates", "diagonal_gap", "diagonal_intervals", "spread_order"]
+__all__ = ["ccd_batch", "ccd_block", "ccd_candidates", "ccd_segments", "diagonal_gap", "diagonal_intervals",
+           "spread_order"]
 
 _apply_threads()
 
@@ -191,6 +194,11 @@ def ccd_batch(vf: bool, x0: np.ndarray, x1: np.ndarray, eta: float, max_depth: i
 #: candidate pairs per chunk of :func:`ccd_candidates`
 CCD_CHUNK = 256
 
+#: vertices below which :func:`trajectory_diagonals` and :func:`diagonal_gap` run their chunks serially: ~11 and
+#: ~9.5 ns per vertex on one thread (Intel Xeon, fastest of 7 x 300 calls, 4,096 and 16,384 vertices), so 8192
+#: vertices are ~80-90 us, :data:`modalfem._threads.SERIAL_WORK_US` (the 64x64 pile's 4,096: serial)
+SERIAL_VERTICES = 8192
+
 
 @numba.njit(cache=True, inline="always")
 def _project(out, i, a0, a1, a2, b0, b1, b2):
@@ -242,15 +250,26 @@ def diagonal_gap(X0: np.ndarray, X1: np.ndarray, eta: float) -> float:
     over chunks in parallel (a maximum is exact: the same answer for any thread count)."""
     N = len(X0)
     chunks = chunk_count(N, 1024)
-    part = np.zeros(chunks)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(N, chunks, ch)
-        m = 0.0
-        for i in range(start, stop):
-            for c in range(3):
-                m = max(m, abs(X0[i, c]), abs(X1[i, c]))
-        part[ch] = m
+    part = np.empty(chunks)  # every chunk writes its own (np.zeros would be a parallel region of its own)
+    if N < SERIAL_VERTICES:  # the same chunks, serially: the region would not pay for the pool's wake-up
+        for ch in range(chunks):
+            start, stop = chunk_bounds(N, chunks, ch)
+            part[ch] = _scale_range(X0, X1, start, stop)
+    else:
+        for ch in numba.prange(chunks):
+            start, stop = chunk_bounds(N, chunks, ch)
+            part[ch] = _scale_range(X0, X1, start, stop)
     return _gap_of(part, eta)
+
+
+@numba.njit(cache=True, inline="always")
+def _scale_range(X0: np.ndarray, X1: np.ndarray, start: int, stop: int) -> float:
+    """The largest ``|X0|``, ``|X1|`` coordinate of the vertices ``start..stop-1``."""
+    m = 0.0
+    for i in range(start, stop):
+        for c in range(3):
+            m = max(m, abs(X0[i, c]), abs(X1[i, c]))
+    return m
 
 
 @numba.njit(cache=True, parallel=True)
@@ -262,20 +281,31 @@ def trajectory_diagonals(X0: np.ndarray, V: np.ndarray, dt: float, eta: float):
     X1 = np.empty((N, 3))
     out = np.empty((N, 8))
     chunks = chunk_count(N, 1024)
-    part = np.zeros(chunks)
-    for ch in numba.prange(chunks):
-        start, stop = chunk_bounds(N, chunks, ch)
-        m = 0.0
-        for i in range(start, stop):
-            a0, a1, a2 = X0[i, 0], X0[i, 1], X0[i, 2]
-            b0, b1, b2 = a0 + dt * V[i, 0], a1 + dt * V[i, 1], a2 + dt * V[i, 2]
-            X1[i, 0], X1[i, 1], X1[i, 2] = b0, b1, b2
-            m = max(m, abs(a0), abs(b0))
-            m = max(m, abs(a1), abs(b1))
-            m = max(m, abs(a2), abs(b2))
-            _project(out, i, a0, a1, a2, b0, b1, b2)
-        part[ch] = m
+    part = np.empty(chunks)  # every chunk writes its own (np.zeros would be a parallel region of its own)
+    if N < SERIAL_VERTICES:  # the same chunks, serially: the region would not pay for the pool's wake-up
+        for ch in range(chunks):
+            start, stop = chunk_bounds(N, chunks, ch)
+            part[ch] = _trajectory_range(X0, V, dt, X1, out, start, stop)
+    else:
+        for ch in numba.prange(chunks):
+            start, stop = chunk_bounds(N, chunks, ch)
+            part[ch] = _trajectory_range(X0, V, dt, X1, out, start, stop)
     return X1, out, _gap_of(part, eta)
+
+
+@numba.njit(cache=True, inline="always")
+def _trajectory_range(X0, V, dt: float, X1, out, start: int, stop: int) -> float:
+    """:func:`trajectory_diagonals` of the vertices ``start..stop-1``; returns their largest coordinate."""
+    m = 0.0
+    for i in range(start, stop):
+        a0, a1, a2 = X0[i, 0], X0[i, 1], X0[i, 2]
+        b0, b1, b2 = a0 + dt * V[i, 0], a1 + dt * V[i, 1], a2 + dt * V[i, 2]
+        X1[i, 0], X1[i, 1], X1[i, 2] = b0, b1, b2
+        m = max(m, abs(a0), abs(b0))
+        m = max(m, abs(a1), abs(b1))
+        m = max(m, abs(a2), abs(b2))
+        _project(out, i, a0, a1, a2, b0, b1, b2)
+    return m
 
 
 @numba.njit(cache=True, inline="always")
@@ -369,7 +399,7 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
     tois = np.empty(k)
     code = _vertex_codes(gone, only, movable)
     chunks = chunk_count(k, CCD_CHUNK)
-    counts = np.zeros(chunks, dtype=np.int64)
+    counts = np.empty(chunks, dtype=np.int64)  # every chunk writes its own (np.zeros: a parallel region of its own)
     order = spread_order(chunks)
     for j in numba.prange(chunks):
         ch = order[j]
@@ -385,6 +415,111 @@ def ccd_block(vf: bool, X0: np.ndarray, X1: np.ndarray, quads: np.ndarray, gone:
     return idx[:n].copy(), tois[:n].copy()
 
 
+def ccd_segments(segments: list, X0: np.ndarray, X1: np.ndarray, movable: np.ndarray, roots: np.ndarray, eta: float,
+                 max_depth: int, max_intervals: int, diag: np.ndarray, gap: float):
+    """:func:`ccd_block` of several blocks in ONE parallel region: ``segments`` a list of ``(vf, q, gone, only)``
+    (``q`` (k, 4) int32 pairs, ``gone``/``only`` (N,) bool or empty, as ``ccd_block``'s arguments; the pipeline's
+    ``PairStore.segments`` of both kinds). The same hits as one ``ccd_block`` per segment, bit for bit (the same
+    chunks, each pair's test the same compiled function). One region instead of one per segment: the 64x64 pile's
+    ``ccd_hits`` passes ~4.9 segments per call (11.8 calls per step), and every region started after serial Python
+    waits for the pool's sleeping workers (~33 us per region on an idle 2-vCPU host, ``bench threads --wake``).
+
+    The segments' arrays are handed to the kernel by address (numba's typed lists cost ~25 us per item to build,
+    a concatenated copy ~1 ms per step): they are checked here (dtype, shape, contiguity, lengths) and held
+    referenced in ``segments`` for the call.
+
+    Returns:
+        ``[(idx, toi)]`` per segment: (h,) indices into its ``q`` (ascending) and times in [0, 1].
+    """
+    S = len(segments)
+    N = len(movable)
+    vf = np.empty(S, dtype=np.bool_)
+    addr = np.zeros((S, 3), dtype=np.int64)
+    size = np.empty(S, dtype=np.int64)
+    for s, (v, q, gone, only) in enumerate(segments):
+        if q.dtype != np.int32 or q.ndim != 2 or q.shape[1] != 4 or not q.flags.c_contiguous:
+            raise ValueError("ccd_segments: pairs must be C-contiguous (k, 4) int32")
+        vf[s], size[s] = v, len(q)
+        addr[s, 0] = q.ctypes.data if len(q) else 0
+        for c, flags in ((1, gone), (2, only)):
+            if len(flags):
+                if flags.dtype != np.bool_ or flags.shape != (N,) or not flags.flags.c_contiguous:
+                    raise ValueError("ccd_segments: vertex flags must be contiguous (N,) bool")
+                addr[s, c] = flags.ctypes.data
+    idx, toi, counts = _ccd_segments(vf, addr, size, X0, X1, movable, roots, eta, max_depth, max_intervals, diag, gap)
+    out, n = [], 0
+    for s in range(S):
+        out.append((idx[n:n + counts[s]], toi[n:n + counts[s]]))
+        n += counts[s]
+    return out
+
+
+@intrinsic
+def _pointer(typingctx, address):
+    """The ``voidptr`` at an integer address (for ``numba.carray``)."""
+    if not isinstance(address, types.Integer):
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(types.voidptr))
+
+    return types.voidptr(address), codegen
+
+
+@numba.njit(cache=True, parallel=True)
+def _ccd_segments(vf: np.ndarray, addr: np.ndarray, size: np.ndarray, X0: np.ndarray, X1: np.ndarray,
+                  movable: np.ndarray, roots: np.ndarray, eta: float, max_depth: int, max_intervals: int,
+                  diag: np.ndarray, gap: float):
+    """:func:`ccd_segments`' pass: segment ``s`` has ``size[s]`` pairs at address ``addr[s, 0]`` and its ``gone`` and
+    ``only`` flags at ``addr[s, 1]``, ``addr[s, 2]`` (0: empty). Segment ``s`` is split into ``ccd_block``'s chunks;
+    all segments' chunks run in one loop in :func:`spread_order`. Returns ``(idx, toi, counts)``: the hits of the
+    segments one after the other, ``counts[s]`` of segment ``s``."""
+    S = len(size)
+    N = len(movable)
+    # no array expression or np.zeros outside the prange: numba makes each one a parallel region of its own
+    # (launched, and waking the pool, like the loop)
+    empty = np.empty(0, dtype=np.bool_)
+    first = np.empty(S + 1, dtype=np.int64)  # first chunk of each segment
+    base = np.empty(S + 1, dtype=np.int64)  # first pair of each segment in the hit buffers
+    first[0], base[0] = 0, 0
+    code = np.empty((S, N), dtype=np.uint8)
+    for s in range(S):
+        first[s + 1] = first[s] + chunk_count(size[s], CCD_CHUNK)
+        base[s + 1] = base[s] + size[s]
+        gone = numba.carray(_pointer(addr[s, 1]), N, np.bool_) if addr[s, 1] != 0 else empty
+        only = numba.carray(_pointer(addr[s, 2]), N, np.bool_) if addr[s, 2] != 0 else empty
+        _vertex_codes_into(gone, only, movable, code[s])
+    chunks = first[S]
+    owner = np.empty(chunks, dtype=np.int64)
+    for s in range(S):
+        for ch in range(first[s], first[s + 1]):
+            owner[ch] = s
+    idx = np.empty(base[S], dtype=np.int64)
+    tois = np.empty(base[S])
+    counts = np.empty(chunks, dtype=np.int64)  # every chunk writes its own
+    order = spread_order(chunks)
+    for j in numba.prange(chunks):
+        ch = order[j]
+        s = owner[ch]
+        k = size[s]
+        start, stop = chunk_bounds(k, first[s + 1] - first[s], ch - first[s])
+        q = numba.carray(_pointer(addr[s, 0]), (k, 4), np.int32)
+        counts[ch] = _ccd_range(vf[s], X0, X1, q, code[s], roots, eta, max_depth, max_intervals, start, stop,
+                                idx[base[s]:base[s + 1]], tois[base[s]:base[s + 1]], diag, gap)
+    n = 0
+    per = np.empty(S, dtype=np.int64)
+    for s in range(S):
+        per[s] = 0
+    for ch in range(chunks):  # compact the chunks' hits (each written from its chunk's start) in order
+        s = owner[ch]
+        start, _ = chunk_bounds(size[s], first[s + 1] - first[s], ch - first[s])
+        for j in range(counts[ch]):
+            idx[n], tois[n] = idx[base[s] + start + j], tois[base[s] + start + j]
+            n += 1
+        per[s] += counts[ch]
+    return idx[:n].copy(), tois[:n].copy(), per
+
+
 #: bits of :func:`_vertex_codes`: the vertex passes the ``only`` filter, was dropped from the store (``gone``), is
 #: movable; a pair is tested when its vertices' codes or-ed are ``_ONLY | _MOVABLE``
 _ONLY, _GONE, _MOVABLE = 1, 2, 4
@@ -398,17 +533,22 @@ def _vertex_codes(gone: np.ndarray, only: np.ndarray, movable: np.ndarray) -> np
     recorded pipeline calls of the pile (one thread, CPU time, Intel Xeon, load 1.5-1.7, HEAD and this in
     alternating processes, 3 runs each) CCD 6.67-7.04 -> 6.36-6.59 and impact zones 6.30-6.43 -> 5.79-6.02 ms
     per call, the same outputs bit for bit."""
-    N = len(movable)
+    code = np.empty(len(movable), dtype=np.uint8)
+    _vertex_codes_into(gone, only, movable, code)
+    return code
+
+
+@numba.njit(cache=True)
+def _vertex_codes_into(gone: np.ndarray, only: np.ndarray, movable: np.ndarray, code: np.ndarray) -> None:
+    """:func:`_vertex_codes` written into ``code`` ((N,) uint8)."""
     use_gone, use_only = len(gone) > 0, len(only) > 0
-    code = np.empty(N, dtype=np.uint8)
-    for i in range(N):
+    for i in range(len(movable)):
         c = _MOVABLE if movable[i] else 0
         if not use_only or only[i]:
             c |= _ONLY
         if use_gone and gone[i]:
             c |= _GONE
         code[i] = c
-    return code
 
 
 @numba.njit(cache=True)

@@ -368,7 +368,7 @@ def obstacle_vertex_hits(sphere: bool, X0: np.ndarray, V: np.ndarray, dt: float,
     of the relative trajectory (clipped to [0, 1]); a hit comes within ``c + eta`` there (s > 0) or at the end,
     ``s = inf`` elsewhere."""
     n = len(X0)
-    hit = np.zeros(n, np.bool_)
+    hit = np.empty(n, np.bool_)  # every entry written (np.zeros: a parallel region even on the serial branch)
     out = np.empty(n)
     chunks = chunk_count(n, OBSTACLE_CHUNK)
     if chunks == 1:  # a parallel launch would cost more than the pass

@@ -92,8 +92,8 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     skipping all-kinematic pairs, pairs inside one zone (``roots``) and, if ``only`` ((N,) bool) is
     given, pairs without a flagged vertex (their trajectories did not change since they were last found
     collision-free). The cheap index filters run first, then the trajectory boxes (within ``eta``) and their
-    projections on the box diagonals, then the CCD (one compiled pass per store segment,
-    :func:`modalfem.collision._ccd_kernels.ccd_block`).
+    projections on the box diagonals, then the CCD (one compiled parallel pass over all the store's segments,
+    :func:`modalfem.collision._ccd_kernels.ccd_segments`).
 
     The hits come in a canonical order, not the store's: an edge-edge pair with its smaller edge (by vertex
     indices) first, all sorted by their four vertex indices. Every store holds every pair whose trajectory
@@ -108,18 +108,17 @@ def ccd_hits(system, X0, V, dt, store, invm, eta, roots=None, only=None):
     movable = invm > 0
     zones = np.zeros(0, dtype=np.int64) if roots is None else np.ascontiguousarray(roots, dtype=np.int64)
     only = None if only is None else np.ascontiguousarray(only, dtype=bool)
+    # the store's large blocks go to the CCD as they are, with the vertices whose pairs in them are gone and
+    # ``only`` (filtered in the CCD's parallel pass), the selected pairs of the small ones as a list; all segments
+    # of both kinds in one parallel region (ccd_segments): hits in the store's order
+    segs = [(kind == "vf", q, gone, flags) for kind in ("vf", "ee") for q, gone, flags in store.segments(kind, only)
+            if len(q)]
+    found = _ccd_kernels.ccd_segments(segs, X0, X1, movable, zones, eta, PIPELINE_DEPTH, MAX_INTERVALS, diag, gap)
     out = []
     for kind in ("vf", "ee"):
         qs, ts = [], []
-        # the store's large blocks go to the CCD as they are, with the vertices whose pairs in them are gone and
-        # ``only`` (filtered in the CCD's parallel pass), the selected pairs of the small ones as a list: hits in
-        # the store's order
-        for q, gone, flags in store.segments(kind, only):
-            if len(q) == 0:
-                continue
-            idx, toi = _ccd_kernels.ccd_block(kind == "vf", X0, X1, q, gone, flags, movable, zones, eta,
-                                              PIPELINE_DEPTH, MAX_INTERVALS, diag, gap)
-            if len(idx):
+        for (vf, q, _, _), (idx, toi) in zip(segs, found):
+            if vf == (kind == "vf") and len(idx):
                 qs.append(q[idx].astype(np.int64))
                 ts.append(toi)
         if qs:

@@ -25,7 +25,8 @@ def _trajectories(N: int, seed: int):
 
 def test_trajectory_diagonals_give_the_bits_of_the_three_steps_it_fuses():
     dt, eta = 1e-2, 1e-4
-    for N in (0, 1, 1023, 5000):
+    # serial below SERIAL_VERTICES (8192), parallel chunks above: the same chunks either way
+    for N in (0, 1, 1023, 5000, _ccd_kernels.SERIAL_VERTICES - 1, _ccd_kernels.SERIAL_VERTICES + 4000):
         X0, V = _trajectories(N, N)
         X1 = X0 + dt * V  # the numpy expression ccd_hits used
         want_diag = _ccd_kernels.diagonal_intervals(X0, X1)
@@ -45,7 +46,12 @@ def test_outgrown_matches_numpy_on_any_thread_count():
     end position moved by more than eta since the pairs were found -- the numpy expressions _stages used, with
     both tests on and the velocity test off (vtol = inf), and the counts among the first n and in all."""
     dt, grow, eta = 1e-2, 2e-4, 1e-4
-    X0, V = _trajectories(5000, 1)
+    for N in (5000, _pair_kernels.OUTGROWN_SERIAL + 3000):  # the serial pass and the parallel one
+        _check_outgrown(N, dt, grow, eta)
+
+
+def _check_outgrown(N, dt, grow, eta):
+    X0, V = _trajectories(N, 1)
     V[11, 0] = 0.0  # see the bound below
     X1 = X0 + dt * V
     lo, hi = np.minimum(X0, X1) - 1e-3, np.maximum(X0, X1) + 1e-3
@@ -102,11 +108,15 @@ def test_flagged_triangles_and_nonzero_rows_match_numpy_on_any_thread_count():
     rng = np.random.default_rng(6)
     tris = rng.integers(0, 4000, size=(9000, 3))
     flags = rng.random(4000) < 0.02
-    dV = np.where(rng.random((6000, 3)) < 0.1, rng.standard_normal((6000, 3)), 0.0)
-    dV[1, 2] = -0.0  # a negative zero is no change
-    dV[2, 0] = np.nan
-    for t in THREADS:
-        with thread_count(t):
-            assert np.array_equal(_pair_kernels.flagged_triangles(flags, tris), flags[tris].any(axis=1))
-            assert np.array_equal(_pair_kernels.rows_nonzero(dV), (dV != 0).any(axis=1))
-            assert _pair_kernels.rows_nonzero(np.zeros((0, 3))).shape == (0,)
+    for k in (6000, _pair_kernels.ROWS_SERIAL + 5000):  # serial below ROWS_SERIAL, parallel chunks above
+        dV = np.where(rng.random((k, 3)) < 0.1, rng.standard_normal((k, 3)), 0.0)
+        dV[1, 2] = -0.0  # a negative zero is no change
+        dV[2, 0] = np.nan
+        dV[-3] = 0.0
+        dV[-2, 2] = 1e-300
+        dV[-1] = (0.0, 2.0, 0.0)  # the last row counts
+        for t in THREADS:
+            with thread_count(t):
+                assert np.array_equal(_pair_kernels.flagged_triangles(flags, tris), flags[tris].any(axis=1))
+                assert np.array_equal(_pair_kernels.rows_nonzero(dV), (dV != 0).any(axis=1))
+                assert _pair_kernels.rows_nonzero(np.zeros((0, 3))).shape == (0,)
