@@ -14,6 +14,7 @@ import numba
 import numpy as np
 
 from modalfem.runtime._contact_step_kernels import _free_rotation
+from modalfem.world._shared import packed_states
 from modalfem.world._solid_stage import apply_lift
 
 @numba.njit(cache=True)
@@ -136,8 +137,34 @@ class ModalBatch:
         names = [n for n in self.names if n not in skip]
         if not names:
             return []
-        sel = [i for i, n in enumerate(self.names) if n not in skip] if skip else list(range(len(self.names)))
-        idx = sel if skip else slice(None)
+        coef = self._coefficients(h)
+        if not skip:  # every body: stepped in the packed arrays its scratch state views
+            packed = self._packed
+            for a, b in zip(packed, packed_states(ctx, self.names)):  # (shared with the contact stage: copied)
+                a[...] = b
+            P = packed[0]
+            kick = np.zeros(len(names), dtype=np.bool_)
+            dvoff = np.zeros(len(names), dtype=np.int64)
+            parts, o = [np.zeros(0)], 0
+            for i, n in enumerate(names):
+                apply_lift(ctx.lift, n, P[i])  # the part of the solid solve's dv holding the load (``gravity_lift``)
+                d = ctx.dV.get(n)
+                if d is not None:
+                    kick[i], dvoff[i] = True, o
+                    parts.append(d)
+                    o += len(d)
+            ok = free_steps(*packed, self.qoff, self.nm, np.concatenate(parts), dvoff, kick, self.inertia, self.mass,
+                            self.g, self.axes, self.moments, coef, h, TINY)
+            for n, out, v in zip(names, self.outs, self._views):
+                out.position, out.velocity, out.angular_momentum, out.orientation, out.q, out.qdot = v
+                out.time = ctx.state_in.bodies[n].time + h
+            ctx.out.bodies.update(zip(names, self.outs))
+            ctx.done.update(names)
+            if not ok:
+                self._raise_non_finite(names, self.outs)
+            return names
+        sel = [i for i, n in enumerate(self.names) if n not in skip]
+        idx = sel
         sts = [ctx.state_in.bodies[n] for n in names]
         pos = np.array([s.position for s in sts], dtype=np.float64)
         vel = np.array([s.velocity for s in sts], dtype=np.float64)
@@ -146,7 +173,7 @@ class ModalBatch:
         q = np.concatenate([np.zeros(0)] + [s.q for s in sts])
         qdot = np.concatenate([np.zeros(0)] + [s.qdot for s in sts])
         nm = self.nm[idx]
-        qoff = np.concatenate([[0], np.cumsum(nm)[:-1]]).astype(np.int64) if skip else self.qoff
+        qoff = np.concatenate([[0], np.cumsum(nm)[:-1]]).astype(np.int64)
         kick = np.zeros(len(names), dtype=np.bool_)
         dvoff = np.zeros(len(names), dtype=np.int64)
         parts, o = [np.zeros(0)], 0
@@ -157,24 +184,9 @@ class ModalBatch:
                 kick[i], dvoff[i] = True, o
                 parts.append(d)
                 o += len(d)
-        coef = self._coefficients(h)
-        if skip:  # the coefficients of the bodies stepped here
-            full = np.concatenate([[0], np.cumsum(self.nm)])
-            coef = np.concatenate([np.zeros(0)] + [coef[6 * full[i]:6 * full[i + 1]] for i in sel])
-        if not skip:  # every body: stepped in the packed arrays its scratch state views
-            packed = self._packed
-            for a, b in zip(packed, (pos, vel, L, quat, q, qdot)):
-                a[...] = b
-            ok = free_steps(*packed, qoff, nm, np.concatenate(parts), dvoff, kick, self.inertia, self.mass, self.g,
-                            self.axes, self.moments, coef, h, TINY)
-            for s, out, v in zip(sts, self.outs, self._views):
-                out.position, out.velocity, out.angular_momentum, out.orientation, out.q, out.qdot = v
-                out.time = s.time + h
-            ctx.out.bodies.update(zip(names, self.outs))
-            ctx.done.update(names)
-            if not ok:
-                self._raise_non_finite(names, self.outs)
-            return names
+        # the coefficients of the bodies stepped here
+        full = np.concatenate([[0], np.cumsum(self.nm)])
+        coef = np.concatenate([np.zeros(0)] + [coef[6 * full[i]:6 * full[i + 1]] for i in sel])
         ok = free_steps(pos, vel, L, quat, q, qdot, qoff, nm, np.concatenate(parts), dvoff, kick,
                         self.inertia[idx], self.mass[idx], self.g[idx], self.axes[idx], self.moments[idx], coef, h,
                         TINY)

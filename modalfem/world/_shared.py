@@ -22,6 +22,31 @@ SLOW = 0.5
 _REACTION_KEY = "tet reaction"
 
 
+def pack_states(bodies: dict, names: list) -> tuple:
+    """The modal states ``bodies[n]`` (``runtime.State``) of the bodies ``names``, packed: ``(position, velocity,
+    angular_momentum, orientation)`` (m, 3), (m, 3), (m, 3), (m, 4) and every body's ``q``, ``qdot`` one after
+    another (float64, new arrays)."""
+    sts = [bodies[n] for n in names]
+    return (np.array([s.position for s in sts], dtype=np.float64).reshape(-1, 3),
+            np.array([s.velocity for s in sts], dtype=np.float64).reshape(-1, 3),
+            np.array([s.angular_momentum for s in sts], dtype=np.float64).reshape(-1, 3),
+            np.array([s.orientation for s in sts], dtype=np.float64).reshape(-1, 4),
+            np.concatenate([np.zeros(0)] + [s.q for s in sts]),
+            np.concatenate([np.zeros(0)] + [s.qdot for s in sts]))
+
+
+def packed_states(ctx, names: list) -> tuple:
+    """``pack_states`` of the pass's start states (``ctx.state_in``), made once per pass (``ctx.packed``) for its
+    stages: the solid contact stage and the batched modal step read the same bodies. Shared: callers must not change
+    the arrays."""
+    p = ctx.packed
+    if p is not None and p[0] == names:
+        return p[1]
+    arrays = pack_states(ctx.state_in.bodies, names)
+    ctx.packed = (names, arrays)
+    return arrays
+
+
 def _vertex(name: str, p, n: int) -> int:
     if isinstance(p, (int, np.integer)) and 0 <= int(p) < n:
         return int(p)

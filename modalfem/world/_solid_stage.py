@@ -10,7 +10,7 @@ import numpy as np
 from modalfem import effects as fx
 from modalfem.world import _kernels
 from modalfem.world import _solid_kernels as SK
-from modalfem.world._shared import _REACTION_KEY, BOUNCE_THRESHOLD, PUSH_OUT, SLOW
+from modalfem.world._shared import _REACTION_KEY, BOUNCE_THRESHOLD, PUSH_OUT, SLOW, packed_states
 from modalfem.world.obstacles import Box, TriangleMesh
 
 if TYPE_CHECKING:
@@ -38,7 +38,8 @@ class _SolidStage:
         seg = lay["seg"]
         gd = {n: self._modal[n]["g"] for n in fast.names}
         # their velocity blocks (v + g dt, w, qdot), one after another in ``seg``'s order, and speed bounds in one call
-        Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, gd, dt)
+        packed = packed_states(ctx, fast.names)  # their start states packed (read here and by the modal batch)
+        Vf, sf = fast.velocity_blocks(ctx.state_in.bodies, gd, dt, packed)
         V = Vf.copy()  # the solve's, changed in place
         speed = dict(zip(fast.names, sf.tolist()))
         for name in ctx.dV:  # the reaction of tet bodies' contacts with it (``_tet_reaction``)
@@ -91,7 +92,7 @@ class _SolidStage:
                     driven[names.index(name)] |= o.moving
         # modal bodies against each other and static planes (None: no such contact)
         fdata = fast.collect(ctx.state_in.bodies, lay["vel_off"], speed, dt, lay["index"],
-                             ctx.state_in.contacts.get(_FAST_KEY))
+                             ctx.state_in.contacts.get(_FAST_KEY), packed)
         kp = builder.count
         k = kp + (len(fdata["gap"]) if fdata is not None else 0)
         ctx.report.contacts["solid"] = k

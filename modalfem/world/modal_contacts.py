@@ -19,6 +19,7 @@ from modalfem.collision.bvh import BroadPhaseBVH
 from modalfem.world import _coherent_kernels as CK
 from modalfem.world import _contact_rows as CR
 from modalfem.world import _solid_kernels as SK
+from modalfem.world._shared import pack_states
 from modalfem.world.proximity import surface_edges
 
 __all__ = ["ModalContacts"]
@@ -110,14 +111,14 @@ class ModalContacts:
             List([np.zeros(0)] * (nb * nb)) for _ in range(3)) + tuple(
             List([np.zeros((0, 4))] * (nb * nb)) for _ in range(2)) + (List([np.zeros((0, 7))] * (nb * nb)),)
 
-    def velocity_blocks(self, states: dict, g: dict, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    def velocity_blocks(self, states: dict, g: dict, dt: float, packed: tuple | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
         """Every body's block ``(v + g dt, w, qdot)`` (6 + r) of the solve's velocities, one after another in
         ``names`` order, and (nb,) bounds of its surface points' speed ``|v| + |w| radius + |g| dt + max_i |(Phi
-        qdot)_i|`` [m/s] (``states``: ``{name: runtime.State}``; ``g``: ``{name: gravity (3,) [m/s^2]}``; dt [s])."""
-        sts = [states[n] for n in self.names]
-        return SK.velocity_blocks(np.array([s.orientation for s in sts]), np.array([s.velocity for s in sts]),
-                                  np.array([s.angular_momentum for s in sts]),
-                                  np.concatenate([np.zeros(0)] + [s.qdot for s in sts]), self.mask_off, self.nm,
+        qdot)_i|`` [m/s] (``states``: ``{name: runtime.State}``; ``g``: ``{name: gravity (3,) [m/s^2]}``; dt [s];
+        ``packed``: ``_shared.pack_states(states, names)``, or None)."""
+        pos, vel, L, quat, q, qdot = pack_states(states, self.names) if packed is None else packed
+        return SK.velocity_blocks(quat, vel, L, qdot, self.mask_off, self.nm,
                                   self._inertia_inv, np.array([g[n] for n in self.names], dtype=np.float64),
                                   self._radius, self.phi, self.phi_off, self._voff, float(dt))
 
@@ -127,7 +128,8 @@ class ModalContacts:
             self._mask_dt = dt
         return self.mask
 
-    def collect(self, states: dict, vel_off: dict, speed: dict, dt: float, index: dict, warm) -> dict | None:
+    def collect(self, states: dict, vel_off: dict, speed: dict, dt: float, index: dict, warm,
+                packed: tuple | None = None) -> dict | None:
         """This step's modal contacts and their entries.
 
         Args:
@@ -135,17 +137,15 @@ class ModalContacts:
                 the solve's velocity vector. speed: ``{name: bound of a surface point's speed [m/s]}``.
             dt: step [s]. index: ``{name: index of the body in the solve}`` (for ``body`` / ``other``).
             warm: the last step's ``(keys, impulses)`` of these contacts, or None.
+            packed: ``_shared.pack_states(states, names)``, or None.
 
         Returns:
             None without contacts, else the arrays of ``_ContactBuilder.arrays`` (``ptr``, ``off``, ``nd``, ``jptr``,
             ``J``, ``WJt``, ``normal``, ``gap``, ``vobs_n``, ``mu``, ``restitution``, ``margin``, ``body``, ``other``,
             ``point``, ``iterations``) plus ``keys`` (k,) int64 and ``warm`` (k, 3) [N s] start impulses.
         """
-        nb = len(self.bodies)
-        sts = [states[n] for n in self.names]
-        q = np.concatenate([np.zeros(0)] + [s.q for s in sts])
-        pos = np.array([s.position for s in sts])
-        R, Iw_inv, Xl, X, bound, lo, hi = SK.frames(np.array([s.orientation for s in sts]), pos, q, self.mask_off,
+        pos, _, _, quat, q, _ = pack_states(states, self.names) if packed is None else packed
+        R, Iw_inv, Xl, X, bound, lo, hi = SK.frames(quat, pos, q, self.mask_off,
                                                    self.nm, self.phi, self.phi_off, self._rest, self._voff,
                                                    self._inertia_inv)
         self.rotations = R

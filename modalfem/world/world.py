@@ -759,6 +759,7 @@ class _StepContext:
         self.contacts = dict(state_in.contacts)  # kept unless the solid solve runs
         self.report = None
         self.tet_obstacles = set()  # (modal body, static obstacle index) pairs a tet step solved (``_modal_planes``)
+        self.packed = None  # (names, arrays) of ``_shared.packed_states``
 
 
 #: the control of a step given none (never changed: stages only read it)
