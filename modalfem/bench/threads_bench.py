@@ -137,6 +137,102 @@ def profile_share(case: str, steps: int | None) -> dict:
     return _profile_summary(pstats.Stats(prof).stats, count)
 
 
+_LAUNCH_HOOKS: list = []  # the ctypes callbacks the kernels' code calls: they must live as long as the process
+
+
+def count_launches() -> list | None:
+    """Count the parallel regions numba starts from now on in this process: returns ``[count]``, incremented at
+    every launch, or None when the threading layer is not TBB. numba calls its layer's ``parallel_for`` through
+    the symbol ``numba_parallel_for``, bound when a compiled kernel's code is linked (its first call in the
+    process); this points the symbol at a counting wrapper, so it must run before the first parallel kernel of
+    the process does. Every region counts: a ``prange`` loop, and also each ``np.zeros``/``np.ones``, array
+    expression or reduction that ``parallel=True`` turns into a loop of its own (a kernel's profile counts its
+    calls only: one call can start several regions, or none on a serial branch). The wrapper is Python (a few
+    us per launch): count in a run that times nothing else."""
+    import ctypes
+
+    import llvmlite.binding as ll
+
+    from modalfem._threads import threading_layer
+
+    if threading_layer() != "tbb":
+        return None
+    from numba.np.ufunc import parallel, tbbpool
+
+    parallel._launch_threads()  # numba's own symbols first (it registers them once), then the wrapper over them
+    sig = (None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+           ctypes.c_size_t, ctypes.c_size_t, ctypes.c_int)
+    real = ctypes.PYFUNCTYPE(*sig)(tbbpool.parallel_for)  # (fn, args, dims, steps, data, inner_ndim, arrays, threads)
+    count = [0]
+
+    def counted(*args):
+        count[0] += 1
+        real(*args)
+
+    hook = ctypes.CFUNCTYPE(*sig)(counted)
+    _LAUNCH_HOOKS.append(hook)
+    ll.add_symbol("numba_parallel_for", ctypes.cast(hook, ctypes.c_void_p).value)
+    return count
+
+
+def launches_per_step(steps: int | None) -> dict | None:
+    """Parallel regions per step of the 64x64 cloth pile (one thread; :func:`count_launches`, so call it in a fresh
+    child before any kernel runs), in all and by the kernel called from Python that started them:
+    ``{"per_step": float, "after_python": float, "by_kernel": {"file.py:name": per step}, "calls": {"file.py:name":
+    calls per step}}``. ``after_python``: the kernel calls that started at least one region, i.e. the regions that
+    follow serial Python and may find the pool asleep (a kernel's further regions follow its first within
+    microseconds). None when the layer is not TBB. ``steps`` None: the pile's 80."""
+    import collections
+
+    count = count_launches()
+    if count is None:
+        return None
+    from modalfem.bench import cloth_bench
+    from modalfem.cloth import scenes
+
+    cloth_bench.run_case("pile", 24, 40)  # every kernel linked (through the counter) before the count
+    setup = scenes.pile(64)
+    steps = setup.steps if steps is None else steps
+    stack: list = []
+    by: collections.Counter = collections.Counter()
+    calls: collections.Counter = collections.Counter()
+
+    def trace(frame, event, arg):  # a compiled kernel shows as a call of its Python function
+        if event == "call":
+            stack.append(f"{os.path.basename(frame.f_code.co_filename)}:{frame.f_code.co_name}")
+            calls[stack[-1]] += 1
+        elif event == "return" and stack:
+            stack.pop()
+
+    seen = [0]
+
+    starts = [0]
+
+    def attribute():
+        if count[0] != seen[0]:  # launches since the last event belong to the innermost call
+            by[stack[-1] if stack else "?"] += count[0] - seen[0]
+            seen[0] = count[0]
+            starts[0] += 1
+
+    def traced(frame, event, arg):
+        if frame.f_code.co_name == "counted" and frame.f_code.co_filename == __file__:
+            return  # the counter's own Python wrapper, called from inside the kernel
+        attribute()
+        trace(frame, event, arg)
+
+    start = count[0]
+    seen[0] = start
+    sys.setprofile(traced)
+    try:
+        for _ in range(steps):
+            setup.scene.step(setup.dt)
+    finally:
+        sys.setprofile(None)
+    attribute()
+    return {"per_step": (count[0] - start) / steps, "after_python": starts[0] / steps,
+            "by_kernel": {k: v / steps for k, v in by.most_common()}, "calls": {k: calls[k] / steps for k in by}}
+
+
 def _profile_summary(stats: dict, steps: int) -> dict:
     """From ``pstats.Stats(...).stats`` of ``steps`` steps: CPU seconds in everything (``total_s``) and in the
     parallel kernels (``parallel_s``), and per kernel its own CPU seconds (``kernels``) and calls (``calls``)."""
@@ -277,9 +373,10 @@ def wake_probe(n: int, gaps_us=(0.0, 200.0, 2000.0), work_us: float = 100.0, cal
     return {"work_us": work_us, "gaps": out}
 
 
-def wake_lines(wake: dict | None, n: int, launches: float | None = None) -> list[str]:
+def wake_lines(wake: dict | None, n: int, launches: float | None = None, counted: dict | None = None) -> list[str]:
     """Markdown lines of :func:`wake_probe`; ``launches``: parallel kernel calls per step of the cloth pile
-    (from its profile), to price the wake-up per step."""
+    (from its profile), to price the wake-up per step; ``counted``: :func:`launches_per_step`'s regions (used
+    instead when given: calls are not regions)."""
     if not wake:
         return []
     gaps = wake["gaps"]
@@ -291,12 +388,21 @@ def wake_lines(wake: dict | None, n: int, launches: float | None = None) -> list
     for gap, r in sorted(gaps.items()):
         L.append(f"| {gap:.0f} | {r['1']:.1f} | {r[str(n)]:.1f} | {r['1'] / r[str(n)]:.2f}x |")
     keys = sorted(gaps)
+    if counted:
+        launches = counted["per_step"]
+        top = ", ".join(f"{k} {v:.1f} ({counted['calls'].get(k, 0.0):.1f} calls)"
+                        for k, v in list(counted["by_kernel"].items())[:8])
+        what = (f"starts {launches:.0f} parallel regions per step (counted at numba's launch, one thread; by the "
+                f"kernel called from Python: {top}), {counted.get('after_python', 0.0):.0f} of them after serial "
+                "Python (the others follow another region of the same kernel within microseconds)")
+    else:
+        what = (f"launches at least {launches or 0:.0f} parallel kernels per step (calls counted in its one-thread "
+                "profile; the CG solves launch more inside)")
     if launches and len(keys) > 1:
         # the growth on n threads beyond that on one thread (which has no workers to wake)
         lo, hi = gaps[keys[0]], gaps[keys[-1]]
         extra = max(0.0, (hi[str(n)] - lo[str(n)]) - (hi["1"] - lo["1"]))
-        L += ["", (f"The cloth pile launches at least {launches:.0f} parallel kernels per step (calls counted in its "
-                   f"one-thread profile; the CG solves launch more inside): at {extra:.1f} us more per region on "
+        L += ["", (f"The cloth pile {what}: at {extra:.1f} us more per region on "
                    f"{n} threads after a {keys[-1]:.0f} us gap than back to back (beyond the change on one thread), "
                    f"the wake-ups would cost up to {launches * extra / 1e3:.1f} ms per step on {n} threads.")]
     return L
@@ -571,6 +677,19 @@ def _profile_child(case: str, steps: int | None, timeout: float) -> dict | None:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def _launches_child(steps: int | None, timeout: float) -> dict | None:
+    env = {**os.environ, "MODALFEM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1",
+           "MKL_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "modalfem.bench.threads_bench", "--launches", "--steps", str(steps or 0)]
+    try:
+        p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout, check=False)
+    except subprocess.TimeoutExpired:
+        return None
+    if p.returncode != 0:
+        return None
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
 def profile_lines(profiles: dict) -> list[str]:
     """Markdown lines of the one-thread CPU profiles: the parallel share, the Amdahl bounds it implies
     and the largest kernels."""
@@ -666,8 +785,12 @@ def command(argv: list[str]) -> int:
     rates.append(throughput(n))
     pile = profiles.get("cloth pile 64x64") or {}
     launches = sum(pile.get("calls", {}).values()) / pile["steps"] if pile.get("steps") else None
+    counted = None
+    if not (a.quick or a.no_profile):
+        print("[bench threads] parallel regions per step of the cloth pile ...", file=sys.stderr, flush=True)
+        counted = _launches_child(cloth_steps, a.timeout)
     extra = (kernel_lines(kernels, n) + replay_lines(replays, n) + profile_lines(profiles)
-             + wake_lines(wake, n, launches))
+             + wake_lines(wake, n, launches, counted))
     extra += ["", cores_line(n, probes, rates)]
     section = section + "\n".join(extra) + ("\n" if extra else "")
     print(section)
@@ -693,6 +816,7 @@ def _main(argv: list[str]) -> int:
     ap.add_argument("--profile", choices=("cloth", "tet"))
     ap.add_argument("--replay", choices=("cloth", "tet"))
     ap.add_argument("--kernels", action="store_true")
+    ap.add_argument("--launches", action="store_true", help="parallel regions per step of the cloth pile (JSON)")
     ap.add_argument("--wake", action="store_true", help="wake_probe (e.g. under NUMBA_THREADING_LAYER=omp "
                     "and OMP_WAIT_POLICY / GOMP_SPINCOUNT variants) and print its lines")
     ap.add_argument("--steps", type=int, default=0, help="0: the case's default")
@@ -708,6 +832,8 @@ def _main(argv: list[str]) -> int:
         print("\n".join([f"threading layer {threading_layer()}; OMP_WAIT_POLICY="
                          f"{os.environ.get('OMP_WAIT_POLICY', '')} GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', '')}; "
                          f"load {_load():.2f}"] + wake_lines(wake, a.threads)))
+    elif a.launches:
+        print(json.dumps(launches_per_step(a.steps or None)))
     elif a.replay:
         _, warm, window = REPLAYS[a.replay]
         print(json.dumps(replay(a.replay, a.threads, a.repeats, warm=warm, window=window)))

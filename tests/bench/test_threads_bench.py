@@ -172,3 +172,57 @@ def test_wake_command_prints_the_layer_and_the_table(capsys):
     out = capsys.readouterr().out
     assert out.startswith(f"threading layer {threading_layer()};")
     assert "| 0 |" in out and "| 200 |" in out and "| 2000 |" in out
+
+
+def test_wake_lines_price_the_counted_regions_when_given():
+    from modalfem.bench.threads_bench import wake_lines
+
+    wake = {"work_us": 100.0, "gaps": {0.0: {"1": 100.0, "2": 55.0}, 2000.0: {"1": 104.0, "2": 79.0}}}
+    counted = {"per_step": 400.0, "after_python": 120.0, "by_kernel": {"_kernels.py:pcg": 300.0, "_x.py:k": 100.0},
+               "calls": {"_kernels.py:pcg": 1.0, "_x.py:k": 50.0}}
+    text = "\n".join(wake_lines(wake, 2, 250.0, counted))
+    # 20 us more per region (as above) times the 400 counted regions, not the 250 profiled calls
+    assert "starts 400 parallel regions per step" in text and "up to 8.0 ms per step on 2 threads" in text
+    assert "_kernels.py:pcg 300.0 (1.0 calls)" in text and "_x.py:k 100.0 (50.0 calls)" in text
+    assert "120 of them after serial Python" in text
+
+
+def test_count_launches_counts_every_region_of_a_kernel():
+    """In a fresh child (the counter must be in place before a kernel is linked): a prange loop is one region, a
+    kernel whose np.zeros numba makes a loop of its own two, a serial njit function none."""
+    import subprocess
+    import sys
+
+    import pytest
+
+    from modalfem._threads import threading_layer
+
+    if threading_layer() != "tbb":
+        pytest.skip("the counter wraps the TBB layer's launch")
+    code = """
+import numba, numpy as np
+from modalfem.bench import threads_bench
+count = threads_bench.count_launches()
+
+@numba.njit(parallel=True)
+def two(n):
+    a = np.zeros(2 * n)  # another size than the loop's (numba fuses a same-sized one into it)
+    for i in numba.prange(n):
+        a[i] += i
+    return a
+
+@numba.njit
+def none(n):
+    return np.zeros(n).sum()
+
+a = np.zeros(64)
+got = []
+for f in (lambda: threads_bench._probe_kernel(a, 10), lambda: two(1000), lambda: none(1000)):
+    f()
+    c = count[0]
+    f(); f(); f()
+    got.append(count[0] - c)
+print(got)
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, check=True)
+    assert p.stdout.strip().splitlines()[-1] == "[3, 6, 0]"
