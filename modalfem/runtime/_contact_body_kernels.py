@@ -10,7 +10,8 @@ resting on the ground costs a few compiled calls per step instead of dozens of a
 * ``solve_rigid``: the sequential-impulse solve of a body whose contact response is rigid (no modal
   columns: the sustained solve leaves out the modes faster than its sub-step), with the body's six
   velocities in registers: one contact's update is a few dozen flops with no memory round trip, where the
-  general row-based solve (``_contact_kernels.solve``) is latency-bound on loads and stores of V.
+  general row-based solve (``_contact_kernels.solve``) is latency-bound on loads and stores of V. Blocks of
+  contacts whose updates would all be skipped are found by a vectorised test first (``_applies``).
 
 Obstacles are ``(kind, params)`` as in ``_contact_kernels``; mode shapes vertex-major ``vm`` (nv, r, 3)
 [m/sqrt(kg)] in the body's dtype, sums in float64.
@@ -221,6 +222,67 @@ def push_shift(kinds, params, rest, vm, q, skip, R, c, bound, slack, passes, no,
     return total
 
 
+#: contacts per block of ``solve_rigid``'s sweep that ``_applies`` tests at once
+_BLOCK = 32
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _applies(i0, i1, rT, nT, target, mu, sT, A, Wn, lam_n, jT, v0, v1, v2, w0, w1, w2, tol):
+    """How many of the contacts i0..i1-1 the sweep of ``solve_rigid`` would update at the velocities (v, w) [m/s,
+    rad/s]: its update of each (the same operations in the same order on the same values, so the same bits) with
+    the branches written as selects, so that the loop is vectorised (~3x faster than the sweep, whose updates
+    wait on each other's v and w). A contact counted 0 is one the sweep skips (its velocity change within tol);
+    a NaN counts 1. The sweep changes nothing while it skips, so a block counted 0 is skipped whole: a resting
+    body's converged sweep is then this test alone. Arrays contact-minor: rT, nT, sT, jT (3, k) lever arms,
+    normals, load shifts, friction impulses; A (9, k) rows ``A_i[a, b]`` at ``3 a + b``. (error_model numpy: a
+    division by zero in a branch not taken gives an infinity or NaN that the select drops, not an exception.)"""
+    bad = 0
+    for i in range(np.uint64(i0), np.uint64(i1)):  # (unsigned: no negative-index wrap, which stops vectorising)
+        r0, r1, r2 = rT[0, i], rT[1, i], rT[2, i]
+        u0 = v0 + (w1 * r2 - w2 * r1) + sT[0, i]
+        u1 = v1 + (w2 * r0 - w0 * r2) + sT[1, i]
+        u2 = v2 + (w0 * r1 - w1 * r0) + sT[2, i]
+        n0, n1, n2 = nT[0, i], nT[1, i], nT[2, i]
+        vn = n0 * u0 + n1 * u1 + n2 * u2
+        old = lam_n[i]
+        x = old + (target[i] - vn) * Wn[i]
+        new = x if x > 0.0 else 0.0  # (the sweep's max(x, 0.0), but for the sign of a zero, which changes no
+        dn = new - old               # nonzero value below: the decision is the same)
+        d0, d1, d2 = dn * n0, dn * n1, dn * n2
+        j0, j1, j2 = jT[0, i], jT[1, i], jT[2, i]
+        ui0 = u0 + A[0, i] * d0 + A[1, i] * d1 + A[2, i] * d2
+        ui1 = u1 + A[3, i] * d0 + A[4, i] * d1 + A[5, i] * d2
+        ui2 = u2 + A[6, i] * d0 + A[7, i] * d1 + A[8, i] * d2
+        un = n0 * ui0 + n1 * ui1 + n2 * ui2
+        ut0, ut1, ut2 = ui0 - n0 * un, ui1 - n1 * un, ui2 - n2 * un
+        s2 = ut0 * ut0 + ut1 * ut1 + ut2 * ut2
+        tat = (ut0 * (A[0, i] * ut0 + A[1, i] * ut1 + A[2, i] * ut2)
+               + ut1 * (A[3, i] * ut0 + A[4, i] * ut1 + A[5, i] * ut2)
+               + ut2 * (A[6, i] * ut0 + A[7, i] * ut1 + A[8, i] * ut2))
+        slide = s2 > 0.0
+        f = s2 / tat
+        c0 = j0 - f * ut0 if slide else j0
+        c1 = j1 - f * ut1 if slide else j1
+        c2 = j2 - f * ut2 if slide else j2
+        lim = mu[i] * new
+        n2c = c0 * c0 + c1 * c1 + c2 * c2
+        clamp = n2c > lim * lim
+        g = lim / math.sqrt(n2c)
+        c0 = c0 * g if clamp else c0
+        c1 = c1 * g if clamp else c1
+        c2 = c2 * g if clamp else c2
+        fric = mu[i] > 0.0
+        d0 = d0 + (c0 - j0) if fric else d0
+        d1 = d1 + (c1 - j1) if fric else d1
+        d2 = d2 + (c2 - j2) if fric else d2
+        e0 = A[0, i] * d0 + A[1, i] * d1 + A[2, i] * d2
+        e1 = A[3, i] * d0 + A[4, i] * d1 + A[5, i] * d2
+        e2 = A[6, i] * d0 + A[7, i] * d1 + A[8, i] * d2
+        skip = (abs(e0) <= tol) & (abs(e1) <= tol) & (abs(e2) <= tol) & ((x > 0.0) | (x <= 0.0))
+        bad += 0 if skip else 1
+    return bad
+
+
 @numba.njit(cache=True)
 def solve_rigid(r, mass, Iw_inv, V, n, target, mu, shift, iters, lam, jt, lam_n, guess):
     """Sequential impulses of one rigid body against static obstacles, in place on V = (v, w) (6,).
@@ -229,7 +291,10 @@ def solve_rigid(r, mass, Iw_inv, V, n, target, mu, shift, iters, lam, jt, lam_n,
     contact velocity ``u = v + w x r_i + shift_i``; an impulse d changes ``v += d / m`` and
     ``w += Iw^-1 (r_i x d)``. The friction update is written without square roots and with one division.
     An update changing its contact's velocity by at most ``TOLERANCE`` of the velocity scale is not
-    applied (see the module docstring).
+    applied (see the module docstring). The sweep goes in blocks of ``_BLOCK`` contacts: while it has applied
+    nothing since the last block, it first tests the next block whole (``_applies``, vectorised) and skips it
+    when no update in it would be applied, which changes nothing (the same results bit for bit; a resting body's
+    converged sweep costs ~1/3: bar of 451 contacts, kernel ~65 -> ~58 us, Intel Xeon).
 
     Args:
         r: (k, 3) lever arms from the centre of mass to the contact points [m], world.
@@ -244,24 +309,30 @@ def solve_rigid(r, mass, Iw_inv, V, n, target, mu, shift, iters, lam, jt, lam_n,
     im = 1.0 / mass
     # B_i = Iw^-1 [r_i]x (angular velocity per unit impulse) and A_i = I/m - [r_i]x B_i
     B = np.empty((k, 3, 3))
-    A = np.empty((k, 3, 3))
+    A = np.empty((9, k))  # A[3 a + b, i] = A_i[a, b]: contact-minor, as _applies reads it
     Wn = np.empty(k)
+    rT = np.empty((3, k))  # r, n, shift and (per sweep) jt contact-minor, for _applies
+    nT = np.empty((3, k))
+    sT = np.empty((3, k))
+    jT = np.empty((3, k))
     for i in range(k):
         r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
+        for a in range(3):
+            rT[a, i], nT[a, i], sT[a, i] = r[i, a], n[i, a], shift[i, a]
         for a in range(3):  # B[:, col] = Iw_inv @ [r]x[:, col]; [r]x columns: (0, r2, -r1), (-r2, 0, r0), (r1, -r0, 0)
             B[i, a, 0] = Iw_inv[a, 1] * r2 - Iw_inv[a, 2] * r1
             B[i, a, 1] = -Iw_inv[a, 0] * r2 + Iw_inv[a, 2] * r0
             B[i, a, 2] = Iw_inv[a, 0] * r1 - Iw_inv[a, 1] * r0
         for b in range(3):  # A[:, b] = e_b / m - r x B[:, b]... (B[:, b] x r)
             x0, x1, x2 = B[i, 0, b], B[i, 1, b], B[i, 2, b]
-            A[i, 0, b] = x1 * r2 - x2 * r1
-            A[i, 1, b] = x2 * r0 - x0 * r2
-            A[i, 2, b] = x0 * r1 - x1 * r0
-            A[i, b, b] += im
+            A[b, i] = x1 * r2 - x2 * r1
+            A[3 + b, i] = x2 * r0 - x0 * r2
+            A[6 + b, i] = x0 * r1 - x1 * r0
+            A[4 * b, i] += im
         s = 0.0
         for a in range(3):
             for b in range(3):
-                s += n[i, a] * A[i, a, b] * n[i, b]
+                s += n[i, a] * A[3 * a + b, i] * n[i, b]
         Wn[i] = 1.0 / s
     v0, v1, v2, w0, w1, w2 = V[0], V[1], V[2], V[3], V[4], V[5]
     if guess and k > 1:
@@ -306,64 +377,73 @@ def solve_rigid(r, mass, Iw_inv, V, n, target, mu, shift, iters, lam, jt, lam_n,
     done = iters
     for sweep in range(iters):
         change = 0.0
-        for i in range(k):
-            r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-            u0 = v0 + (w1 * r2 - w2 * r1) + shift[i, 0]
-            u1 = v1 + (w2 * r0 - w0 * r2) + shift[i, 1]
-            u2 = v2 + (w0 * r1 - w1 * r0) + shift[i, 2]
-            n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
-            vn = n0 * u0 + n1 * u1 + n2 * u2
-            old = lam_n[i]
-            new = max(old + (target[i] - vn) * Wn[i], 0.0)
-            dn = new - old
-            d0, d1, d2 = dn * n0, dn * n1, dn * n2
-            c0, c1, c2 = jt[i, 0], jt[i, 1], jt[i, 2]
-            if mu[i] > 0.0:
-                # velocity after the normal update u + A d, its tangential part ut; the impulse that stops
-                # it along its direction is ut |ut|^2 / (ut . A ut)
-                ui0 = u0 + A[i, 0, 0] * d0 + A[i, 0, 1] * d1 + A[i, 0, 2] * d2
-                ui1 = u1 + A[i, 1, 0] * d0 + A[i, 1, 1] * d1 + A[i, 1, 2] * d2
-                ui2 = u2 + A[i, 2, 0] * d0 + A[i, 2, 1] * d1 + A[i, 2, 2] * d2
-                un = n0 * ui0 + n1 * ui1 + n2 * ui2
-                ut0, ut1, ut2 = ui0 - n0 * un, ui1 - n1 * un, ui2 - n2 * un
-                s2 = ut0 * ut0 + ut1 * ut1 + ut2 * ut2
-                if s2 > 0.0:
-                    tat = (ut0 * (A[i, 0, 0] * ut0 + A[i, 0, 1] * ut1 + A[i, 0, 2] * ut2)
-                           + ut1 * (A[i, 1, 0] * ut0 + A[i, 1, 1] * ut1 + A[i, 1, 2] * ut2)
-                           + ut2 * (A[i, 2, 0] * ut0 + A[i, 2, 1] * ut1 + A[i, 2, 2] * ut2))
-                    f = s2 / tat
-                    c0 -= f * ut0
-                    c1 -= f * ut1
-                    c2 -= f * ut2
-                lim = mu[i] * new
-                n2c = c0 * c0 + c1 * c1 + c2 * c2
-                if n2c > lim * lim:
-                    f = lim / math.sqrt(n2c)
-                    c0 *= f
-                    c1 *= f
-                    c2 *= f
-                d0 += c0 - jt[i, 0]
-                d1 += c1 - jt[i, 1]
-                d2 += c2 - jt[i, 2]
-            # the contact's velocity change A d
-            e0 = A[i, 0, 0] * d0 + A[i, 0, 1] * d1 + A[i, 0, 2] * d2
-            e1 = A[i, 1, 0] * d0 + A[i, 1, 1] * d1 + A[i, 1, 2] * d2
-            e2 = A[i, 2, 0] * d0 + A[i, 2, 1] * d1 + A[i, 2, 2] * d2
-            step = max(abs(e0), abs(e1), abs(e2))
-            if step <= tol:  # within the convergence tolerance: nothing applied, the next contact need not wait
-                continue
-            lam_n[i] = new
-            jt[i, 0], jt[i, 1], jt[i, 2] = c0, c1, c2
-            lam[i, 0] += d0
-            lam[i, 1] += d1
-            lam[i, 2] += d2
-            v0 += d0 * im
-            v1 += d1 * im
-            v2 += d2 * im
-            w0 += B[i, 0, 0] * d0 + B[i, 0, 1] * d1 + B[i, 0, 2] * d2
-            w1 += B[i, 1, 0] * d0 + B[i, 1, 1] * d1 + B[i, 1, 2] * d2
-            w2 += B[i, 2, 0] * d0 + B[i, 2, 1] * d1 + B[i, 2, 2] * d2
-            change = max(change, step)
+        for i in range(k):  # (a contact updated in this sweep is not visited again in it: jT stays its jt)
+            jT[0, i], jT[1, i], jT[2, i] = jt[i, 0], jt[i, 1], jt[i, 2]
+        test = True  # blocks of contacts tested first (_applies) while the sweep has applied nothing since
+        for b0 in range(0, k, _BLOCK):
+            b1 = min(b0 + _BLOCK, k)
+            if test and _applies(b0, b1, rT, nT, target, mu, sT, A, Wn, lam_n, jT, v0, v1, v2, w0, w1, w2, tol) == 0:
+                continue  # the sweep would skip every contact of the block (nothing changes between them)
+            test = True
+            for i in range(b0, b1):
+                r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
+                u0 = v0 + (w1 * r2 - w2 * r1) + shift[i, 0]
+                u1 = v1 + (w2 * r0 - w0 * r2) + shift[i, 1]
+                u2 = v2 + (w0 * r1 - w1 * r0) + shift[i, 2]
+                n0, n1, n2 = n[i, 0], n[i, 1], n[i, 2]
+                vn = n0 * u0 + n1 * u1 + n2 * u2
+                old = lam_n[i]
+                new = max(old + (target[i] - vn) * Wn[i], 0.0)
+                dn = new - old
+                d0, d1, d2 = dn * n0, dn * n1, dn * n2
+                c0, c1, c2 = jt[i, 0], jt[i, 1], jt[i, 2]
+                if mu[i] > 0.0:
+                    # velocity after the normal update u + A d, its tangential part ut; the impulse that stops
+                    # it along its direction is ut |ut|^2 / (ut . A ut)
+                    ui0 = u0 + A[0, i] * d0 + A[1, i] * d1 + A[2, i] * d2
+                    ui1 = u1 + A[3, i] * d0 + A[4, i] * d1 + A[5, i] * d2
+                    ui2 = u2 + A[6, i] * d0 + A[7, i] * d1 + A[8, i] * d2
+                    un = n0 * ui0 + n1 * ui1 + n2 * ui2
+                    ut0, ut1, ut2 = ui0 - n0 * un, ui1 - n1 * un, ui2 - n2 * un
+                    s2 = ut0 * ut0 + ut1 * ut1 + ut2 * ut2
+                    if s2 > 0.0:
+                        tat = (ut0 * (A[0, i] * ut0 + A[1, i] * ut1 + A[2, i] * ut2)
+                               + ut1 * (A[3, i] * ut0 + A[4, i] * ut1 + A[5, i] * ut2)
+                               + ut2 * (A[6, i] * ut0 + A[7, i] * ut1 + A[8, i] * ut2))
+                        f = s2 / tat
+                        c0 -= f * ut0
+                        c1 -= f * ut1
+                        c2 -= f * ut2
+                    lim = mu[i] * new
+                    n2c = c0 * c0 + c1 * c1 + c2 * c2
+                    if n2c > lim * lim:
+                        f = lim / math.sqrt(n2c)
+                        c0 *= f
+                        c1 *= f
+                        c2 *= f
+                    d0 += c0 - jt[i, 0]
+                    d1 += c1 - jt[i, 1]
+                    d2 += c2 - jt[i, 2]
+                # the contact's velocity change A d
+                e0 = A[0, i] * d0 + A[1, i] * d1 + A[2, i] * d2
+                e1 = A[3, i] * d0 + A[4, i] * d1 + A[5, i] * d2
+                e2 = A[6, i] * d0 + A[7, i] * d1 + A[8, i] * d2
+                step = max(abs(e0), abs(e1), abs(e2))
+                if step <= tol:  # within the convergence tolerance: nothing applied, the next contact need not wait
+                    continue
+                lam_n[i] = new
+                jt[i, 0], jt[i, 1], jt[i, 2] = c0, c1, c2
+                test = False
+                lam[i, 0] += d0
+                lam[i, 1] += d1
+                lam[i, 2] += d2
+                v0 += d0 * im
+                v1 += d1 * im
+                v2 += d2 * im
+                w0 += B[i, 0, 0] * d0 + B[i, 0, 1] * d1 + B[i, 0, 2] * d2
+                w1 += B[i, 1, 0] * d0 + B[i, 1, 1] * d1 + B[i, 1, 2] * d2
+                w2 += B[i, 2, 0] * d0 + B[i, 2, 1] * d1 + B[i, 2, 2] * d2
+                change = max(change, step)
         if change <= tol:
             done = sweep + 1
             break
