@@ -53,7 +53,7 @@ import numba
 
 from modalfem.errors import InputError
 
-__all__ = ["keep_awake", "serial_blas", "set_threads", "thread_count", "threading_layer", "threads"]
+__all__ = ["serial_blas", "set_threads", "thread_count", "threading_layer", "threads"]
 
 #: most chunks a parallel loop is split into: enough for load balance on 16-32 cores, independent of the
 #: thread count so that results are (bit-)identical for every count
@@ -239,79 +239,3 @@ def chunk_count(n: int, min_chunk: int) -> int:
 def chunk_bounds(n: int, chunks: int, c: int) -> tuple:
     """Items ``[start, stop)`` of chunk ``c`` of ``chunks`` over ``n`` items (contiguous, in order)."""
     return (c * n) // chunks, ((c + 1) * n) // chunks
-
-
-def keep_awake_enabled() -> bool:
-    """``MODALFEM_KEEP_AWAKE=1`` (opt-in, experimental): :func:`keep_awake` runs its helper."""
-    return os.environ.get("MODALFEM_KEEP_AWAKE", "").strip() == "1"
-
-
-class _Awake:
-    """The helper of :func:`keep_awake`: a daemon thread running a compiled ``nogil`` loop of ``sched_yield()``
-    while ``flag[0]`` is 1 (``flag[1]`` counts its yields), parked on an event in between."""
-
-    def __init__(self) -> None:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=False)
-        yield_ = libc.sched_yield
-        yield_.restype, yield_.argtypes = ctypes.c_int, ()
-
-        @numba.njit(nogil=True)  # not cached: it calls a ctypes function (an address of this process)
-        def spin(flag):
-            while flag[0] != 0:
-                yield_()
-                flag[1] += 1
-
-        import numpy as np
-
-        self.flag = np.zeros(2, dtype=np.int64)
-        spin(self.flag)  # compiled here, not in the thread
-        self.event = threading.Event()
-        self.depth = 0
-        self.lock = threading.Lock()
-
-        def loop():
-            while True:
-                self.event.wait()
-                self.event.clear()
-                spin(self.flag)
-
-        self.thread = threading.Thread(target=loop, name="modalfem-keep-awake", daemon=True)
-        self.thread.start()
-
-
-_awake: _Awake | None = None
-
-
-@contextlib.contextmanager
-def keep_awake():
-    """``with keep_awake():`` keeps a second CPU from halting while the block runs, if ``MODALFEM_KEEP_AWAKE=1``
-    and the kernels run on 2 or more threads (else it does nothing). Experimental, off by default.
-
-    Between two parallel regions (the serial Python of a step's stages) numba's idle workers sleep, and on a
-    virtual machine an idle vCPU halts: the next region waits for it to wake (~33 us per region on an idle
-    2-vCPU host, ``python -m modalfem.bench.threads_bench --wake``). The helper, a thread looping on
-    ``sched_yield()`` without the GIL, keeps that vCPU running and yields it to any woken worker. It costs one
-    core's CPU time for the block's duration (nothing between blocks: the thread then waits on an event), and on
-    a machine without a free core it only competes with the workers: measure before enabling it."""
-    global _awake
-    if not keep_awake_enabled() or threads() < 2:
-        yield
-        return
-    with _lock:
-        if _awake is None:
-            _awake = _Awake()
-        helper = _awake
-    with helper.lock:
-        helper.depth += 1
-        if helper.depth == 1:
-            helper.flag[0] = 1
-            helper.event.set()
-    try:
-        yield
-    finally:
-        with helper.lock:
-            helper.depth -= 1
-            if helper.depth == 0:
-                helper.flag[0] = 0

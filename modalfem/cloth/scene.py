@@ -35,7 +35,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from modalfem._threads import keep_awake
 from modalfem.cloth.model import ClothModel, non_finite
 from modalfem.cloth.solver import ImplicitEuler, LinearSolveInfo
 from modalfem.cloth.wind import PressureWind, Wind
@@ -266,18 +265,12 @@ class ClothScene:
     def step(self, dt: float) -> StepStats:
         """Advance by ``dt`` [s]; returns ``StepStats``.
 
-        The scene (x, v, t and the released contacts) changes only if the step succeeds. With
-        ``MODALFEM_KEEP_AWAKE=1`` (experimental) a helper thread keeps a second CPU awake during the step
-        (:func:`modalfem._threads.keep_awake`).
+        The scene (x, v, t and the released contacts) changes only if the step succeeds.
 
         Raises:
             SimulationError: dt <= 0, non-finite state, a handle path that is not finite or has the wrong
                 shape at t + dt (named), or collisions the pipeline left unresolved.
         """
-        with keep_awake():
-            return self._step(dt)
-
-    def _step(self, dt: float) -> StepStats:
         try:
             dt = float(dt)
         except (TypeError, ValueError):
