@@ -81,6 +81,24 @@ def free_steps(pos, vel, L, quat, q, qdot, qoff, nm, dV, dvoff, kick, inertia, m
     return ok
 
 
+def _kicks(ctx, names: list, position: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the solid stage left for the modal bodies ``names`` stepped together: each body's lift (position change
+    [m] from ``gravity_lift``) added to its row of the start ``position`` (m, 3) [m] in place; and its velocity
+    change ``ctx.dV[name]`` (6 + r) packed as ``(dv, dvoff, kick)``: the changes one after another, (m,) offsets
+    into them, (m,) bool: the body has one."""
+    kick = np.zeros(len(names), dtype=np.bool_)
+    dvoff = np.zeros(len(names), dtype=np.int64)
+    parts, o = [np.zeros(0)], 0
+    for i, n in enumerate(names):
+        apply_lift(ctx.lift, n, position[i])
+        d = ctx.dV.get(n)
+        if d is not None:
+            kick[i], dvoff[i] = True, o
+            parts.append(d)
+            o += len(d)
+    return np.concatenate(parts), dvoff, kick
+
+
 class ModalBatch:
     """The modal bodies of a World that ``free_steps`` can step: each body's only effect in its solver is one
     gravity (``runtime.effects.Gravity``; modal damping is in its integrator), with no static obstacles of its own.
@@ -142,18 +160,8 @@ class ModalBatch:
             packed = self._packed
             for a, b in zip(packed, packed_states(ctx, self.names)):  # (shared with the contact stage: copied)
                 a[...] = b
-            P = packed[0]
-            kick = np.zeros(len(names), dtype=np.bool_)
-            dvoff = np.zeros(len(names), dtype=np.int64)
-            parts, o = [np.zeros(0)], 0
-            for i, n in enumerate(names):
-                apply_lift(ctx.lift, n, P[i])  # the part of the solid solve's dv holding the load (``gravity_lift``)
-                d = ctx.dV.get(n)
-                if d is not None:
-                    kick[i], dvoff[i] = True, o
-                    parts.append(d)
-                    o += len(d)
-            ok = free_steps(*packed, self.qoff, self.nm, np.concatenate(parts), dvoff, kick, self.inertia, self.mass,
+            dv, dvoff, kick = _kicks(ctx, names, packed[0])
+            ok = free_steps(*packed, self.qoff, self.nm, dv, dvoff, kick, self.inertia, self.mass,
                             self.g, self.axes, self.moments, coef, h, TINY)
             for n, out, v in zip(names, self.outs, self._views):
                 out.position, out.velocity, out.angular_momentum, out.orientation, out.q, out.qdot = v
@@ -174,20 +182,11 @@ class ModalBatch:
         qdot = np.concatenate([np.zeros(0)] + [s.qdot for s in sts])
         nm = self.nm[idx]
         qoff = np.concatenate([[0], np.cumsum(nm)[:-1]]).astype(np.int64)
-        kick = np.zeros(len(names), dtype=np.bool_)
-        dvoff = np.zeros(len(names), dtype=np.int64)
-        parts, o = [np.zeros(0)], 0
-        for i, n in enumerate(names):
-            apply_lift(ctx.lift, n, pos[i])  # the part of the solid solve's dv holding the load (``gravity_lift``)
-            d = ctx.dV.get(n)
-            if d is not None:
-                kick[i], dvoff[i] = True, o
-                parts.append(d)
-                o += len(d)
+        dv, dvoff, kick = _kicks(ctx, names, pos)
         # the coefficients of the bodies stepped here
         full = np.concatenate([[0], np.cumsum(self.nm)])
         coef = np.concatenate([np.zeros(0)] + [coef[6 * full[i]:6 * full[i + 1]] for i in sel])
-        ok = free_steps(pos, vel, L, quat, q, qdot, qoff, nm, np.concatenate(parts), dvoff, kick,
+        ok = free_steps(pos, vel, L, quat, q, qdot, qoff, nm, dv, dvoff, kick,
                         self.inertia[idx], self.mass[idx], self.g[idx], self.axes[idx], self.moments[idx], coef, h,
                         TINY)
         for i, (n, s) in enumerate(zip(names, sts)):
