@@ -175,16 +175,22 @@ def test_solve_rigid_with_block_skipping_equals_the_contact_by_contact_sweep_bit
     """Resting (equal targets: the uniform guess meets them, the first sweep skips every block), nearly resting
     (a few contacts updated, most blocks skipped) and disturbed contacts; k across the block size (32)."""
     r, mass, Iw_inv, V0, n, target, mu, shift = _problem(seed, k, friction, spread)
+    _assert_same_as_reference(r, mass, Iw_inv, V0, n, target, mu, shift, np.zeros((k, 3)), np.zeros(k), True)
+
+
+def _assert_same_as_reference(r, mass, Iw_inv, V0, n, target, mu, shift, jt0, lam_n0, guess):
+    """solve_rigid and _reference_solve (25 sweeps) from copies of the same start: the same sweep count and the same
+    bits of V, lam, jt and lam_n. Returns solve_rigid's jt."""
     out = []
     for solve in (KB.solve_rigid, _reference_solve):
-        V = V0.copy()
-        lam, jt, lam_n = np.zeros((k, 3)), np.zeros((k, 3)), np.zeros(k)
-        sweeps = solve(r, mass, Iw_inv, V, n, target, mu, shift, 25, lam, jt, lam_n, True)
+        V, lam, jt, lam_n = V0.copy(), np.zeros((len(r), 3)), jt0.copy(), lam_n0.copy()
+        sweeps = solve(r, mass, Iw_inv, V, n, target, mu, shift, 25, lam, jt, lam_n, guess)
         out.append((sweeps, V, lam, jt, lam_n))
     (s1, *a1), (s2, *a2) = out
     assert s1 == s2
     for x, y in zip(a1, a2):
         assert np.array_equal(x, y)
+    return out[0][3]
 
 
 def _soa(r, n, shift, A, jt):
@@ -274,13 +280,5 @@ def test_solve_rigid_warm_started_outside_the_friction_cone_equals_the_contact_b
         u = (v[0] + (w[1] * r2 - w[2] * r1) + float(shift[i, 0]), v[1] + (w[2] * r0 - w[0] * r2) + float(shift[i, 1]),
              v[2] + (w[0] * r1 - w[1] * r0) + float(shift[i, 2]))
         target[i] = float(n[i, 0]) * u[0] + float(n[i, 1]) * u[1] + float(n[i, 2]) * u[2]
-    out = []
-    for solve in (KB.solve_rigid, _reference_solve):
-        V, lam, jt, lam_n = V0.copy(), np.zeros((k, 3)), jt0.copy(), lam_n0.copy()
-        sweeps = solve(r, mass, Iw_inv, V, n, target, mu, shift, 25, lam, jt, lam_n, False)
-        out.append((sweeps, V, lam, jt, lam_n))
-    (s1, *a1), (s2, *a2) = out
-    assert s1 == s2
-    for x, y in zip(a1, a2):
-        assert np.array_equal(x, y)
-    assert not np.array_equal(out[0][3], jt0)  # the clamps were applied
+    jt = _assert_same_as_reference(r, mass, Iw_inv, V0, n, target, mu, shift, jt0, lam_n0, False)
+    assert not np.array_equal(jt, jt0)  # the clamps were applied
